@@ -1,0 +1,69 @@
+//! M4 cubic-spline kernel with support 2h (method.md §2), for 1, 2 and 3 dimensions.
+use crate::Real;
+
+/// Support radius in units of h.
+pub const SUPPORT: f64 = 2.0;
+
+/// Normalisation σ_d of the M4 spline with support 2h.
+#[inline(always)]
+pub fn sigma<R: Real>(dim: u32) -> R {
+    match dim {
+        1 => R::from_f64(2.0 / 3.0),
+        2 => R::from_f64(10.0 / (7.0 * core::f64::consts::PI)),
+        _ => R::from_f64(1.0 / core::f64::consts::PI),
+    }
+}
+
+#[inline(always)]
+fn pow_dim<R: Real>(h: R, dim: u32) -> R {
+    match dim {
+        1 => h,
+        2 => h * h,
+        _ => h * h * h,
+    }
+}
+
+/// Shape function f(q), q = r/h.
+#[inline(always)]
+pub fn shape<R: Real>(q: R) -> R {
+    let one = R::ONE;
+    let two = R::from_f64(2.0);
+    if q <= one {
+        one - R::from_f64(1.5) * q * q + R::from_f64(0.75) * q * q * q
+    } else if q <= two {
+        let t = two - q;
+        R::from_f64(0.25) * t * t * t
+    } else {
+        R::ZERO
+    }
+}
+
+/// Derivative f'(q).
+#[inline(always)]
+pub fn dshape<R: Real>(q: R) -> R {
+    let one = R::ONE;
+    let two = R::from_f64(2.0);
+    if q <= one {
+        R::from_f64(-3.0) * q + R::from_f64(2.25) * q * q
+    } else if q <= two {
+        let t = two - q;
+        R::from_f64(-0.75) * t * t
+    } else {
+        R::ZERO
+    }
+}
+
+/// W(r, h) in `dim` dimensions.
+#[inline(always)]
+pub fn w<R: Real>(r: R, h: R, dim: u32) -> R {
+    sigma::<R>(dim) / pow_dim(h, dim) * shape(r / h)
+}
+
+/// The scalar F with ∇_a W_ab = F · r_ab (r_ab = r_a − r_b, |r_ab| = r). F = 0 at r = 0.
+#[inline(always)]
+pub fn grad_w_factor<R: Real>(r: R, h: R, dim: u32) -> R {
+    if r <= R::ZERO {
+        return R::ZERO;
+    }
+    sigma::<R>(dim) / (pow_dim(h, dim) * h) * dshape(r / h) / r
+}

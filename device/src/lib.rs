@@ -1,0 +1,51 @@
+//! dustsph physics, written once.
+//!
+//! Every formula of the method (kernel, equation of state, SPH pair terms, artificial
+//! viscosity, stopping-time laws, the IDIC cell solve and the particle updates) lives here as
+//! a plain, allocation-free function over scalars and slices. The CPU backend calls these from
+//! rayon loops; GPU kernels (compiled for `nvptx64`) call the very same functions. Nothing here
+//! panics on a hot path, allocates, or touches `std`.
+//!
+//! Functions are generic over [`Real`] so the GPU precision (f32 or f64) can be chosen by
+//! measurement; the CPU path always uses `f64`.
+#![no_std]
+#![forbid(unsafe_code)]
+
+pub mod cell;
+pub mod drag;
+pub mod eos;
+pub mod kernel;
+pub mod real;
+pub mod sph;
+pub mod update;
+
+pub use real::Real;
+
+/// A vector in up to three dimensions; unused components are zero.
+pub type Vec3<R> = [R; 3];
+
+#[inline(always)]
+pub fn dot<R: Real>(a: Vec3<R>, b: Vec3<R>) -> R {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline(always)]
+pub fn sub<R: Real>(a: Vec3<R>, b: Vec3<R>) -> Vec3<R> {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[inline(always)]
+pub fn add<R: Real>(a: Vec3<R>, b: Vec3<R>) -> Vec3<R> {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// `a + s * b`
+#[inline(always)]
+pub fn axpy<R: Real>(a: Vec3<R>, s: R, b: Vec3<R>) -> Vec3<R> {
+    [a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2]]
+}
+
+#[inline(always)]
+pub fn scale<R: Real>(s: R, a: Vec3<R>) -> Vec3<R> {
+    [s * a[0], s * a[1], s * a[2]]
+}

@@ -1,0 +1,195 @@
+//! Comparison with exact solutions (method.md §8) and conservation diagnostics.
+pub mod norms;
+
+use crate::exact::dustybox::DustyBox;
+use crate::exact::dustywave::WaveGas;
+use crate::exact::riemann::{DustyRiemann, Prim};
+use crate::particles::{Phase, State};
+use crate::scene::{EosKind, LawKind, Problem, Scene};
+use crate::setup::dustywave;
+use norms::Norms;
+use serde::Serialize;
+
+/// Error norms of one field.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct FieldError {
+    pub field: String,
+    #[serde(flatten)]
+    pub norms: Norms,
+}
+
+/// Errors of a snapshot against the scene's exact solution.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct ExactErrors {
+    pub t: f64,
+    /// What the errors are measured against, and how they are normalised.
+    pub reference: String,
+    pub fields: Vec<FieldError>,
+}
+
+impl ExactErrors {
+    pub fn get(&self, field: &str) -> Option<&Norms> {
+        self.fields.iter().find(|f| f.field == field).map(|f| &f.norms)
+    }
+}
+
+/// Per-fraction velocity of the dusty box at time t: (gas, dust).
+fn dustybox_model(scene: &Scene) -> (DustyBox, f64, Vec<f64>) {
+    let d = scene.dust.as_ref().expect("validated");
+    let b = scene.dustybox.as_ref().expect("validated");
+    let rho = scene.gas.rho.expect("validated");
+    let eps: Vec<f64> = d.fractions.iter().map(|f| f.eps).collect();
+    let t_stop = d
+        .fractions
+        .iter()
+        .map(|f| match d.law {
+            LawKind::ConstantT => f.t_stop.or(d.t_stop).expect("validated"),
+            LawKind::ConstantK => f.eps * rho / f.k.expect("validated"),
+            LawKind::Epstein => {
+                let cs = match scene.gas.eos {
+                    EosKind::Isothermal => scene.gas.cs.expect("validated"),
+                    EosKind::Adiabatic => (scene.gas.gamma.expect("validated") * scene.gas.p.expect("validated") / rho).sqrt(),
+                };
+                f.s_rho.expect("validated") / (rho * cs)
+            }
+        })
+        .collect();
+    (DustyBox { eps, t_stop }, b.v_gas, b.u_dust.clone())
+}
+
+fn phase_errors(
+    name: &str,
+    ph: &Phase,
+    rho_scale: f64,
+    v_scale: f64,
+    exact: impl Fn([f64; 3]) -> (f64, f64),
+) -> [FieldError; 2] {
+    let active: Vec<usize> = (0..ph.len()).filter(|&i| !ph.is_fixed(i)).collect();
+    let m: Vec<f64> = active.iter().map(|&i| ph.m[i]).collect();
+    let ex: Vec<(f64, f64)> = active.iter().map(|&i| exact(ph.x[i])).collect();
+    let rho: Vec<f64> = active.iter().zip(&ex).map(|(&i, e)| (ph.rho[i] - e.0) / rho_scale).collect();
+    let v: Vec<f64> = active.iter().zip(&ex).map(|(&i, e)| (ph.v[i][0] - e.1) / v_scale).collect();
+    [
+        FieldError {
+            field: format!("rho_{name}"),
+            norms: Norms::of(&rho, &m),
+        },
+        FieldError {
+            field: format!("v_{name}"),
+            norms: Norms::of(&v, &m),
+        },
+    ]
+}
+
+fn all_phase_errors(
+    state: &State,
+    rho_scale: &dyn Fn(usize) -> f64,
+    v_scale: f64,
+    exact_gas: impl Fn([f64; 3]) -> (f64, f64),
+    exact_dust: impl Fn(usize, [f64; 3]) -> (f64, f64),
+) -> Vec<FieldError> {
+    let mut out: Vec<FieldError> = phase_errors("g", &state.gas.ph, rho_scale(usize::MAX), v_scale, exact_gas).into();
+    for (k, d) in state.dust.iter().enumerate() {
+        out.extend(phase_errors(&format!("d{k}"), d, rho_scale(k), v_scale, |x| exact_dust(k, x)));
+    }
+    out
+}
+
+/// Errors against the exact solution of the scene (`None` if the problem has none).
+/// `dt_fixed` enables the discrete IDIC oracle of the dusty box.
+pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<ExactErrors> {
+    let t = state.t;
+    let mut out = Vec::new();
+    match scene.scene.problem {
+        Problem::Dustybox => {
+            let rho = scene.gas.rho.expect("validated");
+            let (bx, v0, u0) = dustybox_model(scene);
+            let eps = bx.eps.clone();
+            let (vg, ud) = bx.exact(v0, &u0, t);
+            let rs = |k: usize| if k == usize::MAX { rho } else { rho * eps[k] };
+            let scale = u0.iter().map(|u| (u - v0).abs()).fold(0.0, f64::max).max(1e-300);
+            out.push(ExactErrors {
+                t,
+                reference: "exact (matrix) solution of the linear drag ODE; densities relative to ρ0, velocities relative to max|u0 − v0|".into(),
+                fields: all_phase_errors(state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
+            });
+            if let Some(dt) = dt_fixed {
+                let n = (t / dt).round() as usize;
+                if ((n as f64) * dt - t).abs() <= 1e-9 * t.max(dt) {
+                    let (vg, ud) = bx.implicit_euler(v0, &u0, dt, n);
+                    out.push(ExactErrors {
+                        t,
+                        reference: format!("discrete IDIC oracle (I + τM)^-n with τ = {dt}, n = {n}; same normalisation"),
+                        fields: all_phase_errors(state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
+                    });
+                }
+            }
+        }
+        Problem::Dustywave => {
+            let w = scene.dustywave.as_ref().expect("validated");
+            let lw = dustywave::model(scene);
+            let y = lw.evolve(&dustywave::initial_amplitudes(scene, &lw), t);
+            let (a, k) = (w.amplitude, lw.k);
+            let cs = lw.sound_speed();
+            let rho0 = lw.rho_g0;
+            let rd0 = lw.rho_d0.clone();
+            let rs = |kf: usize| a * if kf == usize::MAX { rho0 } else { rd0[kf] };
+            out.push(ExactErrors {
+                t,
+                reference: format!(
+                    "exact linear solution (matrix exponential), {}; ρ errors / (A ρ0), v errors / (A c_s)",
+                    match lw.gas {
+                        WaveGas::Isothermal { .. } => "isothermal",
+                        WaveGas::Adiabatic { .. } => "adiabatic",
+                    }
+                ),
+                fields: all_phase_errors(
+                    state,
+                    &rs,
+                    a * cs,
+                    |x| (dustywave::field(rho0, a, y.rho_g, k, x[0]), dustywave::field(0.0, a, y.v_g, k, x[0])),
+                    |kf, x| (dustywave::field(rd0[kf], a, y.rho_d[kf], k, x[0]), dustywave::field(0.0, a, y.v_d[kf], k, x[0])),
+                ),
+            });
+        }
+        Problem::Dustyshock => {
+            let s = scene.dustyshock.as_ref().expect("validated");
+            let eps_k: Vec<f64> = scene.dust.as_ref().map_or(Vec::new(), |d| d.fractions.iter().map(|f| f.eps).collect());
+            let eps: f64 = eps_k.iter().sum();
+            let x0 = 0.5 * s.length;
+            let prim = |st: crate::scene::ShockState| Prim {
+                rho: st.rho,
+                u: 0.0,
+                p: st.p.unwrap_or(0.0),
+            };
+            let sol = match scene.gas.eos {
+                EosKind::Adiabatic => DustyRiemann::ideal(prim(s.left), prim(s.right), eps, scene.gas.gamma.expect("validated")),
+                EosKind::Isothermal => {
+                    let cs = scene.gas.cs.expect("validated");
+                    let pr = |st: crate::scene::ShockState| Prim { rho: st.rho, u: 0.0, p: cs * cs * st.rho };
+                    DustyRiemann::isothermal(pr(s.left), pr(s.right), eps, cs)
+                }
+            };
+            if let Some(sol) = sol {
+                out.push(ExactErrors {
+                    t,
+                    reference: "equilibrium (t_stop → 0) mixture Riemann solution; absolute errors".into(),
+                    fields: all_phase_errors(
+                        state,
+                        &|_| 1.0,
+                        1.0,
+                        |x| {
+                            let (rg, _, v, _) = sol.sample(x[0], x0, t);
+                            (rg, v)
+                        },
+                        |kf, x| {
+                            let (rg, _, v, _) = sol.sample(x[0], x0, t);
+                            (rg * eps_k[kf], v)
+                        },
+                    ),
+                });
+            }
+        }
+    }
+    out
+}

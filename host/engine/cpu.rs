@@ -1,0 +1,594 @@
+//! The CPU backend: rayon loops over the formulas of `dustsph-device`.
+//!
+//! Step order (method.md §3.6): forces at layer n → IDIC cell sums → cell solve → particle
+//! velocities (gas, then dust) → positions and energy → grid rebuild → density and EOS.
+use super::timers::Timers;
+use super::{Physics, Pipeline};
+use crate::grid::{CellIndex, Grid, GridError};
+use crate::particles::{Phase, State};
+use crate::scene::PositionUpdate;
+use dustsph_device::drag::{self, CellMeans};
+use dustsph_device::sph::{self, GasState};
+use dustsph_device::{dot, kernel, update};
+use rayon::prelude::*;
+
+/// Non-drag gas accelerations and energy rates at layer n.
+#[derive(Debug, Clone)]
+pub struct Forces {
+    pub acc: Vec<[f64; 3]>,
+    pub dedt: Option<Vec<f64>>,
+    /// Largest signal speed (for the CFL limit).
+    pub vsig_max: f64,
+    /// Largest |A| (for the force limit).
+    pub acc_max: f64,
+}
+
+/// IDIC cells at one layer: the union of cells occupied by any phase, with per-cell sums
+/// and the cell quantities of method.md §3.3–3.4. Arrays indexed `c * nf + k` hold
+/// fraction k of cell c.
+#[derive(Debug, Clone, Default)]
+pub struct CellTable {
+    pub nf: usize,
+    pub n_cells: usize,
+    /// Union cell of each gas cell / dust cell (per fraction).
+    gas_map: Vec<u32>,
+    dust_map: Vec<Vec<u32>>,
+    pub gas_mass: Vec<f64>,
+    pub gas_count: Vec<u32>,
+    pub dust_mass: Vec<f64>,
+    pub dust_count: Vec<u32>,
+    /// Σ m (v + τA) over gas; Σ m u over dust (momentum sums).
+    gas_mom: Vec<[f64; 3]>,
+    dust_mom: Vec<[f64; 3]>,
+    pub eps: Vec<f64>,
+    /// t_k* (+∞ where the fraction does not couple in that cell).
+    pub t_stop: Vec<f64>,
+}
+
+pub struct CpuEngine {
+    pub phys: Physics,
+    pub pipe: Pipeline,
+    pub grid: Grid,
+    gas_idx: CellIndex,
+    dust_idx: Vec<CellIndex>,
+    pub timers: Timers,
+    /// Whether dust densities are up to date (they are refreshed lazily when not needed by drag).
+    dust_density_fresh: bool,
+}
+
+#[derive(Debug)]
+pub enum StepError {
+    Grid(GridError),
+    /// A non-finite value or negative density: step, phase, particle id, field.
+    Blowup(String),
+}
+
+impl std::fmt::Display for StepError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StepError::Grid(e) => write!(f, "grid: {e}"),
+            StepError::Blowup(s) => f.write_str(s),
+        }
+    }
+}
+impl std::error::Error for StepError {}
+
+impl From<GridError> for StepError {
+    fn from(e: GridError) -> Self {
+        StepError::Grid(e)
+    }
+}
+
+impl CpuEngine {
+    /// Sort the particles, then compute densities and pressures at the initial layer.
+    pub fn new(phys: Physics, state: &mut State) -> Result<CpuEngine, StepError> {
+        let pipe = Pipeline::from_physics(&phys);
+        let grid = Grid::build(&phys.domain, phys.cell_size, phys.support(), &[])?;
+        let mut eng = CpuEngine {
+            phys,
+            pipe,
+            grid,
+            gas_idx: CellIndex::default(),
+            dust_idx: Vec::new(),
+            timers: Timers::default(),
+            dust_density_fresh: false,
+        };
+        eng.regrid(state)?;
+        eng.gas_density_eos(state);
+        eng.refresh_dust_density(state);
+        eng.check(state)?;
+        Ok(eng)
+    }
+
+    /// Rebuild the grid over the current positions and sort every phase by cell key.
+    fn regrid(&mut self, state: &mut State) -> Result<(), StepError> {
+        let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
+        xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
+        self.grid = Grid::build(&self.phys.domain, self.phys.cell_size, self.phys.support(), &xs)?;
+        let (perm, idx) = CellIndex::sort(&self.grid, &state.gas.ph.x);
+        state.gas.permute(&perm);
+        self.gas_idx = idx;
+        self.dust_idx.clear();
+        for d in &mut state.dust {
+            let (perm, idx) = CellIndex::sort(&self.grid, &d.x);
+            d.permute(&perm);
+            self.dust_idx.push(idx);
+        }
+        Ok(())
+    }
+
+    /// Visit same-phase neighbours j of particle i within the kernel support; `f(j, dx, r2)`.
+    #[inline(always)]
+    fn for_neighbours(
+        &self,
+        idx: &CellIndex,
+        x: &[[f64; 3]],
+        i: usize,
+        mut f: impl FnMut(usize, [f64; 3], f64),
+    ) {
+        let s2 = self.phys.support() * self.phys.support();
+        let xi = x[i];
+        let dom = &self.phys.domain;
+        let c = self.grid.coord_of_key(idx.keys[idx.cell_of[i] as usize]);
+        self.grid.for_each_neighbour_row(c, |lo, hi| {
+            for j in idx.particles_in_keys(lo, hi) {
+                let dx = dom.separation(xi, x[j]);
+                let r2 = dot(dx, dx);
+                if r2 < s2 {
+                    f(j, dx, r2);
+                }
+            }
+        });
+    }
+
+    /// SPH density by summation within one phase (self-contribution included).
+    fn density(&self, idx: &CellIndex, ph: &Phase) -> Vec<f64> {
+        let (h, dim) = (self.phys.h, self.phys.dim);
+        (0..ph.len())
+            .into_par_iter()
+            .map(|i| {
+                if ph.is_fixed(i) {
+                    return ph.rho[i];
+                }
+                let mut rho = 0.0;
+                self.for_neighbours(idx, &ph.x, i, |j, _, r2| {
+                    rho += sph::density_term(ph.m[j], r2.sqrt(), h, dim);
+                });
+                rho
+            })
+            .collect()
+    }
+
+    fn gas_density_eos(&mut self, state: &mut State) {
+        let rho = self.density(&self.gas_idx, &state.gas.ph);
+        state.gas.ph.rho = rho;
+        let eos = self.phys.eos;
+        let g = &mut state.gas;
+        let e = g.e.as_deref();
+        let out: Vec<(f64, f64)> = (0..g.ph.len())
+            .into_par_iter()
+            .map(|i| {
+                let rho = g.ph.rho[i];
+                let p = eos.pressure(rho, e.map_or(0.0, |e| e[i]));
+                (p, eos.sound_speed(rho, p))
+            })
+            .collect();
+        (g.p, g.c) = out.into_iter().unzip();
+    }
+
+    /// Dust densities for output (and for constant-K drag, which refreshes them every step).
+    pub fn refresh_dust_density(&mut self, state: &mut State) {
+        if self.dust_density_fresh {
+            return;
+        }
+        for (k, d) in state.dust.iter_mut().enumerate() {
+            d.rho = self.density(&self.dust_idx[k], d);
+        }
+        self.dust_density_fresh = true;
+    }
+
+    /// Non-drag gas accelerations A^n (pressure + AV) and de/dt^n.
+    pub fn forces(&self, state: &State) -> Forces {
+        let g = &state.gas;
+        let (h, dim) = (self.phys.h, self.phys.dim);
+        let av = self.phys.av.as_ref();
+        let energy = self.pipe.energy;
+        let gs = |i: usize| GasState {
+            x: g.ph.x[i],
+            v: g.ph.v[i],
+            m: g.ph.m[i],
+            rho: g.ph.rho[i],
+            p: g.p[i],
+            c: g.c[i],
+        };
+        let out: Vec<([f64; 3], f64, f64)> = (0..g.ph.len())
+            .into_par_iter()
+            .map(|i| {
+                if g.ph.is_fixed(i) {
+                    return ([0.0; 3], 0.0, 0.0);
+                }
+                let a = gs(i);
+                let mut acc = [0.0; 3];
+                let mut dedt = 0.0;
+                let mut vsig: f64 = a.c;
+                self.for_neighbours(&self.gas_idx, &g.ph.x, i, |j, dx, _| {
+                    if j == i {
+                        return;
+                    }
+                    let pr = sph::gas_pair(&a, &gs(j), dx, h, dim, av);
+                    acc = dustsph_device::add(acc, pr.acc);
+                    dedt += pr.dedt;
+                    vsig = vsig.max(pr.vsig);
+                });
+                (acc, dedt, vsig)
+            })
+            .collect();
+        let mut f = Forces {
+            acc: Vec::with_capacity(out.len()),
+            dedt: energy.then(|| Vec::with_capacity(out.len())),
+            vsig_max: 0.0,
+            acc_max: 0.0,
+        };
+        for (a, e, v) in out {
+            f.acc_max = f.acc_max.max(dot(a, a).sqrt());
+            f.vsig_max = f.vsig_max.max(v);
+            f.acc.push(a);
+            if let Some(d) = &mut f.dedt {
+                d.push(e);
+            }
+        }
+        f
+    }
+
+    /// Time-step limits from the forces: (CFL with factor 1, force limit with factor 1).
+    /// dt = cfl · min(both); the drag never limits the step.
+    pub fn dt_limits(&self, f: &Forces) -> (f64, f64) {
+        let h = self.phys.h;
+        let dt_cfl = if f.vsig_max > 0.0 { h / f.vsig_max } else { f64::INFINITY };
+        let dt_force = if f.acc_max > 0.0 { (h / f.acc_max).sqrt() } else { f64::INFINITY };
+        (dt_cfl, dt_force)
+    }
+
+    /// Per-cell sums and cell stopping times at the current layer. `v_tilde` is the gas
+    /// velocity v^n + τA^n (or v^n for diagnostics).
+    pub fn cell_table(&self, state: &State, v_tilde: &[[f64; 3]]) -> CellTable {
+        let nf = state.dust.len();
+        // Union of occupied cells over all phases (all share one grid).
+        let mut keys: Vec<u64> = self.gas_idx.keys.clone();
+        for d in &self.dust_idx {
+            keys.extend_from_slice(&d.keys);
+        }
+        keys.par_sort_unstable();
+        keys.dedup();
+        let n = keys.len();
+        let map = |idx: &CellIndex| -> Vec<u32> {
+            idx.keys
+                .par_iter()
+                .map(|k| keys.binary_search(k).unwrap_or(0) as u32)
+                .collect()
+        };
+        let mut t = CellTable {
+            nf,
+            n_cells: n,
+            gas_map: map(&self.gas_idx),
+            dust_map: self.dust_idx.iter().map(map).collect(),
+            gas_mass: vec![0.0; n],
+            gas_count: vec![0; n],
+            dust_mass: vec![0.0; n * nf],
+            dust_count: vec![0; n * nf],
+            gas_mom: vec![[0.0; 3]; n],
+            dust_mom: vec![[0.0; 3]; n * nf],
+            eps: vec![0.0; n * nf],
+            t_stop: vec![f64::INFINITY; n * nf],
+        };
+        let g = &state.gas;
+        let needs_gas_state = self.phys.laws.iter().any(|l| l.needs_gas_state());
+        let gamma_root = self.phys.eos.gamma_root();
+        let mut rho_g = vec![0.0; if needs_gas_state { n } else { 0 }];
+        let mut cs_g = vec![0.0; if needs_gas_state { n } else { 0 }];
+        // Gas sums per gas cell (contiguous particle ranges), scattered to union cells.
+        let gsum: Vec<(f64, u32, [f64; 3], f64, f64)> = (0..self.gas_idx.n_cells())
+            .into_par_iter()
+            .map(|c| {
+                let (mut m, mut cnt, mut mom, mut rs, mut cs) = (0.0, 0u32, [0.0; 3], 0.0, 0.0);
+                for i in self.gas_idx.cell_range(c) {
+                    if g.ph.is_fixed(i) {
+                        continue;
+                    }
+                    let mi = g.ph.m[i];
+                    m += mi;
+                    cnt += 1;
+                    mom = dustsph_device::axpy(mom, mi, v_tilde[i]);
+                    if needs_gas_state {
+                        rs += g.ph.rho[i];
+                        cs += self.phys.eos.isothermal_speed(g.ph.rho[i], g.p[i]);
+                    }
+                }
+                (m, cnt, mom, rs, cs)
+            })
+            .collect();
+        for (c, (m, cnt, mom, rs, cs)) in gsum.into_iter().enumerate() {
+            let u = t.gas_map[c] as usize;
+            t.gas_mass[u] = m;
+            t.gas_count[u] = cnt;
+            t.gas_mom[u] = mom;
+            if needs_gas_state && cnt > 0 {
+                rho_g[u] = rs / cnt as f64;
+                cs_g[u] = gamma_root * cs / cnt as f64;
+            }
+        }
+        for (k, d) in state.dust.iter().enumerate() {
+            let idx = &self.dust_idx[k];
+            let needs_rho = self.phys.laws[k].needs_dust_density();
+            let dsum: Vec<(f64, u32, [f64; 3], f64)> = (0..idx.n_cells())
+                .into_par_iter()
+                .map(|c| {
+                    let (mut m, mut cnt, mut mom, mut rs) = (0.0, 0u32, [0.0; 3], 0.0);
+                    for j in idx.cell_range(c) {
+                        if d.is_fixed(j) {
+                            continue;
+                        }
+                        m += d.m[j];
+                        cnt += 1;
+                        mom = dustsph_device::axpy(mom, d.m[j], d.v[j]);
+                        if needs_rho {
+                            rs += d.rho[j];
+                        }
+                    }
+                    (m, cnt, mom, rs)
+                })
+                .collect();
+            for (c, (m, cnt, mom, rs)) in dsum.into_iter().enumerate() {
+                let u = t.dust_map[k][c] as usize;
+                let s = u * nf + k;
+                t.dust_mass[s] = m;
+                t.dust_count[s] = cnt;
+                t.dust_mom[s] = mom;
+                if cnt == 0 || t.gas_count[u] == 0 {
+                    continue; // no drag without both phases in the cell
+                }
+                t.eps[s] = drag::cell_eps(m, t.gas_mass[u]);
+                let means = CellMeans {
+                    rho_dust: rs / cnt as f64,
+                    rho_gas: if needs_gas_state { rho_g[u] } else { 0.0 },
+                    cs_gas: if needs_gas_state { cs_g[u] } else { 0.0 },
+                };
+                if let Some(ts) = self.phys.laws[k].cell_time(&means) {
+                    t.t_stop[s] = ts;
+                }
+            }
+        }
+        t
+    }
+
+    /// Stopping time of every dust particle (its cell's t_k*; +∞ where uncoupled), for output.
+    pub fn dust_stopping_times(&mut self, state: &mut State) -> Vec<Vec<f64>> {
+        if state.dust.is_empty() {
+            return Vec::new();
+        }
+        self.refresh_dust_density(state);
+        let t = self.cell_table(state, &state.gas.ph.v);
+        (0..state.dust.len())
+            .map(|k| {
+                let idx = &self.dust_idx[k];
+                (0..state.dust[k].len())
+                    .map(|j| t.t_stop[t.dust_map[k][idx.cell_of[j] as usize] as usize * t.nf + k])
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// IDIC drag: new gas and dust velocities from ṽ = v^n + τA^n (method.md §3.3).
+    /// Returns the drag heat per unit gas mass of every gas particle when heating is on.
+    fn idic(&self, state: &mut State, v_tilde: &[[f64; 3]], tau: f64) -> Option<Vec<f64>> {
+        let t = self.cell_table(state, v_tilde);
+        let nf = t.nf;
+        // Cell solve: independent per cell.
+        let solved: Vec<([f64; 3], Vec<[f64; 3]>, Vec<f64>)> = (0..t.n_cells)
+            .into_par_iter()
+            .map(|c| {
+                let mut ut = vec![[0.0; 3]; nf];
+                let mut beta = vec![0.0; nf];
+                let mut unew = vec![[0.0; 3]; nf];
+                let vt = if t.gas_mass[c] > 0.0 {
+                    dustsph_device::scale(1.0 / t.gas_mass[c], t.gas_mom[c])
+                } else {
+                    [0.0; 3]
+                };
+                for k in 0..nf {
+                    let s = c * nf + k;
+                    if t.dust_mass[s] > 0.0 {
+                        ut[k] = dustsph_device::scale(1.0 / t.dust_mass[s], t.dust_mom[s]);
+                    }
+                    let ts = t.t_stop[s];
+                    beta[k] = drag::cell_beta(tau, ts.is_finite().then_some(ts));
+                }
+                let vnew = drag::cell_solve(vt, &ut, &t.eps[c * nf..(c + 1) * nf], &beta, &mut unew);
+                (vnew, unew, beta)
+            })
+            .collect();
+        let gas_map = &t.gas_map;
+        let gas_cell = &self.gas_idx.cell_of;
+        let g = &mut state.gas.ph;
+        let fixed = g.fixed.as_deref();
+        let v_new: Vec<[f64; 3]> = (0..g.len())
+            .into_par_iter()
+            .map(|i| {
+                if fixed.is_some_and(|f| f[i]) {
+                    return g.v[i];
+                }
+                let c = gas_map[gas_cell[i] as usize] as usize;
+                let (_, unew, beta) = &solved[c];
+                drag::gas_update(v_tilde[i], &t.eps[c * nf..(c + 1) * nf], beta, unew)
+            })
+            .collect();
+        let mut heat_cell = if self.pipe.heating { vec![0.0; t.n_cells] } else { Vec::new() };
+        if self.pipe.heating {
+            for (i, vn) in v_new.iter().enumerate() {
+                if !g.is_fixed(i) {
+                    let c = gas_map[gas_cell[i] as usize] as usize;
+                    heat_cell[c] += drag::kinetic_loss(g.m[i], v_tilde[i], *vn);
+                }
+            }
+        }
+        g.v = v_new;
+        for (k, d) in state.dust.iter_mut().enumerate() {
+            let idx = &self.dust_idx[k];
+            let map = &t.dust_map[k];
+            let fixed = d.fixed.as_deref();
+            let u_new: Vec<[f64; 3]> = (0..d.len())
+                .into_par_iter()
+                .map(|j| {
+                    if fixed.is_some_and(|f| f[j]) {
+                        return d.v[j];
+                    }
+                    let c = map[idx.cell_of[j] as usize] as usize;
+                    drag::dust_update(d.v[j], solved[c].2[k], solved[c].0)
+                })
+                .collect();
+            if self.pipe.heating {
+                for (j, un) in u_new.iter().enumerate() {
+                    if !d.is_fixed(j) {
+                        let c = map[idx.cell_of[j] as usize] as usize;
+                        heat_cell[c] += drag::kinetic_loss(d.m[j], d.v[j], *un);
+                    }
+                }
+            }
+            d.v = u_new;
+        }
+        self.pipe.heating.then(|| {
+            (0..g.len())
+                .map(|i| {
+                    let c = gas_map[gas_cell[i] as usize] as usize;
+                    if g.is_fixed(i) || t.gas_mass[c] <= 0.0 {
+                        0.0
+                    } else {
+                        heat_cell[c] / t.gas_mass[c]
+                    }
+                })
+                .collect()
+        })
+    }
+
+    /// Advance one step of size τ from layer n (forces already computed at layer n).
+    pub fn advance(&mut self, state: &mut State, f: &Forces, tau: f64) -> Result<(), StepError> {
+        let old_gas_v = (self.phys.position_update == PositionUpdate::Old).then(|| state.gas.ph.v.clone());
+        let old_dust_v: Option<Vec<Vec<[f64; 3]>>> = (self.phys.position_update == PositionUpdate::Old)
+            .then(|| state.dust.iter().map(|d| d.v.clone()).collect());
+        let g = &state.gas.ph;
+        let v_tilde: Vec<[f64; 3]> = (0..g.len())
+            .into_par_iter()
+            .map(|i| dustsph_device::axpy(g.v[i], tau, f.acc[i]))
+            .collect();
+        let heat = if self.pipe.drag {
+            let mut timers = std::mem::take(&mut self.timers);
+            let h = timers.time("idic", || self.idic(state, &v_tilde, tau));
+            self.timers = timers;
+            h
+        } else {
+            let fixed = state.gas.ph.fixed.clone();
+            state.gas.ph.v = v_tilde
+                .into_iter()
+                .enumerate()
+                .map(|(i, v)| if fixed.as_ref().is_some_and(|f| f[i]) { [0.0; 3] } else { v })
+                .collect();
+            None
+        };
+        let dom = self.phys.domain;
+        let mut timers = std::mem::take(&mut self.timers);
+        timers.time("positions + energy", || {
+            let drift = |ph: &mut Phase, w: Option<&Vec<[f64; 3]>>| {
+                let fixed = ph.fixed.as_deref();
+                let w = w.unwrap_or(&ph.v);
+                let x: Vec<[f64; 3]> = ph
+                    .x
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, &x)| {
+                        if fixed.is_some_and(|f| f[i]) {
+                            x
+                        } else {
+                            dom.wrap(update::drift(x, w[i], tau))
+                        }
+                    })
+                    .collect();
+                ph.x = x;
+            };
+            drift(&mut state.gas.ph, old_gas_v.as_ref());
+            for (k, d) in state.dust.iter_mut().enumerate() {
+                drift(d, old_dust_v.as_ref().map(|o| &o[k]));
+            }
+            if let (Some(e), Some(dedt)) = (&mut state.gas.e, &f.dedt) {
+                let fixed = state.gas.ph.fixed.as_deref();
+                e.par_iter_mut().enumerate().for_each(|(i, e)| {
+                    if !fixed.is_some_and(|f| f[i]) {
+                        *e = update::energy(*e, dedt[i], tau) + heat.as_ref().map_or(0.0, |h| h[i]);
+                    }
+                });
+            }
+        });
+        timers.time("grid rebuild + sort", || self.regrid(state))?;
+        timers.time("gas density + EOS", || self.gas_density_eos(state));
+        self.dust_density_fresh = false;
+        if self.pipe.dust_density_each_step {
+            timers.time("dust density", || self.refresh_dust_density(state));
+        }
+        self.timers = timers;
+        state.t += tau;
+        state.step += 1;
+        self.check(state)
+    }
+
+    /// Full step: forces, then advance. Returns the forces used (for diagnostics).
+    pub fn step(&mut self, state: &mut State, tau: f64) -> Result<Forces, StepError> {
+        let mut timers = std::mem::take(&mut self.timers);
+        let f = timers.time("gas forces", || self.forces(state));
+        self.timers = timers;
+        self.advance(state, &f, tau)?;
+        Ok(f)
+    }
+
+    /// Stop on NaN/Inf or a non-positive density, naming step, phase, particle and field.
+    fn check(&self, state: &State) -> Result<(), StepError> {
+        let bad = |phase: &str, ph: &Phase, check_rho: bool, extra: Option<(&str, &[f64])>| -> Option<String> {
+            let rho_ok = |i: usize| !check_rho || (ph.rho[i].is_finite() && ph.rho[i] > 0.0);
+            let i = (0..ph.len()).into_par_iter().find_first(|&i| {
+                !(ph.x[i].iter().all(|v| v.is_finite())
+                    && ph.v[i].iter().all(|v| v.is_finite())
+                    && rho_ok(i)
+                    && extra.is_none_or(|(_, e)| e[i].is_finite()))
+            })?;
+            let field = if !ph.x[i].iter().all(|v| v.is_finite()) {
+                "position"
+            } else if !ph.v[i].iter().all(|v| v.is_finite()) {
+                "velocity"
+            } else if !rho_ok(i) {
+                "density"
+            } else {
+                extra.map_or("?", |e| e.0)
+            };
+            Some(format!(
+                "step {}, t = {:.6e}: {phase} particle id {} has a bad {field} (x = {:?}, v = {:?}, rho = {:?})",
+                state.step,
+                state.t,
+                ph.id[i],
+                ph.x[i],
+                ph.v[i],
+                ph.rho.get(i)
+            ))
+        };
+        let g = &state.gas;
+        if let Some(m) = bad("gas", &g.ph, true, g.e.as_deref().map(|e| ("internal energy", e))) {
+            return Err(StepError::Blowup(m));
+        }
+        for (k, d) in state.dust.iter().enumerate() {
+            if let Some(m) = bad(&format!("dust fraction {k}"), d, self.dust_density_fresh, None) {
+                return Err(StepError::Blowup(m));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The kernel support in units of h (re-exported for set-ups).
+pub const SUPPORT: f64 = kernel::SUPPORT;

@@ -1,0 +1,137 @@
+//! The step: physics parameters, the pipeline assembled from the scene, and the backends.
+//!
+//! A scene switches stages on or off (no dust → no IDIC pass; isothermal → no energy
+//! equation; no viscosity unless asked); [`Pipeline::stages`] lists what a run actually does.
+pub mod cpu;
+pub mod timers;
+
+use crate::grid::Domain;
+use crate::scene::{EosKind, LawKind, PositionUpdate, Scene};
+use dustsph_device::drag::StoppingLaw;
+use dustsph_device::eos::Eos;
+use dustsph_device::sph::Viscosity;
+
+/// Everything the step needs to know about the physics, resolved from the scene.
+#[derive(Debug, Clone)]
+pub struct Physics {
+    pub dim: u32,
+    /// Global, fixed smoothing length (support 2h).
+    pub h: f64,
+    pub eos: Eos<f64>,
+    pub av: Option<Viscosity<f64>>,
+    /// One stopping-time law per dust fraction.
+    pub laws: Vec<StoppingLaw<f64>>,
+    pub heating: bool,
+    /// Nominal IDIC cell size Δc (periodic axes round it so cells tile the period).
+    pub cell_size: f64,
+    pub domain: Domain,
+    pub position_update: PositionUpdate,
+}
+
+impl Physics {
+    pub fn from_scene(scene: &Scene, h: f64, domain: Domain) -> Physics {
+        let eos = match scene.gas.eos {
+            EosKind::Isothermal => Eos::Isothermal {
+                cs: scene.gas.cs.unwrap_or(1.0),
+            },
+            EosKind::Adiabatic => Eos::Adiabatic {
+                gamma: scene.gas.gamma.unwrap_or(5.0 / 3.0),
+            },
+        };
+        let av = scene.sph.viscosity.then_some(Viscosity {
+            alpha: scene.sph.alpha,
+            beta: scene.sph.beta,
+            nu2_factor: 0.01,
+        });
+        let (laws, heating) = match &scene.dust {
+            Some(d) => (
+                d.fractions
+                    .iter()
+                    .map(|f| match d.law {
+                        LawKind::ConstantT => StoppingLaw::ConstantTime {
+                            t_stop: f.t_stop.or(d.t_stop).unwrap_or(f64::INFINITY),
+                        },
+                        LawKind::ConstantK => StoppingLaw::ConstantK {
+                            k: f.k.unwrap_or(0.0),
+                        },
+                        LawKind::Epstein => StoppingLaw::Epstein {
+                            s_rho: f.s_rho.unwrap_or(f64::INFINITY),
+                        },
+                    })
+                    .collect(),
+                d.heating,
+            ),
+            None => (Vec::new(), false),
+        };
+        Physics {
+            dim: scene.dim(),
+            h,
+            eos,
+            av,
+            laws,
+            heating,
+            cell_size: scene.idic.cell * h,
+            domain,
+            position_update: scene.time.position_update,
+        }
+    }
+
+    pub fn support(&self) -> f64 {
+        dustsph_device::kernel::SUPPORT * self.h
+    }
+}
+
+/// Which stages a step runs; derived from [`Physics`], never set by hand.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Pipeline {
+    pub drag: bool,
+    pub energy: bool,
+    pub viscosity: bool,
+    pub heating: bool,
+    /// Dust SPH density every step (constant-K drag needs it); otherwise only for output.
+    pub dust_density_each_step: bool,
+}
+
+impl Pipeline {
+    pub fn from_physics(p: &Physics) -> Pipeline {
+        Pipeline {
+            drag: !p.laws.is_empty(),
+            energy: matches!(p.eos, Eos::Adiabatic { .. }),
+            viscosity: p.av.is_some(),
+            heating: p.heating,
+            dust_density_each_step: p.laws.iter().any(|l| l.needs_dust_density()),
+        }
+    }
+
+    /// The stages a step runs, in order.
+    pub fn stages(&self) -> Vec<&'static str> {
+        let mut s = vec![if self.viscosity {
+            "gas forces (pressure + artificial viscosity)"
+        } else {
+            "gas forces (pressure)"
+        }];
+        if self.energy {
+            s.push("gas energy rate");
+        }
+        if self.drag {
+            s.push("IDIC cell sums");
+            s.push("IDIC cell solve");
+            s.push("IDIC particle velocities (gas, then dust)");
+            if self.heating {
+                s.push("drag heating");
+            }
+        } else {
+            s.push("gas velocities (explicit)");
+        }
+        s.push("positions");
+        if self.energy {
+            s.push("gas energy");
+        }
+        s.push("grid rebuild + sort");
+        s.push("gas density + EOS");
+        if self.drag && self.dust_density_each_step {
+            s.push("dust density");
+        }
+        s
+    }
+}

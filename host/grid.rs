@@ -1,0 +1,362 @@
+//! The auxiliary grid: IDIC cells and neighbour search share it (method.md §3.1, §3.6).
+//!
+//! The grid is rebuilt every step over the particles' current bounding box, anchored to a
+//! fixed global lattice (cells are [iΔ, (i+1)Δ) for integer i), so the partition of space never
+//! changes while the domain follows the particles. No particle is ever dropped: a position that
+//! cannot be placed (NaN, or an extent too large for 64-bit keys) is an error.
+use dustsph_device::cell;
+use rayon::prelude::*;
+use std::ops::Range;
+
+/// Periodicity of the domain along each axis: `Some((lo, len))` for periodic axes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Domain {
+    pub dim: u32,
+    pub periodic: [Option<(f64, f64)>; 3],
+}
+
+impl Domain {
+    /// Separation vector a − b with minimum image on periodic axes.
+    #[inline(always)]
+    pub fn separation(&self, a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+        let mut d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        for (k, dk) in d.iter_mut().enumerate() {
+            if let Some((_, len)) = self.periodic[k] {
+                *dk = dustsph_device::update::min_image(*dk, len);
+            }
+        }
+        d
+    }
+
+    /// Wrap a position into the periodic box.
+    #[inline(always)]
+    pub fn wrap(&self, mut x: [f64; 3]) -> [f64; 3] {
+        for (k, xk) in x.iter_mut().enumerate() {
+            if let Some((lo, len)) = self.periodic[k] {
+                *xk = dustsph_device::update::wrap(*xk, lo, len);
+            }
+        }
+        x
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridError(pub String);
+
+impl std::fmt::Display for GridError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+impl std::error::Error for GridError {}
+
+/// Geometry of the grid for one step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Grid {
+    pub dim: u32,
+    pub origin: [f64; 3],
+    pub cell: [f64; 3],
+    inv: [f64; 3],
+    pub n: [u64; 3],
+    periodic: [bool; 3],
+    /// Neighbour reach in cells along each axis: ceil(support / cell).
+    reach: [u64; 3],
+}
+
+impl Grid {
+    /// Build the grid with nominal cell size `cell` covering the positions of `phases`.
+    /// `support` is the kernel support radius (2h) that neighbour searches must reach.
+    pub fn build(
+        domain: &Domain,
+        cell_size: f64,
+        support: f64,
+        phases: &[&[[f64; 3]]],
+    ) -> Result<Grid, GridError> {
+        let dim = domain.dim as usize;
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for x in phases {
+            let (l, h) = x
+                .par_iter()
+                .fold(
+                    || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+                    |(mut l, mut h), p| {
+                        for k in 0..3 {
+                            // NaN fails both comparisons: caught by the finiteness check below.
+                            l[k] = if p[k] < l[k] || p[k].is_nan() { p[k] } else { l[k] };
+                            h[k] = if p[k] > h[k] || p[k].is_nan() { p[k] } else { h[k] };
+                        }
+                        (l, h)
+                    },
+                )
+                .reduce(
+                    || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+                    |(a, b), (c, d)| {
+                        let mut l = a;
+                        let mut h = b;
+                        for k in 0..3 {
+                            l[k] = if c[k] < l[k] || c[k].is_nan() { c[k] } else { l[k] };
+                            h[k] = if d[k] > h[k] || d[k].is_nan() { d[k] } else { h[k] };
+                        }
+                        (l, h)
+                    },
+                );
+            for k in 0..3 {
+                lo[k] = if l[k] < lo[k] || l[k].is_nan() { l[k] } else { lo[k] };
+                hi[k] = if h[k] > hi[k] || h[k].is_nan() { h[k] } else { hi[k] };
+            }
+        }
+        let mut g = Grid {
+            dim: domain.dim,
+            origin: [0.0; 3],
+            cell: [1.0; 3],
+            inv: [1.0; 3],
+            n: [1; 3],
+            periodic: [false; 3],
+            reach: [0; 3],
+        };
+        let mut total: u128 = 1;
+        for k in 0..dim {
+            if let Some((plo, len)) = domain.periodic[k] {
+                let n = ((len / cell_size).floor() as u64).max(1);
+                g.origin[k] = plo;
+                g.cell[k] = len / n as f64;
+                g.n[k] = n;
+                g.periodic[k] = true;
+            } else {
+                if !lo[k].is_finite() || !hi[k].is_finite() {
+                    if lo[k] > hi[k] {
+                        continue; // no particles at all
+                    }
+                    return Err(GridError(format!(
+                        "a particle position along axis {k} is not finite (min {}, max {}): the run has blown up",
+                        lo[k], hi[k]
+                    )));
+                }
+                let i0 = (lo[k] / cell_size).floor();
+                let i1 = (hi[k] / cell_size).floor();
+                g.origin[k] = i0 * cell_size;
+                g.cell[k] = cell_size;
+                g.n[k] = (i1 - i0) as u64 + 1;
+            }
+            g.inv[k] = 1.0 / g.cell[k];
+            g.reach[k] = (support / g.cell[k] - 1e-12).ceil().max(1.0) as u64;
+            total *= g.n[k] as u128;
+        }
+        if total > (1u128 << 62) {
+            return Err(GridError(format!(
+                "particles span {:?} cells of size {cell_size}: too many for 64-bit cell keys \
+                 (the cloud has spread too far for this cell size)",
+                &g.n[..dim]
+            )));
+        }
+        Ok(g)
+    }
+
+    /// Integer cell coordinates of a position (clamped against rounding at the edges).
+    #[inline(always)]
+    pub fn coord(&self, x: [f64; 3]) -> [u64; 3] {
+        let mut c = [0u64; 3];
+        for k in 0..self.dim as usize {
+            let i = cell::cell_coord(x[k], self.origin[k], self.inv[k]);
+            c[k] = i.clamp(0, self.n[k] as i64 - 1) as u64;
+        }
+        c
+    }
+
+    #[inline(always)]
+    pub fn key_of_coord(&self, c: [u64; 3]) -> u64 {
+        cell::key(c[0], c[1], c[2], self.n[0], self.n[1])
+    }
+
+    #[inline(always)]
+    pub fn key(&self, x: [f64; 3]) -> u64 {
+        self.key_of_coord(self.coord(x))
+    }
+
+    pub fn coord_of_key(&self, key: u64) -> [u64; 3] {
+        let ix = key % self.n[0];
+        let r = key / self.n[0];
+        [ix, r % self.n[1], r / self.n[1]]
+    }
+
+    /// Cell ranges within reach along axis k of cell coordinate c (one or two ranges, inclusive).
+    fn axis_ranges(&self, k: usize, c: u64) -> ([(u64, u64); 2], usize) {
+        let n = self.n[k];
+        let r = self.reach[k];
+        if self.periodic[k] {
+            if 2 * r + 1 >= n {
+                return ([(0, n - 1), (0, 0)], 1);
+            }
+            let lo = c as i64 - r as i64;
+            let hi = c + r;
+            if lo < 0 {
+                ([((lo + n as i64) as u64, n - 1), (0, hi)], 2)
+            } else if hi >= n {
+                ([(lo as u64, n - 1), (0, hi - n)], 2)
+            } else {
+                ([(lo as u64, hi), (0, 0)], 1)
+            }
+        } else {
+            let lo = c.saturating_sub(r);
+            let hi = (c + r).min(n - 1);
+            ([(lo, hi), (0, 0)], 1)
+        }
+    }
+
+    /// Calls `f(lo_key, hi_key)` for every row of cells (inclusive key range along x) within
+    /// reach of the cell `c`. Each cell is visited once.
+    #[inline]
+    pub fn for_each_neighbour_row(&self, c: [u64; 3], mut f: impl FnMut(u64, u64)) {
+        let (xr, nx) = self.axis_ranges(0, c[0]);
+        let (yr, ny) = self.axis_ranges(1, c[1]);
+        let (zr, nz) = self.axis_ranges(2, c[2]);
+        for &(z0, z1) in &zr[..nz] {
+            for iz in z0..=z1 {
+                for &(y0, y1) in &yr[..ny] {
+                    for iy in y0..=y1 {
+                        for &(x0, x1) in &xr[..nx] {
+                            f(
+                                self.key_of_coord([x0, iy, iz]),
+                                self.key_of_coord([x1, iy, iz]),
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The occupied cells of one phase, with particles sorted by cell key.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CellIndex {
+    /// Sorted, unique keys of occupied cells.
+    pub keys: Vec<u64>,
+    /// Particle range of cell i: start[i]..start[i+1].
+    pub start: Vec<u32>,
+    /// Cell index (into `keys`) of every particle.
+    pub cell_of: Vec<u32>,
+}
+
+impl CellIndex {
+    /// Sorting permutation (new → old) of positions `x` by cell key, and the index built on it.
+    pub fn sort(grid: &Grid, x: &[[f64; 3]]) -> (Vec<u32>, CellIndex) {
+        let mut kp: Vec<(u64, u32)> = x
+            .par_iter()
+            .enumerate()
+            .map(|(i, &p)| (grid.key(p), i as u32))
+            .collect();
+        // (key, old index) pairs are unique, so the order is deterministic.
+        kp.par_sort_unstable();
+        let perm: Vec<u32> = kp.iter().map(|&(_, i)| i).collect();
+        let mut idx = CellIndex::default();
+        idx.cell_of.reserve(kp.len());
+        for (i, &(k, _)) in kp.iter().enumerate() {
+            if idx.keys.last() != Some(&k) {
+                idx.keys.push(k);
+                idx.start.push(i as u32);
+            }
+            idx.cell_of.push(idx.keys.len() as u32 - 1);
+        }
+        idx.start.push(kp.len() as u32);
+        (perm, idx)
+    }
+
+    pub fn n_cells(&self) -> usize {
+        self.keys.len()
+    }
+
+    #[inline(always)]
+    pub fn cell_range(&self, c: usize) -> Range<usize> {
+        self.start[c] as usize..self.start[c + 1] as usize
+    }
+
+    /// Particles whose cells have keys in [lo, hi].
+    #[inline(always)]
+    pub fn particles_in_keys(&self, lo: u64, hi: u64) -> Range<usize> {
+        let a = self.keys.partition_point(|&k| k < lo);
+        let b = a + self.keys[a..].partition_point(|&k| k <= hi);
+        self.start[a] as usize..self.start[b] as usize
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn expanding_cloud_keeps_every_particle() {
+        let dom = Domain { dim: 3, periodic: [None; 3] };
+        let x: Vec<[f64; 3]> = (0..1000)
+            .map(|i| {
+                let f = i as f64;
+                [f.sin() * 1e3, (f * 0.7).cos() * 1e-3, f * 0.01 - 5.0]
+            })
+            .collect();
+        let g = Grid::build(&dom, 0.05, 0.2, &[&x]).unwrap();
+        let (perm, idx) = CellIndex::sort(&g, &x);
+        assert_eq!(perm.len(), x.len());
+        let mut seen = vec![false; x.len()];
+        for &p in &perm {
+            seen[p as usize] = true;
+        }
+        assert!(seen.iter().all(|&s| s));
+        // Each particle's cell contains it.
+        for (new, &old) in perm.iter().enumerate() {
+            let c = g.coord(x[old as usize]);
+            assert_eq!(idx.keys[idx.cell_of[new] as usize], g.key_of_coord(c));
+        }
+    }
+
+    #[test]
+    fn nan_position_is_an_error_not_a_drop() {
+        let dom = Domain { dim: 1, periodic: [None; 3] };
+        let x = vec![[0.0; 3], [f64::NAN, 0.0, 0.0]];
+        assert!(Grid::build(&dom, 0.1, 0.2, &[&x]).is_err());
+    }
+
+    #[test]
+    fn neighbour_rows_find_all_pairs_within_support_periodic_and_open() {
+        for periodic in [false, true] {
+            let len = 1.0;
+            let dom = Domain {
+                dim: 2,
+                periodic: if periodic {
+                    [Some((0.0, len)), Some((0.0, len)), None]
+                } else {
+                    [None; 3]
+                },
+            };
+            let x: Vec<[f64; 3]> = (0..400)
+                .map(|i| {
+                    let f = i as f64 * 0.618_033_988_7;
+                    [f.fract(), (f * 1.37).fract(), 0.0]
+                })
+                .collect();
+            let support = 0.13;
+            let g = Grid::build(&dom, 0.031, support, &[&x]).unwrap();
+            let (perm, idx) = CellIndex::sort(&g, &x);
+            let xs: Vec<[f64; 3]> = perm.iter().map(|&p| x[p as usize]).collect();
+            for (i, &xi) in xs.iter().enumerate() {
+                let mut found = Vec::new();
+                g.for_each_neighbour_row(g.coord(xi), |lo, hi| {
+                    for j in idx.particles_in_keys(lo, hi) {
+                        let d = dom.separation(xi, xs[j]);
+                        if d[0] * d[0] + d[1] * d[1] < support * support {
+                            found.push(j);
+                        }
+                    }
+                });
+                found.sort();
+                let brute: Vec<usize> = (0..xs.len())
+                    .filter(|&j| {
+                        let d = dom.separation(xi, xs[j]);
+                        d[0] * d[0] + d[1] * d[1] < support * support
+                    })
+                    .collect();
+                assert_eq!(found, brute, "particle {i}, periodic {periodic}");
+            }
+        }
+    }
+}

@@ -1,0 +1,1109 @@
+//! GADGET/GIZMO-style HDF5 snapshots: gas in `PartType0`, every dust fraction concatenated in
+//! `PartType3` with a `FractionIndex` column, run metadata in the `Header` group's attributes.
+
+use std::borrow::Cow;
+use std::fs;
+use std::path::Path;
+use std::str::FromStr;
+
+use hdf5::types::{FixedAscii, TypeDescriptor, VarLenAscii, VarLenUnicode};
+use hdf5::{File, Group, H5Type, Location};
+use ndarray::{ArrayViewD, IxDyn};
+
+use super::{commit_tmp, remove_stale, require_parent_dir, tmp_path, IoError, WithPath};
+
+/// Value of the `Code` header attribute.
+pub const CODE_NAME: &str = "dustsph";
+const CODE_LEN: usize = CODE_NAME.len();
+pub const HEADER_GROUP: &str = "Header";
+pub const GAS_GROUP: &str = "PartType0";
+pub const DUST_GROUP: &str = "PartType3";
+const GAS_TYPE: usize = 0;
+const DUST_TYPE: usize = 3;
+
+pub const COORDINATES: &str = "Coordinates";
+pub const VELOCITIES: &str = "Velocities";
+pub const MASSES: &str = "Masses";
+pub const DENSITY: &str = "Density";
+pub const INTERNAL_ENERGY: &str = "InternalEnergy";
+pub const PRESSURE: &str = "Pressure";
+pub const SMOOTHING_LENGTH: &str = "SmoothingLength";
+pub const PARTICLE_IDS: &str = "ParticleIDs";
+pub const FRACTION_INDEX: &str = "FractionIndex";
+pub const STOPPING_TIME: &str = "StoppingTime";
+
+/// Shuffle + deflate only: every HDF5 build and reader has them, unlike blosc.
+pub const DEFLATE_LEVEL: u8 = 4;
+/// Rows per chunk: 256 KiB for scalars, 768 KiB for 3-vectors, so a chunk fits HDF5's default
+/// 1 MiB chunk cache.
+const CHUNK_ROWS: usize = 1 << 15;
+
+/// A borrowed view of one particle phase for output.
+#[derive(Clone, Copy, Debug)]
+pub struct PhaseView<'a> {
+    /// Positions (unused coordinates are 0).
+    pub x: &'a [[f64; 3]],
+    pub v: &'a [[f64; 3]],
+    pub m: &'a [f64],
+    pub rho: &'a [f64],
+    /// Global smoothing length, written per particle as `SmoothingLength`.
+    pub h: f64,
+    pub id: &'a [u64],
+    /// Gas internal energy.
+    pub e: Option<&'a [f64]>,
+    /// Gas pressure.
+    pub p: Option<&'a [f64]>,
+    /// Dust stopping time (may hold +inf where a particle is uncoupled).
+    pub t_stop: Option<&'a [f64]>,
+}
+
+impl PhaseView<'_> {
+    /// Number of particles (the length of `x`).
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Every per-particle array must have as many entries as `x`.
+    fn check(&self, label: &str, path: &Path) -> Result<(), IoError> {
+        let n = self.len();
+        let lens = [
+            ("v", Some(self.v.len())),
+            ("m", Some(self.m.len())),
+            ("rho", Some(self.rho.len())),
+            ("id", Some(self.id.len())),
+            ("e", self.e.map(<[f64]>::len)),
+            ("p", self.p.map(<[f64]>::len)),
+            ("t_stop", self.t_stop.map(<[f64]>::len)),
+        ];
+        for (name, len) in lens {
+            if let Some(len) = len {
+                if len != n {
+                    return Err(IoError::invalid(
+                        path,
+                        format!("{label}: `{name}` has {len} entries but `x` has {n}"),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Everything one snapshot holds, borrowed from the simulation.
+#[derive(Clone, Debug)]
+pub struct SnapshotView<'a> {
+    pub time: f64,
+    pub dim: u32,
+    pub box_size: f64,
+    /// The scene TOML verbatim.
+    pub scene_text: &'a str,
+    pub gas: Option<PhaseView<'a>>,
+    /// One per dust fraction; index = fraction index.
+    pub dust: Vec<PhaseView<'a>>,
+}
+
+/// One phase read back from a snapshot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PhaseData {
+    pub x: Vec<[f64; 3]>,
+    pub v: Vec<[f64; 3]>,
+    pub m: Vec<f64>,
+    pub rho: Vec<f64>,
+    pub h: Vec<f64>,
+    pub id: Vec<u64>,
+    pub e: Option<Vec<f64>>,
+    pub p: Option<Vec<f64>>,
+    pub t_stop: Option<Vec<f64>>,
+    pub fraction: Option<Vec<u32>>,
+}
+
+/// A snapshot read back (for tests and analysis).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SnapshotData {
+    pub time: f64,
+    pub dim: u32,
+    pub box_size: f64,
+    pub scene_text: String,
+    pub num_part: [u64; 6],
+    pub gas: Option<PhaseData>,
+    /// All dust fractions together; `fraction` tells them apart.
+    pub dust: Option<PhaseData>,
+}
+
+/// The columns of one particle group, borrowed where no copy is needed.
+struct Columns<'a> {
+    x: Cow<'a, [[f64; 3]]>,
+    v: Cow<'a, [[f64; 3]]>,
+    m: Cow<'a, [f64]>,
+    rho: Cow<'a, [f64]>,
+    h: Vec<f64>,
+    id: Cow<'a, [u64]>,
+    e: Option<Cow<'a, [f64]>>,
+    p: Option<Cow<'a, [f64]>>,
+    t_stop: Option<Cow<'a, [f64]>>,
+    fraction: Option<Vec<u32>>,
+}
+
+impl<'a> Columns<'a> {
+    fn gas(g: &PhaseView<'a>) -> Self {
+        Columns {
+            x: Cow::Borrowed(g.x),
+            v: Cow::Borrowed(g.v),
+            m: Cow::Borrowed(g.m),
+            rho: Cow::Borrowed(g.rho),
+            h: vec![g.h; g.len()],
+            id: Cow::Borrowed(g.id),
+            e: g.e.map(Cow::Borrowed),
+            p: g.p.map(Cow::Borrowed),
+            t_stop: g.t_stop.map(Cow::Borrowed),
+            fraction: None,
+        }
+    }
+
+    /// Concatenates the dust fractions. A fraction without stopping times gets NaN ("not
+    /// available") when another fraction has them, so the column stays aligned.
+    fn dust(fractions: &[PhaseView<'a>], path: &Path) -> Result<Self, IoError> {
+        let n: usize = fractions.iter().map(PhaseView::len).sum();
+        let any_t_stop = fractions.iter().any(|f| f.t_stop.is_some());
+        let (mut x, mut v) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        let (mut m, mut rho, mut h) = (
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        );
+        let (mut id, mut fraction) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        let mut t_stop = any_t_stop.then(|| Vec::with_capacity(n));
+        for (k, f) in fractions.iter().enumerate() {
+            let k = u32::try_from(k).map_err(|_| {
+                IoError::invalid(path, format!("dust fraction index {k} does not fit in u32"))
+            })?;
+            x.extend_from_slice(f.x);
+            v.extend_from_slice(f.v);
+            m.extend_from_slice(f.m);
+            rho.extend_from_slice(f.rho);
+            h.resize(h.len() + f.len(), f.h);
+            id.extend_from_slice(f.id);
+            fraction.resize(fraction.len() + f.len(), k);
+            if let Some(t) = t_stop.as_mut() {
+                match f.t_stop {
+                    Some(ts) => t.extend_from_slice(ts),
+                    None => t.resize(t.len() + f.len(), f64::NAN),
+                }
+            }
+        }
+        Ok(Columns {
+            x: Cow::Owned(x),
+            v: Cow::Owned(v),
+            m: Cow::Owned(m),
+            rho: Cow::Owned(rho),
+            h,
+            id: Cow::Owned(id),
+            e: None,
+            p: None,
+            t_stop: t_stop.map(Cow::Owned),
+            fraction: Some(fraction),
+        })
+    }
+
+    fn len(&self) -> usize {
+        self.x.len()
+    }
+}
+
+/// Maps an HDF5 error to an [`IoError`] naming the file and the object inside it.
+fn h5err<'a>(path: &'a Path, object: &'a str) -> impl FnOnce(hdf5::Error) -> IoError + 'a {
+    move |e| IoError::hdf5(path, object, e)
+}
+
+fn validate(path: &Path, snap: &SnapshotView) -> Result<VarLenUnicode, IoError> {
+    if !(1..=3).contains(&snap.dim) {
+        return Err(IoError::invalid(
+            path,
+            format!("dimension must be 1, 2 or 3, got {}", snap.dim),
+        ));
+    }
+    if let Some(g) = &snap.gas {
+        g.check("gas", path)?;
+    }
+    for (k, d) in snap.dust.iter().enumerate() {
+        d.check(&format!("dust fraction {k}"), path)?;
+    }
+    // HDF5 strings are C strings: an interior NUL would silently truncate the scene.
+    VarLenUnicode::from_str(snap.scene_text)
+        .map_err(|e| IoError::invalid(path, format!("scene text cannot be stored: {e}")))
+}
+
+/// Writes the snapshot to `path` atomically: write to a temporary name in the same directory
+/// (e.g. ".snapshot_0003.h5.tmp"), flush/close, then rename. No half-written file ever carries
+/// the final name.
+pub fn write_snapshot(path: &Path, snap: &SnapshotView) -> Result<(), IoError> {
+    // Check everything that can be checked before touching the disk.
+    let scene = validate(path, snap)?;
+    let gas = snap.gas.as_ref().map(Columns::gas);
+    let dust = if snap.dust.is_empty() {
+        None
+    } else {
+        Some(Columns::dust(&snap.dust, path)?)
+    };
+    require_parent_dir(path)?;
+    let tmp = tmp_path(path)?;
+    remove_stale(&tmp)?;
+    let result = write_file(&tmp, path, snap, &scene, gas.as_ref(), dust.as_ref())
+        .and_then(|()| commit_tmp(&tmp, path));
+    if result.is_err() {
+        // Best effort: the original error matters more than a failed cleanup.
+        let _ = fs::remove_file(&tmp);
+    }
+    result
+}
+
+fn write_file(
+    tmp: &Path,
+    path: &Path,
+    snap: &SnapshotView,
+    scene: &VarLenUnicode,
+    gas: Option<&Columns>,
+    dust: Option<&Columns>,
+) -> Result<(), IoError> {
+    // create_excl: never write through something that appeared under the temporary name.
+    let file = File::create_excl(tmp).with_path(tmp)?;
+    let mut num_part = [0u64; 6];
+    num_part[GAS_TYPE] = gas.map_or(0, |g| g.len() as u64);
+    num_part[DUST_TYPE] = dust.map_or(0, |d| d.len() as u64);
+    write_header(&file, path, snap, scene, &num_part)?;
+    if let Some(g) = gas {
+        write_group(&file, GAS_GROUP, g, path)?;
+    }
+    if let Some(d) = dust {
+        write_group(&file, DUST_GROUP, d, path)?;
+    }
+    // Explicit close so a failed final flush is reported instead of lost in Drop.
+    file.close().map_err(h5err(path, ""))
+}
+
+fn write_header(
+    file: &File,
+    path: &Path,
+    snap: &SnapshotView,
+    scene: &VarLenUnicode,
+    num_part: &[u64; 6],
+) -> Result<(), IoError> {
+    let obj = format!("/{HEADER_GROUP}");
+    let g = file.create_group(HEADER_GROUP).map_err(h5err(path, &obj))?;
+    let dim = snap.dim as i32; // validated to 1..=3
+                               // Fixed-length ASCII, as GADGET and SWIFT write it: yt's frontend detection calls
+                               // `.decode()` on `Code`, which only works when h5py returns bytes, not str.
+    let code = FixedAscii::<CODE_LEN>::from_ascii(CODE_NAME).expect("code name is ASCII");
+    put_scalar(&g, "Time", &snap.time, path)?;
+    put_array(&g, "NumPart_ThisFile", num_part, path)?;
+    put_array(&g, "NumPart_Total", num_part, path)?;
+    put_array(&g, "MassTable", &[0.0f64; 6], path)?;
+    put_scalar(&g, "NumFilesPerSnapshot", &1i32, path)?;
+    put_scalar(&g, "BoxSize", &snap.box_size, path)?;
+    put_scalar(&g, "Dimension", &dim, path)?;
+    put_scalar(&g, "Code", &code, path)?;
+    put_scalar(&g, "Scene", scene, path)?;
+    // Conventional GADGET fields: older yt releases and other GADGET readers index them
+    // unconditionally; OmegaLambda = 0 marks the run as non-cosmological.
+    put_array(&g, "NumPart_Total_HighWord", &[0u32; 6], path)?;
+    put_scalar(&g, "Redshift", &0.0f64, path)?;
+    put_scalar(&g, "Omega0", &0.0f64, path)?;
+    put_scalar(&g, "OmegaLambda", &0.0f64, path)?;
+    put_scalar(&g, "HubbleParam", &1.0f64, path)?;
+    Ok(())
+}
+
+fn put_scalar<T: H5Type>(g: &Group, name: &str, value: &T, path: &Path) -> Result<(), IoError> {
+    let obj = format!("{}/{name}", g.name());
+    g.new_attr::<T>()
+        .shape(())
+        .create(name)
+        .and_then(|a| a.write_scalar(value))
+        .map_err(h5err(path, &obj))
+}
+
+fn put_array<T: H5Type>(g: &Group, name: &str, values: &[T], path: &Path) -> Result<(), IoError> {
+    let obj = format!("{}/{name}", g.name());
+    g.new_attr::<T>()
+        .shape(values.len())
+        .create(name)
+        .and_then(|a| a.write_raw(values))
+        .map_err(h5err(path, &obj))
+}
+
+fn write_group(file: &File, name: &str, c: &Columns, path: &Path) -> Result<(), IoError> {
+    let obj = format!("/{name}");
+    let g = file.create_group(name).map_err(h5err(path, &obj))?;
+    put_dataset(&g, COORDINATES, c.x.as_flattened(), 3, path)?;
+    put_dataset(&g, VELOCITIES, c.v.as_flattened(), 3, path)?;
+    put_dataset(&g, MASSES, &c.m, 1, path)?;
+    put_dataset(&g, DENSITY, &c.rho, 1, path)?;
+    if let Some(e) = &c.e {
+        put_dataset(&g, INTERNAL_ENERGY, e, 1, path)?;
+    }
+    if let Some(p) = &c.p {
+        put_dataset(&g, PRESSURE, p, 1, path)?;
+    }
+    put_dataset(&g, SMOOTHING_LENGTH, &c.h, 1, path)?;
+    put_dataset(&g, PARTICLE_IDS, &c.id, 1, path)?;
+    if let Some(f) = &c.fraction {
+        put_dataset(&g, FRACTION_INDEX, f, 1, path)?;
+    }
+    if let Some(t) = &c.t_stop {
+        put_dataset(&g, STOPPING_TIME, t, 1, path)?;
+    }
+    Ok(())
+}
+
+/// Writes `data` as an N (width 1) or N×width dataset, chunked and compressed unless empty.
+fn put_dataset<T: H5Type>(
+    g: &Group,
+    name: &str,
+    data: &[T],
+    width: usize,
+    path: &Path,
+) -> Result<(), IoError> {
+    let obj = format!("{}/{name}", g.name());
+    let rows = data.len() / width;
+    let shape = if width == 1 {
+        vec![rows]
+    } else {
+        vec![rows, width]
+    };
+    let view = ArrayViewD::from_shape(IxDyn(&shape), data)
+        .map_err(|e| IoError::invalid(path, format!("{obj}: {e}")))?;
+    let builder = g.new_dataset_builder().with_data(view);
+    let builder = if rows == 0 {
+        // Chunk dimensions must be positive and there is nothing to compress: plain contiguous.
+        builder.no_chunk()
+    } else {
+        let mut chunk = shape.clone();
+        chunk[0] = rows.min(CHUNK_ROWS);
+        // Shuffle first: it groups bytes of equal significance, which deflate then packs.
+        builder.chunk(chunk).shuffle().deflate(DEFLATE_LEVEL)
+    };
+    builder.create(name).map_err(h5err(path, &obj))?;
+    Ok(())
+}
+
+/// Reads a snapshot written by [`write_snapshot`].
+pub fn read_snapshot(path: &Path) -> Result<SnapshotData, IoError> {
+    // A plain stat first gives "No such file" instead of an opaque HDF5 message.
+    fs::metadata(path).with_path(path)?;
+    let file = File::open(path).map_err(h5err(path, ""))?;
+    let obj = format!("/{HEADER_GROUP}");
+    let header = file.group(HEADER_GROUP).map_err(h5err(path, &obj))?;
+
+    let time: f64 = get_scalar(&header, "Time", path)?;
+    let box_size: f64 = get_scalar(&header, "BoxSize", path)?;
+    let dim: i32 = get_scalar(&header, "Dimension", path)?;
+    let dim = u32::try_from(dim)
+        .map_err(|_| IoError::invalid(path, format!("/Header/Dimension is {dim}")))?;
+    let scene_text = get_string(&header, "Scene", path)?;
+    let num_part = get_counts(&header, "NumPart_Total", path)?;
+    let this_file = get_counts(&header, "NumPart_ThisFile", path)?;
+    if this_file != num_part {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "NumPart_ThisFile {this_file:?} differs from NumPart_Total {num_part:?}; \
+                 multi-file snapshots are not supported"
+            ),
+        ));
+    }
+    let gas = read_group(&file, GAS_GROUP, num_part[GAS_TYPE], path)?;
+    let dust = read_group(&file, DUST_GROUP, num_part[DUST_TYPE], path)?;
+    Ok(SnapshotData {
+        time,
+        dim,
+        box_size,
+        scene_text,
+        num_part,
+        gas,
+        dust,
+    })
+}
+
+/// Reads a one-value attribute; accepts shape () or (1,) as other writers use both.
+fn get_scalar<T: H5Type>(loc: &Location, name: &str, path: &Path) -> Result<T, IoError> {
+    let obj = format!("{}/{name}", loc.name());
+    let mut v: Vec<T> = loc
+        .attr(name)
+        .and_then(|a| a.read_raw())
+        .map_err(h5err(path, &obj))?;
+    match v.len() {
+        1 => Ok(v.remove(0)),
+        n => Err(IoError::invalid(
+            path,
+            format!("{obj}: expected one value, found {n}"),
+        )),
+    }
+}
+
+fn get_counts(loc: &Location, name: &str, path: &Path) -> Result<[u64; 6], IoError> {
+    let obj = format!("{}/{name}", loc.name());
+    let v: Vec<u64> = loc
+        .attr(name)
+        .and_then(|a| a.read_raw())
+        .map_err(h5err(path, &obj))?;
+    <[u64; 6]>::try_from(v.as_slice())
+        .map_err(|_| IoError::invalid(path, format!("{obj}: expected 6 values, found {}", v.len())))
+}
+
+/// Reads a variable-length string attribute (UTF-8 or ASCII).
+fn get_string(loc: &Location, name: &str, path: &Path) -> Result<String, IoError> {
+    let obj = format!("{}/{name}", loc.name());
+    let attr = loc.attr(name).map_err(h5err(path, &obj))?;
+    let desc = attr
+        .dtype()
+        .and_then(|t| t.to_descriptor())
+        .map_err(h5err(path, &obj))?;
+    match desc {
+        TypeDescriptor::VarLenUnicode => attr
+            .read_scalar::<VarLenUnicode>()
+            .map(|s| s.as_str().to_owned())
+            .map_err(h5err(path, &obj)),
+        TypeDescriptor::VarLenAscii => attr
+            .read_scalar::<VarLenAscii>()
+            .map(|s| s.as_str().to_owned())
+            .map_err(h5err(path, &obj)),
+        other => Err(IoError::invalid(
+            path,
+            format!("{obj}: expected a variable-length string, found {other}"),
+        )),
+    }
+}
+
+fn read_group(
+    file: &File,
+    name: &str,
+    count: u64,
+    path: &Path,
+) -> Result<Option<PhaseData>, IoError> {
+    if !file.link_exists(name) {
+        if count > 0 {
+            return Err(IoError::invalid(
+                path,
+                format!("header counts {count} particles but group /{name} is missing"),
+            ));
+        }
+        return Ok(None);
+    }
+    let obj = format!("/{name}");
+    let g = file.group(name).map_err(h5err(path, &obj))?;
+    let n = usize::try_from(count)
+        .map_err(|_| IoError::invalid(path, format!("{obj}: {count} particles is too many")))?;
+    Ok(Some(PhaseData {
+        x: get_vec3(&g, COORDINATES, n, path)?,
+        v: get_vec3(&g, VELOCITIES, n, path)?,
+        m: get_column(&g, MASSES, n, path)?,
+        rho: get_column(&g, DENSITY, n, path)?,
+        h: get_column(&g, SMOOTHING_LENGTH, n, path)?,
+        id: get_column(&g, PARTICLE_IDS, n, path)?,
+        e: get_optional(&g, INTERNAL_ENERGY, n, path)?,
+        p: get_optional(&g, PRESSURE, n, path)?,
+        t_stop: get_optional(&g, STOPPING_TIME, n, path)?,
+        fraction: get_optional(&g, FRACTION_INDEX, n, path)?,
+    }))
+}
+
+/// Reads a dataset whose shape must be exactly `shape`, flattened row-major.
+fn get_shaped<T: H5Type>(
+    g: &Group,
+    name: &str,
+    shape: &[usize],
+    path: &Path,
+) -> Result<Vec<T>, IoError> {
+    let obj = format!("{}/{name}", g.name());
+    let ds = g.dataset(name).map_err(h5err(path, &obj))?;
+    let found = ds.shape();
+    if found != shape {
+        return Err(IoError::invalid(
+            path,
+            format!("{obj}: shape {found:?}, expected {shape:?} from the header counts"),
+        ));
+    }
+    ds.read_raw().map_err(h5err(path, &obj))
+}
+
+fn get_column<T: H5Type>(g: &Group, name: &str, n: usize, path: &Path) -> Result<Vec<T>, IoError> {
+    get_shaped(g, name, &[n], path)
+}
+
+fn get_optional<T: H5Type>(
+    g: &Group,
+    name: &str,
+    n: usize,
+    path: &Path,
+) -> Result<Option<Vec<T>>, IoError> {
+    if g.link_exists(name) {
+        get_column(g, name, n, path).map(Some)
+    } else {
+        Ok(None)
+    }
+}
+
+fn get_vec3(g: &Group, name: &str, n: usize, path: &Path) -> Result<Vec<[f64; 3]>, IoError> {
+    let flat: Vec<f64> = get_shaped(g, name, &[n, 3], path)?;
+    Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use hdf5::filters::Filter;
+    use hdf5::types::{FloatSize, IntSize};
+    use std::path::PathBuf;
+
+    const SCENE: &str = "# Schéma de test — poussière\n[gas]\nname = \"gaz ρ₀\"\ngamma = 1.4\n\n\
+                         [[dust]]\nsize = \"1 µm\"  # ✓ ünïcödé\n";
+
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    fn bits3(v: &[[f64; 3]]) -> Vec<[u64; 3]> {
+        v.iter()
+            .map(|p| [p[0].to_bits(), p[1].to_bits(), p[2].to_bits()])
+            .collect()
+    }
+
+    /// Owned arrays behind a PhaseView, with awkward values to make "bit-exact" mean something.
+    struct Phase {
+        x: Vec<[f64; 3]>,
+        v: Vec<[f64; 3]>,
+        m: Vec<f64>,
+        rho: Vec<f64>,
+        id: Vec<u64>,
+        e: Vec<f64>,
+        p: Vec<f64>,
+        t: Vec<f64>,
+    }
+
+    impl Phase {
+        fn new(n: usize, seed: u64) -> Self {
+            let f = |i: usize, k: u64| {
+                let s = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (seed * 31 + k);
+                // Irrational-looking mantissas; occasional sign flips.
+                (s % 1_000_003) as f64 / 7.0 * if s & 4 == 0 { -1.0 } else { 1.0 }
+            };
+            let mut ph = Phase {
+                x: (0..n).map(|i| [f(i, 1), f(i, 2), 0.0]).collect(),
+                v: (0..n).map(|i| [f(i, 3), f(i, 4), f(i, 5)]).collect(),
+                m: (0..n).map(|i| f(i, 6).abs() * 1e-30).collect(),
+                rho: (0..n).map(|i| f(i, 7).abs()).collect(),
+                id: (0..n).map(|i| seed << 40 | i as u64).collect(),
+                e: (0..n).map(|i| f(i, 8)).collect(),
+                p: (0..n).map(|i| f(i, 9)).collect(),
+                t: (0..n).map(|i| f(i, 10).abs()).collect(),
+            };
+            if n >= 3 {
+                ph.x[0][2] = -0.0;
+                ph.v[1][0] = f64::MIN_POSITIVE / 8.0; // subnormal
+                ph.t[2] = f64::INFINITY;
+                ph.id[1] = u64::MAX;
+            }
+            ph
+        }
+
+        fn view(&self, h: f64, gas: bool, t_stop: bool) -> PhaseView<'_> {
+            PhaseView {
+                x: &self.x,
+                v: &self.v,
+                m: &self.m,
+                rho: &self.rho,
+                h,
+                id: &self.id,
+                e: gas.then_some(&self.e[..]),
+                p: gas.then_some(&self.p[..]),
+                t_stop: t_stop.then_some(&self.t[..]),
+            }
+        }
+    }
+
+    fn snap<'a>(gas: Option<PhaseView<'a>>, dust: Vec<PhaseView<'a>>) -> SnapshotView<'a> {
+        SnapshotView {
+            time: 0.125 + f64::EPSILON,
+            dim: 2,
+            box_size: 3.5,
+            scene_text: SCENE,
+            gas,
+            dust,
+        }
+    }
+
+    fn names_in(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    fn assert_phase_eq(got: &PhaseData, want: &Phase, h: f64, gas: bool) {
+        assert_eq!(bits3(&got.x), bits3(&want.x));
+        assert_eq!(bits3(&got.v), bits3(&want.v));
+        assert_eq!(bits(&got.m), bits(&want.m));
+        assert_eq!(bits(&got.rho), bits(&want.rho));
+        assert_eq!(bits(&got.h), bits(&vec![h; want.x.len()]));
+        assert_eq!(got.id, want.id);
+        if gas {
+            assert_eq!(bits(got.e.as_ref().unwrap()), bits(&want.e));
+            assert_eq!(bits(got.p.as_ref().unwrap()), bits(&want.p));
+            assert!(got.t_stop.is_none() && got.fraction.is_none());
+        }
+    }
+
+    #[test]
+    fn round_trip_gas_and_two_dust_fractions_is_bit_exact() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("snapshot_0003.h5");
+        let (g, d0, d1) = (Phase::new(6, 1), Phase::new(3, 2), Phase::new(4, 3));
+        let s = snap(
+            Some(g.view(0.03, true, false)),
+            vec![d0.view(0.05, false, true), d1.view(0.07, false, true)],
+        );
+        write_snapshot(&path, &s).unwrap();
+        let r = read_snapshot(&path).unwrap();
+
+        assert_eq!(r.time.to_bits(), s.time.to_bits());
+        assert_eq!(r.dim, 2);
+        assert_eq!(r.box_size.to_bits(), 3.5f64.to_bits());
+        assert_eq!(r.scene_text, SCENE);
+        assert_eq!(r.num_part, [6, 0, 0, 7, 0, 0]);
+        assert_phase_eq(r.gas.as_ref().unwrap(), &g, 0.03, true);
+
+        let dust = r.dust.unwrap();
+        let cat = |f: fn(&Phase) -> Vec<f64>| [f(&d0), f(&d1)].concat();
+        let x: Vec<[f64; 3]> = [d0.x.clone(), d1.x.clone()].concat();
+        let v: Vec<[f64; 3]> = [d0.v.clone(), d1.v.clone()].concat();
+        assert_eq!(bits3(&dust.x), bits3(&x));
+        assert_eq!(bits3(&dust.v), bits3(&v));
+        assert_eq!(bits(&dust.m), bits(&cat(|p| p.m.clone())));
+        assert_eq!(bits(&dust.rho), bits(&cat(|p| p.rho.clone())));
+        assert_eq!(
+            bits(&dust.h),
+            bits(
+                &[0.05; 3]
+                    .iter()
+                    .chain(&[0.07; 4])
+                    .copied()
+                    .collect::<Vec<_>>()
+            )
+        );
+        assert_eq!(dust.id, [d0.id.clone(), d1.id.clone()].concat());
+        assert_eq!(
+            bits(dust.t_stop.as_ref().unwrap()),
+            bits(&cat(|p| p.t.clone()))
+        );
+        assert!(dust.t_stop.as_ref().unwrap()[2].is_infinite());
+        assert_eq!(dust.fraction.unwrap(), vec![0, 0, 0, 1, 1, 1, 1]);
+        assert!(dust.e.is_none() && dust.p.is_none());
+    }
+
+    #[test]
+    fn header_attributes_have_the_documented_values_and_types() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("snapshot_0000.h5");
+        let (g, d0, d1) = (Phase::new(5, 1), Phase::new(2, 2), Phase::new(3, 3));
+        let s = snap(
+            Some(g.view(0.1, true, false)),
+            vec![d0.view(0.1, false, true), d1.view(0.1, false, false)],
+        );
+        write_snapshot(&path, &s).unwrap();
+
+        let f = File::open(&path).unwrap();
+        let h = f.group("Header").unwrap();
+        let desc = |n: &str| h.attr(n).unwrap().dtype().unwrap().to_descriptor().unwrap();
+        let shape = |n: &str| h.attr(n).unwrap().shape();
+        use TypeDescriptor as T;
+
+        for n in ["Time", "BoxSize"] {
+            assert_eq!(desc(n), T::Float(FloatSize::U8), "{n}");
+            assert_eq!(shape(n), Vec::<usize>::new(), "{n}");
+        }
+        let time: f64 = h.attr("Time").unwrap().read_scalar().unwrap();
+        assert_eq!(time.to_bits(), s.time.to_bits());
+        let bs: f64 = h.attr("BoxSize").unwrap().read_scalar().unwrap();
+        assert_eq!(bs, 3.5);
+
+        for n in ["NumPart_ThisFile", "NumPart_Total"] {
+            assert_eq!(desc(n), T::Unsigned(IntSize::U8), "{n}");
+            assert_eq!(shape(n), vec![6], "{n}");
+            let v: Vec<u64> = h.attr(n).unwrap().read_raw().unwrap();
+            assert_eq!(v, vec![5, 0, 0, 5, 0, 0], "{n}");
+        }
+        assert_eq!(desc("MassTable"), T::Float(FloatSize::U8));
+        let mt: Vec<f64> = h.attr("MassTable").unwrap().read_raw().unwrap();
+        assert_eq!(bits(&mt), vec![0u64; 6]);
+
+        for (n, want) in [("NumFilesPerSnapshot", 1), ("Dimension", 2)] {
+            assert_eq!(desc(n), T::Integer(IntSize::U4), "{n}");
+            assert_eq!(shape(n), Vec::<usize>::new(), "{n}");
+            let v: i32 = h.attr(n).unwrap().read_scalar().unwrap();
+            assert_eq!(v, want, "{n}");
+        }
+        assert_eq!(desc("Code"), T::FixedAscii(7));
+        assert_eq!(shape("Code"), Vec::<usize>::new());
+        let code: FixedAscii<7> = h.attr("Code").unwrap().read_scalar().unwrap();
+        assert_eq!(code.as_str(), "dustsph");
+        assert_eq!(desc("Scene"), T::VarLenUnicode);
+        assert_eq!(shape("Scene"), Vec::<usize>::new());
+        let scene: VarLenUnicode = h.attr("Scene").unwrap().read_scalar().unwrap();
+        assert_eq!(scene.as_str(), SCENE);
+        // The yt-compatibility extras.
+        for (n, want) in [
+            ("Redshift", 0.0),
+            ("Omega0", 0.0),
+            ("OmegaLambda", 0.0),
+            ("HubbleParam", 1.0),
+        ] {
+            let v: f64 = h.attr(n).unwrap().read_scalar().unwrap();
+            assert_eq!(v, want, "{n}");
+        }
+        let hw: Vec<u32> = h
+            .attr("NumPart_Total_HighWord")
+            .unwrap()
+            .read_raw()
+            .unwrap();
+        assert_eq!(hw, vec![0; 6]);
+    }
+
+    #[test]
+    fn datasets_have_documented_names_types_shapes_and_filters() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("snapshot_0001.h5");
+        let (g, d0, d1) = (Phase::new(5, 1), Phase::new(2, 2), Phase::new(3, 3));
+        let s = snap(
+            Some(g.view(0.1, true, false)),
+            vec![d0.view(0.1, false, true), d1.view(0.1, false, true)],
+        );
+        write_snapshot(&path, &s).unwrap();
+        let f = File::open(&path).unwrap();
+        use TypeDescriptor as T;
+        let f64t = T::Float(FloatSize::U8);
+
+        let mut gas = f.group(GAS_GROUP).unwrap().member_names().unwrap();
+        gas.sort();
+        let want_gas = [
+            "Coordinates",
+            "Density",
+            "InternalEnergy",
+            "Masses",
+            "ParticleIDs",
+            "Pressure",
+            "SmoothingLength",
+            "Velocities",
+        ];
+        assert_eq!(gas, want_gas);
+        let mut dust = f.group(DUST_GROUP).unwrap().member_names().unwrap();
+        dust.sort();
+        let want_dust = [
+            "Coordinates",
+            "Density",
+            "FractionIndex",
+            "Masses",
+            "ParticleIDs",
+            "SmoothingLength",
+            "StoppingTime",
+            "Velocities",
+        ];
+        assert_eq!(dust, want_dust);
+
+        for (group, n, names) in [
+            (GAS_GROUP, 5usize, &want_gas[..]),
+            (DUST_GROUP, 5, &want_dust[..]),
+        ] {
+            for name in names {
+                let ds = f.dataset(&format!("{group}/{name}")).unwrap();
+                let (shape, ty) = match *name {
+                    "Coordinates" | "Velocities" => (vec![n, 3], f64t.clone()),
+                    "ParticleIDs" => (vec![n], T::Unsigned(IntSize::U8)),
+                    "FractionIndex" => (vec![n], T::Unsigned(IntSize::U4)),
+                    _ => (vec![n], f64t.clone()),
+                };
+                assert_eq!(ds.shape(), shape, "{group}/{name}");
+                assert_eq!(
+                    ds.dtype().unwrap().to_descriptor().unwrap(),
+                    ty,
+                    "{group}/{name}"
+                );
+                assert!(ds.is_chunked(), "{group}/{name}");
+                assert_eq!(
+                    ds.filters(),
+                    vec![Filter::Shuffle, Filter::Deflate(DEFLATE_LEVEL)],
+                    "{group}/{name}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn compression_actually_shrinks_redundant_data() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.h5");
+        let n = 100_000; // several chunks
+        let x = vec![[1.0, 2.0, 0.0]; n];
+        let m = vec![1e-3; n];
+        let id: Vec<u64> = (0..n as u64).collect();
+        let gas = PhaseView {
+            x: &x,
+            v: &x,
+            m: &m,
+            rho: &m,
+            h: 0.1,
+            id: &id,
+            e: None,
+            p: None,
+            t_stop: None,
+        };
+        write_snapshot(&path, &snap(Some(gas), vec![])).unwrap();
+        let f = File::open(&path).unwrap();
+        let ds = f.dataset("PartType0/Masses").unwrap();
+        assert!(
+            ds.storage_size() < (n * 8 / 20) as u64,
+            "{}",
+            ds.storage_size()
+        );
+        assert_eq!(ds.chunk(), Some(vec![CHUNK_ROWS]));
+        assert_eq!(
+            f.dataset("PartType0/Coordinates").unwrap().chunk(),
+            Some(vec![CHUNK_ROWS, 3])
+        );
+        let r = read_snapshot(&path).unwrap();
+        assert_eq!(r.gas.unwrap().id, id);
+    }
+
+    #[test]
+    fn optional_datasets_are_omitted_when_absent() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.h5");
+        let (g, d0) = (Phase::new(3, 1), Phase::new(3, 2));
+        let mut gv = g.view(0.1, false, false);
+        gv.e = Some(&g.e);
+        write_snapshot(&path, &snap(Some(gv), vec![d0.view(0.2, false, false)])).unwrap();
+        let f = File::open(&path).unwrap();
+        assert!(f.link_exists("PartType0/InternalEnergy"));
+        assert!(!f.link_exists("PartType0/Pressure"));
+        assert!(!f.link_exists("PartType3/StoppingTime"));
+        assert!(f.link_exists("PartType3/FractionIndex"));
+        let r = read_snapshot(&path).unwrap();
+        let gas = r.gas.unwrap();
+        assert_eq!(bits(&gas.e.unwrap()), bits(&g.e));
+        assert!(gas.p.is_none());
+        assert!(r.dust.unwrap().t_stop.is_none());
+    }
+
+    #[test]
+    fn fractions_without_stopping_time_are_filled_with_nan() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.h5");
+        let (d0, d1) = (Phase::new(2, 1), Phase::new(3, 2));
+        let s = snap(
+            None,
+            vec![d0.view(0.1, false, false), d1.view(0.1, false, true)],
+        );
+        write_snapshot(&path, &s).unwrap();
+        let t = read_snapshot(&path).unwrap().dust.unwrap().t_stop.unwrap();
+        assert!(t[..2].iter().all(|x| x.is_nan()));
+        assert_eq!(bits(&t[2..]), bits(&d1.t));
+    }
+
+    #[test]
+    fn gas_only_and_dust_only_snapshots_omit_the_other_group() {
+        let dir = tempfile::tempdir().unwrap();
+        let (g, d) = (Phase::new(3, 1), Phase::new(3, 2));
+
+        let p1 = dir.path().join("gas.h5");
+        write_snapshot(&p1, &snap(Some(g.view(0.1, true, false)), vec![])).unwrap();
+        let r = read_snapshot(&p1).unwrap();
+        assert!(r.gas.is_some() && r.dust.is_none());
+        assert_eq!(r.num_part, [3, 0, 0, 0, 0, 0]);
+        assert!(!File::open(&p1).unwrap().link_exists(DUST_GROUP));
+
+        let p2 = dir.path().join("dust.h5");
+        write_snapshot(&p2, &snap(None, vec![d.view(0.1, false, true)])).unwrap();
+        let r = read_snapshot(&p2).unwrap();
+        assert!(r.gas.is_none());
+        assert_eq!(r.num_part, [0, 0, 0, 3, 0, 0]);
+        assert_eq!(r.dust.unwrap().fraction.unwrap(), vec![0, 0, 0]);
+        assert!(!File::open(&p2).unwrap().link_exists(GAS_GROUP));
+    }
+
+    #[test]
+    fn empty_phases_and_empty_fractions_work() {
+        let dir = tempfile::tempdir().unwrap();
+        let (empty, d1) = (Phase::new(0, 0), Phase::new(4, 2));
+
+        // An empty fraction between non-empty ones keeps the indices of the others.
+        let p1 = dir.path().join("a.h5");
+        let s = snap(
+            Some(empty.view(0.1, true, false)),
+            vec![
+                empty.view(0.1, false, true),
+                d1.view(0.2, false, true),
+                empty.view(0.3, false, true),
+            ],
+        );
+        write_snapshot(&p1, &s).unwrap();
+        let r = read_snapshot(&p1).unwrap();
+        assert_eq!(r.num_part, [0, 0, 0, 4, 0, 0]);
+        let gas = r.gas.unwrap();
+        assert!(gas.x.is_empty() && gas.e.unwrap().is_empty());
+        let dust = r.dust.unwrap();
+        assert_eq!(dust.fraction.unwrap(), vec![1, 1, 1, 1]);
+        assert_eq!(bits(&dust.t_stop.unwrap()), bits(&d1.t));
+
+        // Only empty datasets: stored contiguous and unfiltered, still readable.
+        let p2 = dir.path().join("b.h5");
+        write_snapshot(&p2, &snap(None, vec![empty.view(0.1, false, true)])).unwrap();
+        let f = File::open(&p2).unwrap();
+        let c = f.dataset("PartType3/Coordinates").unwrap();
+        assert_eq!(c.shape(), vec![0, 3]);
+        assert!(!c.is_chunked());
+        assert!(c.filters().is_empty());
+        let r = read_snapshot(&p2).unwrap();
+        assert_eq!(r.num_part, [0; 6]);
+        let dust = r.dust.unwrap();
+        assert!(dust.x.is_empty() && dust.t_stop.unwrap().is_empty());
+        assert!(dust.fraction.unwrap().is_empty());
+    }
+
+    #[test]
+    fn success_leaves_only_the_final_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("snapshot_0003.h5");
+        // A stale temporary from a crashed run must not get in the way.
+        fs::write(dir.path().join(".snapshot_0003.h5.tmp"), b"garbage").unwrap();
+        let g = Phase::new(3, 1);
+        write_snapshot(&path, &snap(Some(g.view(0.1, true, false)), vec![])).unwrap();
+        assert_eq!(names_in(dir.path()), vec!["snapshot_0003.h5"]);
+        assert!(path.is_file());
+    }
+
+    #[test]
+    fn overwriting_replaces_the_previous_snapshot() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("snapshot_0000.h5");
+        let (a, b) = (Phase::new(3, 1), Phase::new(5, 2));
+        write_snapshot(&path, &snap(Some(a.view(0.1, true, false)), vec![])).unwrap();
+        write_snapshot(&path, &snap(None, vec![b.view(0.1, false, true)])).unwrap();
+        let r = read_snapshot(&path).unwrap();
+        assert!(r.gas.is_none());
+        assert_eq!(r.num_part, [0, 0, 0, 5, 0, 0]);
+        assert_eq!(names_in(dir.path()), vec!["snapshot_0000.h5"]);
+    }
+
+    #[test]
+    fn missing_directory_is_an_error_naming_it_and_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("no_such_dir");
+        let path = missing.join("snapshot_0000.h5");
+        let g = Phase::new(3, 1);
+        let err = write_snapshot(&path, &snap(Some(g.view(0.1, true, false)), vec![])).unwrap_err();
+        let msg = err.to_string();
+        assert!(msg.contains(&*missing.to_string_lossy()), "{msg}");
+        assert!(matches!(err, IoError::Io { .. }), "{err:?}");
+        assert!(!missing.exists());
+        assert!(names_in(dir.path()).is_empty());
+    }
+
+    #[test]
+    fn inconsistent_lengths_are_rejected_before_writing() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("snapshot_0000.h5");
+        let g = Phase::new(3, 1);
+        let mut gv = g.view(0.1, true, false);
+        gv.m = &g.m[..2];
+        let err = write_snapshot(&path, &snap(Some(gv), vec![])).unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.contains(&*path.to_string_lossy()) && msg.contains("`m`"),
+            "{msg}"
+        );
+
+        let d = Phase::new(3, 2);
+        let mut dv = d.view(0.1, false, true);
+        dv.t_stop = Some(&d.t[..1]);
+        let err =
+            write_snapshot(&path, &snap(None, vec![d.view(0.1, false, true), dv])).unwrap_err();
+        assert!(err.to_string().contains("dust fraction 1"), "{err}");
+
+        let mut s = snap(None, vec![]);
+        s.dim = 4;
+        assert!(write_snapshot(&path, &s).is_err());
+        s.dim = 3;
+        s.scene_text = "a\0b";
+        assert!(write_snapshot(&path, &s).is_err());
+        assert!(names_in(dir.path()).is_empty());
+    }
+
+    #[test]
+    fn failure_after_validation_leaves_no_final_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("snapshot_0000.h5");
+        // A directory squatting on the temporary name makes the write fail.
+        fs::create_dir(dir.path().join(".snapshot_0000.h5.tmp")).unwrap();
+        let g = Phase::new(3, 1);
+        let err = write_snapshot(&path, &snap(Some(g.view(0.1, true, false)), vec![])).unwrap_err();
+        assert!(err.to_string().contains(".snapshot_0000.h5.tmp"), "{err}");
+        assert!(!path.exists());
+    }
+
+    #[test]
+    fn large_multiline_scene_round_trips() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.h5");
+        // Well past the 64 KiB object-header limit that fixed-size attributes hit.
+        let scene: String = (0..5000)
+            .map(|i| format!("key_{i} = \"värde {i} ✓\"\n"))
+            .collect();
+        assert!(scene.len() > 100_000);
+        let mut s = snap(None, vec![]);
+        s.scene_text = &scene;
+        write_snapshot(&path, &s).unwrap();
+        assert_eq!(read_snapshot(&path).unwrap().scene_text, scene);
+    }
+
+    #[test]
+    fn reading_a_missing_or_foreign_file_names_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing: PathBuf = dir.path().join("nope.h5");
+        let err = read_snapshot(&missing).unwrap_err();
+        assert!(
+            err.to_string().contains(&*missing.to_string_lossy()),
+            "{err}"
+        );
+
+        let junk = dir.path().join("junk.h5");
+        fs::write(&junk, b"not hdf5").unwrap();
+        let err = read_snapshot(&junk).unwrap_err();
+        assert!(err.to_string().contains(&*junk.to_string_lossy()), "{err}");
+        assert_eq!(err.path(), junk.as_path());
+    }
+
+    #[test]
+    fn reader_rejects_counts_that_disagree_with_the_data() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.h5");
+        let g = Phase::new(3, 1);
+        write_snapshot(&path, &snap(Some(g.view(0.1, true, false)), vec![])).unwrap();
+        {
+            let f = File::open_rw(&path).unwrap();
+            let h = f.group("Header").unwrap();
+            for n in ["NumPart_ThisFile", "NumPart_Total"] {
+                h.attr(n)
+                    .unwrap()
+                    .write_raw(&[4u64, 0, 0, 0, 0, 0][..])
+                    .unwrap();
+            }
+        }
+        let err = read_snapshot(&path).unwrap_err();
+        assert!(err.to_string().contains("/PartType0/"), "{err}");
+    }
+}

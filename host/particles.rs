@@ -1,0 +1,137 @@
+//! Particle data, structure of arrays. One [`Phase`] for the gas and one per dust fraction.
+//! Fields a scene does not use are `None` (not allocated).
+
+/// One SPH particle set (the gas, or one dust fraction).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Phase {
+    pub x: Vec<[f64; 3]>,
+    pub v: Vec<[f64; 3]>,
+    pub m: Vec<f64>,
+    pub rho: Vec<f64>,
+    pub id: Vec<u64>,
+    /// Fixed wall particles (shock tube ends): never moved, no drag, constant density.
+    /// Allocated only for scenes with walls.
+    pub fixed: Option<Vec<bool>>,
+}
+
+impl Phase {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    #[inline(always)]
+    pub fn is_fixed(&self, i: usize) -> bool {
+        self.fixed.as_ref().is_some_and(|f| f[i])
+    }
+
+    /// Reorder every array by `perm` (new index → old index).
+    pub fn permute(&mut self, perm: &[u32]) {
+        fn apply<T: Copy>(v: &mut Vec<T>, perm: &[u32]) {
+            let out: Vec<T> = perm.iter().map(|&p| v[p as usize]).collect();
+            *v = out;
+        }
+        apply(&mut self.x, perm);
+        apply(&mut self.v, perm);
+        apply(&mut self.m, perm);
+        apply(&mut self.rho, perm);
+        apply(&mut self.id, perm);
+        if let Some(f) = &mut self.fixed {
+            apply(f, perm);
+        }
+    }
+
+    pub fn total_mass(&self) -> f64 {
+        self.m.iter().sum()
+    }
+
+    pub fn momentum(&self) -> [f64; 3] {
+        let mut p = [0.0; 3];
+        for (m, v) in self.m.iter().zip(&self.v) {
+            for d in 0..3 {
+                p[d] += m * v[d];
+            }
+        }
+        p
+    }
+
+    pub fn kinetic_energy(&self) -> f64 {
+        self.m
+            .iter()
+            .zip(&self.v)
+            .map(|(m, v)| 0.5 * m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+            .sum()
+    }
+}
+
+/// Gas: a phase plus thermodynamics.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Gas {
+    pub ph: Phase,
+    pub p: Vec<f64>,
+    pub c: Vec<f64>,
+    /// Specific internal energy: adiabatic gas only.
+    pub e: Option<Vec<f64>>,
+}
+
+impl Gas {
+    pub fn permute(&mut self, perm: &[u32]) {
+        self.ph.permute(perm);
+        let apply = |v: &mut Vec<f64>| *v = perm.iter().map(|&p| v[p as usize]).collect();
+        apply(&mut self.p);
+        apply(&mut self.c);
+        if let Some(e) = &mut self.e {
+            apply(e);
+        }
+    }
+
+    pub fn thermal_energy(&self) -> f64 {
+        match &self.e {
+            Some(e) => self.ph.m.iter().zip(e).map(|(m, e)| m * e).sum(),
+            None => 0.0,
+        }
+    }
+}
+
+/// The whole particle state at one time level.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct State {
+    pub t: f64,
+    pub step: u64,
+    pub gas: Gas,
+    /// One phase per dust fraction.
+    pub dust: Vec<Phase>,
+}
+
+impl State {
+    pub fn total_momentum(&self) -> [f64; 3] {
+        let mut p = self.gas.ph.momentum();
+        for d in &self.dust {
+            let q = d.momentum();
+            for k in 0..3 {
+                p[k] += q[k];
+            }
+        }
+        p
+    }
+
+    /// Σ m|v| over all phases: the scale for relative momentum drift.
+    pub fn momentum_scale(&self) -> f64 {
+        let f = |ph: &Phase| -> f64 {
+            ph.m.iter()
+                .zip(&ph.v)
+                .map(|(m, v)| m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+                .sum()
+        };
+        f(&self.gas.ph) + self.dust.iter().map(f).sum::<f64>()
+    }
+
+    pub fn total_energy(&self) -> f64 {
+        self.gas.ph.kinetic_energy()
+            + self.gas.thermal_energy()
+            + self.dust.iter().map(|d| d.kinetic_energy()).sum::<f64>()
+    }
+}

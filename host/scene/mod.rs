@@ -1,0 +1,86 @@
+//! Scene files: TOML → validated [`Scene`].
+//!
+//! Every key is checked before any output is written. Errors name the file and the dotted key
+//! (`gas.gamma`, `dust.fractions.1.t_stop`, ...). `--set key=value` overrides are applied to
+//! the parsed table before validation, so they are checked exactly like file keys.
+mod overrides;
+mod types;
+
+pub use overrides::apply_override;
+pub use types::*;
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A scene error: which file, which key, what is wrong.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneError {
+    pub file: PathBuf,
+    pub key: Option<String>,
+    pub msg: String,
+}
+
+impl fmt::Display for SceneError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match &self.key {
+            Some(k) => write!(f, "{}: key `{}`: {}", self.file.display(), k, self.msg),
+            None => write!(f, "{}: {}", self.file.display(), self.msg),
+        }
+    }
+}
+
+impl std::error::Error for SceneError {}
+
+/// A scene as loaded: the validated settings plus the verbatim file text (stored in snapshots).
+#[derive(Debug, Clone)]
+pub struct LoadedScene {
+    pub scene: Scene,
+    pub path: PathBuf,
+    pub text: String,
+    pub overrides: Vec<String>,
+}
+
+/// Read, override and validate a scene file.
+pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScene, SceneError> {
+    let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+        file: path.to_path_buf(),
+        key: None,
+        msg: format!("cannot read scene file: {e}"),
+    })?;
+    let scene = parse(&text, path, overrides)?;
+    Ok(LoadedScene {
+        scene,
+        path: path.to_path_buf(),
+        text,
+        overrides: overrides.to_vec(),
+    })
+}
+
+/// Parse scene text (with `--set` overrides) and validate it; `file` is used in messages.
+pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
+    let err = |key: Option<String>, msg: String| SceneError {
+        file: file.to_path_buf(),
+        key,
+        msg,
+    };
+    let mut table: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| err(None, format!("not valid TOML: {e}")))?;
+    for ov in overrides {
+        apply_override(&mut table, ov).map_err(|(key, msg)| err(key, msg))?;
+    }
+    let value = toml::Value::Table(table);
+    let scene: Scene = serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = e.path().to_string();
+        let key = if path == "." || path.is_empty() {
+            None
+        } else {
+            Some(path)
+        };
+        err(key, e.into_inner().to_string())
+    })?;
+    scene
+        .validate()
+        .map_err(|(key, msg)| err(Some(key), msg))?;
+    Ok(scene)
+}

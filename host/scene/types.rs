@@ -1,0 +1,453 @@
+//! The scene schema. Every struct denies unknown keys.
+use serde::Deserialize;
+
+type VResult = Result<(), (String, String)>;
+
+fn positive(key: &str, v: f64) -> VResult {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err((key.into(), format!("must be a finite number > 0 (got {v})")))
+    }
+}
+
+fn non_negative(key: &str, v: f64) -> VResult {
+    if v.is_finite() && v >= 0.0 {
+        Ok(())
+    } else {
+        Err((key.into(), format!("must be a finite number ≥ 0 (got {v})")))
+    }
+}
+
+fn finite(key: &str, v: f64) -> VResult {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err((key.into(), format!("must be finite (got {v})")))
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    pub scene: Meta,
+    pub gas: GasCfg,
+    #[serde(default)]
+    pub dust: Option<DustCfg>,
+    pub sph: SphCfg,
+    #[serde(default)]
+    pub idic: IdicCfg,
+    pub time: TimeCfg,
+    #[serde(default)]
+    pub dustybox: Option<BoxCfg>,
+    #[serde(default)]
+    pub dustywave: Option<WaveCfg>,
+    #[serde(default)]
+    pub dustyshock: Option<ShockCfg>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Problem {
+    Dustybox,
+    Dustywave,
+    Dustyshock,
+}
+
+impl Problem {
+    pub fn name(self) -> &'static str {
+        match self {
+            Problem::Dustybox => "dustybox",
+            Problem::Dustywave => "dustywave",
+            Problem::Dustyshock => "dustyshock",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Meta {
+    pub name: String,
+    pub problem: Problem,
+    pub dim: u32,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum EosKind {
+    Isothermal,
+    Adiabatic,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GasCfg {
+    pub eos: EosKind,
+    /// Isothermal sound speed.
+    pub cs: Option<f64>,
+    /// Adiabatic index.
+    pub gamma: Option<f64>,
+    /// Background gas density (box, wave).
+    pub rho: Option<f64>,
+    /// Background pressure (adiabatic box, wave).
+    pub p: Option<f64>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum LawKind {
+    /// t_stop given per fraction.
+    ConstantT,
+    /// Drag coefficient K given per fraction: t = ρ_d/K.
+    ConstantK,
+    /// Epstein: t = s ρ_s/(ρ_g c_s), `s_rho` given per fraction.
+    Epstein,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DustCfg {
+    pub law: LawKind,
+    /// Frictional heating of the gas by drag (method.md §1.3); adiabatic gas only.
+    #[serde(default)]
+    pub heating: bool,
+    /// Default stopping time for fractions that give none (constant_t law).
+    pub t_stop: Option<f64>,
+    pub fractions: Vec<FractionCfg>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FractionCfg {
+    /// Dust-to-gas density ratio ε_k of this fraction in the background state.
+    pub eps: f64,
+    pub t_stop: Option<f64>,
+    pub k: Option<f64>,
+    pub s_rho: Option<f64>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SphCfg {
+    /// Gas particles per unit length along each axis (box, wave); left state for the shock tube.
+    pub n: usize,
+    /// Smoothing length in units of the scene's reference gas spacing.
+    pub hfact: Option<f64>,
+    /// Absolute smoothing length (instead of hfact).
+    pub h: Option<f64>,
+    #[serde(default)]
+    pub viscosity: bool,
+    #[serde(default = "one")]
+    pub alpha: f64,
+    #[serde(default = "two")]
+    pub beta: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+fn two() -> f64 {
+    2.0
+}
+fn half() -> f64 {
+    0.5
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IdicCfg {
+    /// IDIC cell size in units of h (the seed's 0.5h).
+    #[serde(default = "half")]
+    pub cell: f64,
+}
+
+impl Default for IdicCfg {
+    fn default() -> Self {
+        IdicCfg { cell: 0.5 }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum PositionUpdate {
+    /// x^{n+1} = x^n + τ v^n (the authors' code).
+    Old,
+    /// x^{n+1} = x^n + τ v^{n+1} (symplectic Euler); the default, chosen by measurement.
+    #[default]
+    New,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeCfg {
+    pub t_end: f64,
+    /// Fixed time step τ.
+    pub dt: Option<f64>,
+    /// CFL factor (with a force limit); used when `dt` is absent.
+    pub cfl: Option<f64>,
+    /// Snapshot interval (t = 0 and t_end are always written).
+    pub output_dt: Option<f64>,
+    /// Explicit snapshot times (instead of output_dt).
+    pub output_times: Option<Vec<f64>>,
+    #[serde(default)]
+    pub position_update: PositionUpdate,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxCfg {
+    #[serde(default = "one")]
+    pub length: f64,
+    /// Initial gas velocity (x component).
+    #[serde(default)]
+    pub v_gas: f64,
+    /// Initial dust velocity per fraction (x component).
+    pub u_dust: Vec<f64>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum WaveMode {
+    /// The least-damped acoustic eigenmode (Benítez-Llambay et al. 2019).
+    Eigen,
+    /// Equal sine perturbations in every phase (Laibe & Price 2011 / Phantom set-up).
+    Sine,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WaveCfg {
+    #[serde(default = "one")]
+    pub length: f64,
+    pub amplitude: f64,
+    pub mode: WaveMode,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShockState {
+    pub rho: f64,
+    pub p: Option<f64>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShockCfg {
+    #[serde(default = "one")]
+    pub length: f64,
+    pub left: ShockState,
+    pub right: ShockState,
+}
+
+impl Scene {
+    pub fn dim(&self) -> u32 {
+        self.scene.dim
+    }
+
+    pub fn n_fractions(&self) -> usize {
+        self.dust.as_ref().map_or(0, |d| d.fractions.len())
+    }
+
+    /// Semantic checks; returns (key, message) for the first failure.
+    pub fn validate(&self) -> VResult {
+        let s = &self.scene;
+        if s.name.trim().is_empty() {
+            return Err(("scene.name".into(), "must not be empty".into()));
+        }
+        if !(1..=3).contains(&s.dim) {
+            return Err(("scene.dim".into(), format!("must be 1, 2 or 3 (got {})", s.dim)));
+        }
+        match s.problem {
+            Problem::Dustywave | Problem::Dustyshock if s.dim != 1 => {
+                return Err((
+                    "scene.dim".into(),
+                    format!("problem `{}` is one-dimensional: dim must be 1", s.problem.name()),
+                ))
+            }
+            _ => {}
+        }
+        // The problem's own section must be present, the others absent.
+        let sections = [
+            (Problem::Dustybox, self.dustybox.is_some()),
+            (Problem::Dustywave, self.dustywave.is_some()),
+            (Problem::Dustyshock, self.dustyshock.is_some()),
+        ];
+        for (p, present) in sections {
+            if p == s.problem && !present {
+                return Err((p.name().into(), format!("section [{}] is required by scene.problem", p.name())));
+            }
+            if p != s.problem && present {
+                return Err((p.name().into(), format!("section [{}] does not belong to problem `{}`", p.name(), s.problem.name())));
+            }
+        }
+        self.validate_gas()?;
+        self.validate_dust()?;
+        self.validate_sph()?;
+        positive("idic.cell", self.idic.cell)?;
+        self.validate_time()?;
+        self.validate_problem()
+    }
+
+    fn validate_gas(&self) -> VResult {
+        let g = &self.gas;
+        match g.eos {
+            EosKind::Isothermal => {
+                positive("gas.cs", g.cs.ok_or(("gas.cs".to_string(), "required for isothermal gas".to_string()))?)?;
+                if g.gamma.is_some() {
+                    return Err(("gas.gamma".into(), "not used by isothermal gas (remove it)".into()));
+                }
+                if g.p.is_some() {
+                    return Err(("gas.p".into(), "isothermal pressure is cs²ρ (remove it)".into()));
+                }
+            }
+            EosKind::Adiabatic => {
+                let gamma = g.gamma.ok_or(("gas.gamma".to_string(), "required for adiabatic gas".to_string()))?;
+                if !(gamma.is_finite() && gamma > 1.0) {
+                    return Err(("gas.gamma".into(), format!("must be > 1 (got {gamma})")));
+                }
+                if g.cs.is_some() {
+                    return Err(("gas.cs".into(), "adiabatic sound speed follows from γ, p, ρ (remove it)".into()));
+                }
+            }
+        }
+        let needs_background = self.scene.problem != Problem::Dustyshock;
+        if needs_background {
+            positive("gas.rho", g.rho.ok_or(("gas.rho".to_string(), "required".to_string()))?)?;
+            if g.eos == EosKind::Adiabatic {
+                positive("gas.p", g.p.ok_or(("gas.p".to_string(), "required for adiabatic gas".to_string()))?)?;
+            }
+        } else {
+            if g.rho.is_some() {
+                return Err(("gas.rho".into(), "the shock tube takes dustyshock.left/right instead".into()));
+            }
+            if g.p.is_some() {
+                return Err(("gas.p".into(), "the shock tube takes dustyshock.left/right instead".into()));
+            }
+        }
+        Ok(())
+    }
+
+    fn validate_dust(&self) -> VResult {
+        let Some(d) = &self.dust else {
+            if self.scene.problem == Problem::Dustybox {
+                return Err(("dust".into(), "dustybox needs a [dust] section with at least one fraction".into()));
+            }
+            return Ok(());
+        };
+        if d.fractions.is_empty() {
+            return Err(("dust.fractions".into(), "must list at least one fraction ([[dust.fractions]])".into()));
+        }
+        if d.heating && self.gas.eos == EosKind::Isothermal {
+            return Err(("dust.heating".into(), "drag heating needs adiabatic gas".into()));
+        }
+        if let Some(t) = d.t_stop {
+            positive("dust.t_stop", t)?;
+            if d.law != LawKind::ConstantT {
+                return Err(("dust.t_stop".into(), "only used with law = \"constant_t\"".into()));
+            }
+        }
+        for (i, f) in d.fractions.iter().enumerate() {
+            let key = |k: &str| format!("dust.fractions.{i}.{k}");
+            positive(&key("eps"), f.eps)?;
+            let (want, other): (&str, [(&str, Option<f64>); 2]) = match d.law {
+                LawKind::ConstantT => ("t_stop", [("k", f.k), ("s_rho", f.s_rho)]),
+                LawKind::ConstantK => ("k", [("t_stop", f.t_stop), ("s_rho", f.s_rho)]),
+                LawKind::Epstein => ("s_rho", [("t_stop", f.t_stop), ("k", f.k)]),
+            };
+            for (name, v) in other {
+                if v.is_some() {
+                    return Err((key(name), format!("not used by law `{:?}` (expects `{want}`)", d.law)));
+                }
+            }
+            let v = match d.law {
+                LawKind::ConstantT => f.t_stop.or(d.t_stop),
+                LawKind::ConstantK => f.k,
+                LawKind::Epstein => f.s_rho,
+            };
+            let v = v.ok_or((key(want), "required by dust.law".to_string()))?;
+            positive(&key(want), v)?;
+        }
+        Ok(())
+    }
+
+    fn validate_sph(&self) -> VResult {
+        let s = &self.sph;
+        if s.n < 2 {
+            return Err(("sph.n".into(), format!("must be ≥ 2 particles per unit length (got {})", s.n)));
+        }
+        match (s.h, s.hfact) {
+            (Some(_), Some(_)) => return Err(("sph.h".into(), "give either sph.h or sph.hfact, not both".into())),
+            (None, None) => return Err(("sph.hfact".into(), "give sph.hfact (h in units of the particle spacing) or sph.h".into())),
+            (Some(h), None) => positive("sph.h", h)?,
+            (None, Some(f)) => positive("sph.hfact", f)?,
+        }
+        non_negative("sph.alpha", s.alpha)?;
+        non_negative("sph.beta", s.beta)?;
+        Ok(())
+    }
+
+    fn validate_time(&self) -> VResult {
+        let t = &self.time;
+        positive("time.t_end", t.t_end)?;
+        match (t.dt, t.cfl) {
+            (Some(_), Some(_)) => return Err(("time.dt".into(), "give either time.dt (fixed) or time.cfl, not both".into())),
+            (None, None) => return Err(("time.dt".into(), "give time.dt (fixed step) or time.cfl".into())),
+            (Some(dt), None) => positive("time.dt", dt)?,
+            (None, Some(c)) => {
+                positive("time.cfl", c)?;
+                if c > 1.0 {
+                    return Err(("time.cfl".into(), format!("must be ≤ 1 (got {c})")));
+                }
+            }
+        }
+        match (&t.output_dt, &t.output_times) {
+            (Some(_), Some(_)) => return Err(("time.output_dt".into(), "give output_dt or output_times, not both".into())),
+            (Some(d), None) => positive("time.output_dt", *d)?,
+            (None, Some(ts)) => {
+                for (i, &x) in ts.iter().enumerate() {
+                    let key = format!("time.output_times.{i}");
+                    non_negative(&key, x)?;
+                    if x > t.t_end {
+                        return Err((key, format!("{x} is after time.t_end = {}", t.t_end)));
+                    }
+                }
+            }
+            (None, None) => {}
+        }
+        Ok(())
+    }
+
+    fn validate_problem(&self) -> VResult {
+        let nf = self.n_fractions();
+        if let Some(b) = &self.dustybox {
+            positive("dustybox.length", b.length)?;
+            finite("dustybox.v_gas", b.v_gas)?;
+            if b.u_dust.len() != nf {
+                return Err(("dustybox.u_dust".into(), format!("needs one velocity per dust fraction ({nf}), got {}", b.u_dust.len())));
+            }
+            for (i, &u) in b.u_dust.iter().enumerate() {
+                finite(&format!("dustybox.u_dust.{i}"), u)?;
+            }
+        }
+        if let Some(w) = &self.dustywave {
+            positive("dustywave.length", w.length)?;
+            positive("dustywave.amplitude", w.amplitude)?;
+            if w.amplitude > 0.1 {
+                return Err(("dustywave.amplitude".into(), format!("a linear wave needs a small amplitude (≤ 0.1, got {})", w.amplitude)));
+            }
+        }
+        if let Some(s) = &self.dustyshock {
+            positive("dustyshock.length", s.length)?;
+            for (side, st) in [("left", s.left), ("right", s.right)] {
+                positive(&format!("dustyshock.{side}.rho"), st.rho)?;
+                match (self.gas.eos, st.p) {
+                    (EosKind::Adiabatic, None) => return Err((format!("dustyshock.{side}.p"), "required for adiabatic gas".into())),
+                    (EosKind::Adiabatic, Some(p)) => positive(&format!("dustyshock.{side}.p"), p)?,
+                    (EosKind::Isothermal, Some(_)) => return Err((format!("dustyshock.{side}.p"), "isothermal pressure is cs²ρ (remove it)".into())),
+                    (EosKind::Isothermal, None) => {}
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,53 @@
+//! DUSTYBOX (method.md §7.1): uniform periodic box; gas and dust start with different velocities.
+use super::*;
+
+pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
+    let b = scene.dustybox.as_ref().expect("validated");
+    let dim = scene.dim();
+    let rho = scene.gas.rho.expect("validated");
+    let n_axis = ((scene.sph.n as f64 * b.length).round() as usize).max(2);
+    let dx = b.length / n_axis as f64;
+    let h = smoothing_length(scene, dx);
+    check_periodic_fits(b.length, h, "dustybox.length")?;
+    let x = lattice(dim, n_axis, b.length);
+    let vol = dx.powi(dim as i32);
+    let n = x.len();
+    let gas = Phase {
+        x: x.clone(),
+        v: vec![[b.v_gas, 0.0, 0.0]; n],
+        m: vec![rho * vol; n],
+        rho: vec![rho; n],
+        id: (0..n as u64).collect(),
+        fixed: None,
+    };
+    let e = internal_energy(scene, rho, scene.gas.p.unwrap_or(0.0)).map(|e| vec![e; n]);
+    let fr = &scene.dust.as_ref().expect("validated").fractions;
+    let dust = fr
+        .iter()
+        .enumerate()
+        .map(|(k, f)| Phase {
+            x: x.clone(),
+            v: vec![[b.u_dust[k], 0.0, 0.0]; n],
+            m: vec![f.eps * rho * vol; n],
+            rho: vec![f.eps * rho; n],
+            id: ((k as u64 + 1) * n as u64..(k as u64 + 2) * n as u64).collect(),
+            fixed: None,
+        })
+        .collect();
+    let mut periodic = [None; 3];
+    for p in periodic.iter_mut().take(dim as usize) {
+        *p = Some((0.0, b.length));
+    }
+    Ok(Setup {
+        state: State {
+            t: 0.0,
+            step: 0,
+            gas: gas_phase(gas, e),
+            dust,
+        },
+        h,
+        domain: Domain { dim, periodic },
+        spacing: dx,
+        box_size: b.length,
+    })
+}

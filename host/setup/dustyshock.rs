@@ -1,0 +1,97 @@
+//! DUSTYSHOCK (method.md §7.4): Sod-like tube with dust of uniform ε per fraction, fixed wall
+//! particles beyond both ends, equal-mass particles (spacing ∝ 1/ρ).
+use super::*;
+
+pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
+    let s = scene.dustyshock.as_ref().expect("validated");
+    let len = s.length;
+    let x0 = 0.5 * len;
+    let dx_l = 1.0 / scene.sph.n as f64;
+    let dx_r = dx_l * s.left.rho / s.right.rho;
+    // h refers to the coarser spacing, so every particle has enough neighbours.
+    let spacing = dx_l.max(dx_r);
+    let h = smoothing_length(scene, spacing);
+    let wall = dustsph_device::kernel::SUPPORT * h + spacing;
+    if x0 < 4.0 * h {
+        return Err(SetupError {
+            key: "dustyshock.length".into(),
+            msg: format!("tube half-length {x0} must exceed 4h = {} (raise sph.n or lower sph.hfact)", 4.0 * h),
+        });
+    }
+    let m = s.left.rho * dx_l;
+    let mut x = Vec::new();
+    let mut rho = Vec::new();
+    let mut side_left = Vec::new();
+    let mut xi = x0 - 0.5 * dx_l;
+    while xi > -wall {
+        x.push([xi, 0.0, 0.0]);
+        rho.push(s.left.rho);
+        side_left.push(true);
+        xi -= dx_l;
+    }
+    x.reverse();
+    rho.reverse();
+    side_left.reverse();
+    let mut xi = x0 + 0.5 * dx_r;
+    while xi < len + wall {
+        x.push([xi, 0.0, 0.0]);
+        rho.push(s.right.rho);
+        side_left.push(false);
+        xi += dx_r;
+    }
+    let n = x.len();
+    let fixed: Vec<bool> = x.iter().map(|p| p[0] < 0.0 || p[0] > len).collect();
+    let gas = Phase {
+        x: x.clone(),
+        v: vec![[0.0; 3]; n],
+        m: vec![m; n],
+        rho: rho.clone(),
+        id: (0..n as u64).collect(),
+        fixed: Some(fixed.clone()),
+    };
+    let e = match scene.gas.eos {
+        crate::scene::EosKind::Isothermal => None,
+        crate::scene::EosKind::Adiabatic => Some(
+            side_left
+                .iter()
+                .map(|&l| {
+                    let st = if l { s.left } else { s.right };
+                    internal_energy(scene, st.rho, st.p.unwrap_or(0.0)).unwrap_or(0.0)
+                })
+                .collect(),
+        ),
+    };
+    let dust = scene
+        .dust
+        .as_ref()
+        .map(|d| {
+            d.fractions
+                .iter()
+                .enumerate()
+                .map(|(k, f)| Phase {
+                    x: x.clone(),
+                    v: vec![[0.0; 3]; n],
+                    m: vec![f.eps * m; n],
+                    rho: rho.iter().map(|r| f.eps * r).collect(),
+                    id: ((k as u64 + 1) * n as u64..(k as u64 + 2) * n as u64).collect(),
+                    fixed: Some(fixed.clone()),
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    Ok(Setup {
+        state: State {
+            t: 0.0,
+            step: 0,
+            gas: gas_phase(gas, e),
+            dust,
+        },
+        h,
+        domain: Domain {
+            dim: 1,
+            periodic: [None; 3],
+        },
+        spacing,
+        box_size: len,
+    })
+}
