@@ -83,8 +83,16 @@ impl Grid {
                     |(mut l, mut h), p| {
                         for k in 0..3 {
                             // NaN fails both comparisons: caught by the finiteness check below.
-                            l[k] = if p[k] < l[k] || p[k].is_nan() { p[k] } else { l[k] };
-                            h[k] = if p[k] > h[k] || p[k].is_nan() { p[k] } else { h[k] };
+                            l[k] = if p[k] < l[k] || p[k].is_nan() {
+                                p[k]
+                            } else {
+                                l[k]
+                            };
+                            h[k] = if p[k] > h[k] || p[k].is_nan() {
+                                p[k]
+                            } else {
+                                h[k]
+                            };
                         }
                         (l, h)
                     },
@@ -95,15 +103,31 @@ impl Grid {
                         let mut l = a;
                         let mut h = b;
                         for k in 0..3 {
-                            l[k] = if c[k] < l[k] || c[k].is_nan() { c[k] } else { l[k] };
-                            h[k] = if d[k] > h[k] || d[k].is_nan() { d[k] } else { h[k] };
+                            l[k] = if c[k] < l[k] || c[k].is_nan() {
+                                c[k]
+                            } else {
+                                l[k]
+                            };
+                            h[k] = if d[k] > h[k] || d[k].is_nan() {
+                                d[k]
+                            } else {
+                                h[k]
+                            };
                         }
                         (l, h)
                     },
                 );
             for k in 0..3 {
-                lo[k] = if l[k] < lo[k] || l[k].is_nan() { l[k] } else { lo[k] };
-                hi[k] = if h[k] > hi[k] || h[k].is_nan() { h[k] } else { hi[k] };
+                lo[k] = if l[k] < lo[k] || l[k].is_nan() {
+                    l[k]
+                } else {
+                    lo[k]
+                };
+                hi[k] = if h[k] > hi[k] || h[k].is_nan() {
+                    h[k]
+                } else {
+                    hi[k]
+                };
             }
         }
         let mut g = Grid {
@@ -287,7 +311,10 @@ mod tests {
 
     #[test]
     fn expanding_cloud_keeps_every_particle() {
-        let dom = Domain { dim: 3, periodic: [None; 3] };
+        let dom = Domain {
+            dim: 3,
+            periodic: [None; 3],
+        };
         let x: Vec<[f64; 3]> = (0..1000)
             .map(|i| {
                 let f = i as f64;
@@ -311,7 +338,10 @@ mod tests {
 
     #[test]
     fn nan_position_is_an_error_not_a_drop() {
-        let dom = Domain { dim: 1, periodic: [None; 3] };
+        let dom = Domain {
+            dim: 1,
+            periodic: [None; 3],
+        };
         let x = vec![[0.0; 3], [f64::NAN, 0.0, 0.0]];
         assert!(Grid::build(&dom, 0.1, 0.2, &[&x]).is_err());
     }

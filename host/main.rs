@@ -5,7 +5,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "dustsph", version, about = "Gas + polydisperse dust by SPH-IDIC")]
+#[command(
+    name = "dustsph",
+    version,
+    about = "Gas + polydisperse dust by SPH-IDIC"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -35,7 +39,13 @@ enum Cmd {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.cmd {
-        Cmd::Run { scene, set, out, force, quiet } => {
+        Cmd::Run {
+            scene,
+            set,
+            out,
+            force,
+            quiet,
+        } => {
             let loaded = match dustsph::scene::load(&scene, &set) {
                 Ok(l) => l,
                 Err(e) => {
@@ -44,7 +54,11 @@ fn main() -> ExitCode {
                 }
             };
             let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.scene.name));
-            let opts = RunOptions { out: out.clone(), force, verbose: !quiet };
+            let opts = RunOptions {
+                out: out.clone(),
+                force,
+                verbose: !quiet,
+            };
             if !quiet {
                 eprintln!("dustsph: {} → {}", scene.display(), out.display());
             }
@@ -61,7 +75,10 @@ fn main() -> ExitCode {
                     );
                     if let Some(last) = s.errors.iter().rev().find(|e| e.t == s.t_final) {
                         for f in &last.fields {
-                            println!("  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}", f.field, f.norms.l1, f.norms.l2, f.norms.linf);
+                            println!(
+                                "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",
+                                f.field, f.norms.l1, f.norms.l2, f.norms.linf
+                            );
                         }
                     }
                     ExitCode::SUCCESS

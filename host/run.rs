@@ -174,7 +174,8 @@ pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), 
     let file = loaded.path.display().to_string();
     let su = setup::build(scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
     // All input is valid: only now touch the output directory.
-    let out = io::prepare_output_dir(&opts.out, opts.force).map_err(|e| RunError::Io(e.to_string()))?;
+    let out =
+        io::prepare_output_dir(&opts.out, opts.force).map_err(|e| RunError::Io(e.to_string()))?;
     let wall0 = Instant::now();
     let mut state = su.state;
     let phys = Physics::from_scene(scene, su.h, su.domain);
@@ -182,11 +183,24 @@ pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), 
     let mut eng = CpuEngine::new(phys, &mut state).map_err(|e| RunError::Step(e.to_string()))?;
     let counts = ParticleCounts {
         gas: state.gas.ph.len(),
-        gas_fixed: (0..state.gas.ph.len()).filter(|&i| state.gas.ph.is_fixed(i)).count(),
+        gas_fixed: (0..state.gas.ph.len())
+            .filter(|&i| state.gas.ph.is_fixed(i))
+            .count(),
         dust: state.dust.iter().map(|d| d.len()).collect(),
-        dust_fixed: state.dust.iter().map(|d| (0..d.len()).filter(|&i| d.is_fixed(i)).count()).collect(),
+        dust_fixed: state
+            .dust
+            .iter()
+            .map(|d| (0..d.len()).filter(|&i| d.is_fixed(i)).count())
+            .collect(),
     };
-    let mass0 = (state.gas.ph.total_mass(), state.dust.iter().map(|d| d.total_mass()).collect::<Vec<_>>());
+    let mass0 = (
+        state.gas.ph.total_mass(),
+        state
+            .dust
+            .iter()
+            .map(|d| d.total_mass())
+            .collect::<Vec<_>>(),
+    );
     let p0 = state.total_momentum();
     let e0 = state.total_energy();
     let mut pscale = state.momentum_scale();
@@ -196,7 +210,11 @@ pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), 
     let times = output_times(loaded);
     let mut next = 0usize;
     let (mut dt_min, mut dt_max, mut cfl_max) = (f64::INFINITY, 0.0f64, 0.0f64);
-    let write = |eng: &mut CpuEngine, state: &mut State, errors: &mut Vec<ExactErrors>, snaps: &mut Vec<String>| -> Result<(), RunError> {
+    let write = |eng: &mut CpuEngine,
+                 state: &mut State,
+                 errors: &mut Vec<ExactErrors>,
+                 snaps: &mut Vec<String>|
+     -> Result<(), RunError> {
         let name = io::snapshot_name(snaps.len());
         write_snapshot(&out.join(&name), loaded, eng, state, su.box_size)?;
         errors.extend(analysis::exact_errors(scene, state, fixed_dt));
@@ -237,7 +255,8 @@ pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), 
         dt_min = dt_min.min(dt);
         dt_max = dt_max.max(dt);
         cfl_max = cfl_max.max(dt * forces.vsig_max / h);
-        eng.advance(&mut state, &forces, dt).map_err(|e| RunError::Step(e.to_string()))?;
+        eng.advance(&mut state, &forces, dt)
+            .map_err(|e| RunError::Step(e.to_string()))?;
         pscale = pscale.max(state.momentum_scale());
         if landing {
             state.t = t_out;
@@ -275,7 +294,12 @@ pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), 
         particle_steps_per_second: n_part as f64 * state.step as f64 / wall.max(1e-12),
         conservation: Conservation {
             mass_gas: Drift::new(mass0.0, state.gas.ph.total_mass()),
-            mass_dust: state.dust.iter().zip(&mass0.1).map(|(d, &m)| Drift::new(m, d.total_mass())).collect(),
+            mass_dust: state
+                .dust
+                .iter()
+                .zip(&mass0.1)
+                .map(|(d, &m)| Drift::new(m, d.total_mass()))
+                .collect(),
             momentum_initial: p0,
             momentum_final: p1,
             momentum_drift_relative: if pscale > 0.0 { dp / pscale } else { dp },
@@ -285,6 +309,7 @@ pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), 
         snapshots: snaps,
         stage_seconds: eng.timers.entries().to_vec(),
     };
-    io::write_json_atomic(&out.join("summary.json"), &summary).map_err(|e| RunError::Io(e.to_string()))?;
+    io::write_json_atomic(&out.join("summary.json"), &summary)
+        .map_err(|e| RunError::Io(e.to_string()))?;
     Ok((summary, state))
 }

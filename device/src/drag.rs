@@ -78,7 +78,11 @@ pub fn cell_solve<R: Real>(
 ) -> Vec3<R> {
     let mut num = v_tilde;
     let mut den = R::ONE;
-    let n = u_tilde.len().min(eps.len()).min(beta.len()).min(u_new.len());
+    let n = u_tilde
+        .len()
+        .min(eps.len())
+        .min(beta.len())
+        .min(u_new.len());
     for k in 0..n {
         let w = eps[k] * beta[k] / (R::ONE + beta[k]);
         num = axpy(num, w, u_tilde[k]);
@@ -95,7 +99,12 @@ pub fn cell_solve<R: Real>(
 /// Gas particle update (method.md §3.3): v_a^{n+1} = [ṽ_a + Σ ε_k β_k u_k*^{n+1}]/[1 + Σ ε_k β_k],
 /// with ṽ_a = v_a^n + τA_a^n.
 #[inline]
-pub fn gas_update<R: Real>(v_tilde_a: Vec3<R>, eps: &[R], beta: &[R], u_new: &[Vec3<R>]) -> Vec3<R> {
+pub fn gas_update<R: Real>(
+    v_tilde_a: Vec3<R>,
+    eps: &[R],
+    beta: &[R],
+    u_new: &[Vec3<R>],
+) -> Vec3<R> {
     let mut num = v_tilde_a;
     let mut den = R::ONE;
     let n = u_new.len().min(eps.len()).min(beta.len());

@@ -86,10 +86,7 @@ pub fn gas_pair<R: Real>(
                 R::ZERO
             };
             // Monaghan (1989) signal speed with the viscous terms.
-            (
-                pi,
-                a.c + R::from_f64(1.2) * (av.alpha * cbar + av.beta * m),
-            )
+            (pi, a.c + R::from_f64(1.2) * (av.alpha * cbar + av.beta * m))
         }
         None => (R::ZERO, a.c),
     };

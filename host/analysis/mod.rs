@@ -29,7 +29,10 @@ pub struct ExactErrors {
 
 impl ExactErrors {
     pub fn get(&self, field: &str) -> Option<&Norms> {
-        self.fields.iter().find(|f| f.field == field).map(|f| &f.norms)
+        self.fields
+            .iter()
+            .find(|f| f.field == field)
+            .map(|f| &f.norms)
     }
 }
 
@@ -48,7 +51,10 @@ fn dustybox_model(scene: &Scene) -> (DustyBox, f64, Vec<f64>) {
             LawKind::Epstein => {
                 let cs = match scene.gas.eos {
                     EosKind::Isothermal => scene.gas.cs.expect("validated"),
-                    EosKind::Adiabatic => (scene.gas.gamma.expect("validated") * scene.gas.p.expect("validated") / rho).sqrt(),
+                    EosKind::Adiabatic => (scene.gas.gamma.expect("validated")
+                        * scene.gas.p.expect("validated")
+                        / rho)
+                        .sqrt(),
                 };
                 f.s_rho.expect("validated") / (rho * cs)
             }
@@ -67,8 +73,16 @@ fn phase_errors(
     let active: Vec<usize> = (0..ph.len()).filter(|&i| !ph.is_fixed(i)).collect();
     let m: Vec<f64> = active.iter().map(|&i| ph.m[i]).collect();
     let ex: Vec<(f64, f64)> = active.iter().map(|&i| exact(ph.x[i])).collect();
-    let rho: Vec<f64> = active.iter().zip(&ex).map(|(&i, e)| (ph.rho[i] - e.0) / rho_scale).collect();
-    let v: Vec<f64> = active.iter().zip(&ex).map(|(&i, e)| (ph.v[i][0] - e.1) / v_scale).collect();
+    let rho: Vec<f64> = active
+        .iter()
+        .zip(&ex)
+        .map(|(&i, e)| (ph.rho[i] - e.0) / rho_scale)
+        .collect();
+    let v: Vec<f64> = active
+        .iter()
+        .zip(&ex)
+        .map(|(&i, e)| (ph.v[i][0] - e.1) / v_scale)
+        .collect();
     [
         FieldError {
             field: format!("rho_{name}"),
@@ -88,9 +102,22 @@ fn all_phase_errors(
     exact_gas: impl Fn([f64; 3]) -> (f64, f64),
     exact_dust: impl Fn(usize, [f64; 3]) -> (f64, f64),
 ) -> Vec<FieldError> {
-    let mut out: Vec<FieldError> = phase_errors("g", &state.gas.ph, rho_scale(usize::MAX), v_scale, exact_gas).into();
+    let mut out: Vec<FieldError> = phase_errors(
+        "g",
+        &state.gas.ph,
+        rho_scale(usize::MAX),
+        v_scale,
+        exact_gas,
+    )
+    .into();
     for (k, d) in state.dust.iter().enumerate() {
-        out.extend(phase_errors(&format!("d{k}"), d, rho_scale(k), v_scale, |x| exact_dust(k, x)));
+        out.extend(phase_errors(
+            &format!("d{k}"),
+            d,
+            rho_scale(k),
+            v_scale,
+            |x| exact_dust(k, x),
+        ));
     }
     out
 }
@@ -107,7 +134,11 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
             let eps = bx.eps.clone();
             let (vg, ud) = bx.exact(v0, &u0, t);
             let rs = |k: usize| if k == usize::MAX { rho } else { rho * eps[k] };
-            let scale = u0.iter().map(|u| (u - v0).abs()).fold(0.0, f64::max).max(1e-300);
+            let scale = u0
+                .iter()
+                .map(|u| (u - v0).abs())
+                .fold(0.0, f64::max)
+                .max(1e-300);
             out.push(ExactErrors {
                 t,
                 reference: "exact (matrix) solution of the linear drag ODE; densities relative to ρ0, velocities relative to max|u0 − v0|".into(),
@@ -154,7 +185,10 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
         }
         Problem::Dustyshock => {
             let s = scene.dustyshock.as_ref().expect("validated");
-            let eps_k: Vec<f64> = scene.dust.as_ref().map_or(Vec::new(), |d| d.fractions.iter().map(|f| f.eps).collect());
+            let eps_k: Vec<f64> = scene
+                .dust
+                .as_ref()
+                .map_or(Vec::new(), |d| d.fractions.iter().map(|f| f.eps).collect());
             let eps: f64 = eps_k.iter().sum();
             let x0 = 0.5 * s.length;
             let prim = |st: crate::scene::ShockState| Prim {
@@ -163,17 +197,27 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
                 p: st.p.unwrap_or(0.0),
             };
             let sol = match scene.gas.eos {
-                EosKind::Adiabatic => DustyRiemann::ideal(prim(s.left), prim(s.right), eps, scene.gas.gamma.expect("validated")),
+                EosKind::Adiabatic => DustyRiemann::ideal(
+                    prim(s.left),
+                    prim(s.right),
+                    eps,
+                    scene.gas.gamma.expect("validated"),
+                ),
                 EosKind::Isothermal => {
                     let cs = scene.gas.cs.expect("validated");
-                    let pr = |st: crate::scene::ShockState| Prim { rho: st.rho, u: 0.0, p: cs * cs * st.rho };
+                    let pr = |st: crate::scene::ShockState| Prim {
+                        rho: st.rho,
+                        u: 0.0,
+                        p: cs * cs * st.rho,
+                    };
                     DustyRiemann::isothermal(pr(s.left), pr(s.right), eps, cs)
                 }
             };
             if let Some(sol) = sol {
                 out.push(ExactErrors {
                     t,
-                    reference: "equilibrium (t_stop → 0) mixture Riemann solution; absolute errors".into(),
+                    reference: "equilibrium (t_stop → 0) mixture Riemann solution; absolute errors"
+                        .into(),
                     fields: all_phase_errors(
                         state,
                         &|_| 1.0,

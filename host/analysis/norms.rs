@@ -13,7 +13,11 @@ impl Norms {
     pub fn of(err: &[f64], m: &[f64]) -> Norms {
         let mt: f64 = m.iter().sum();
         if err.is_empty() || mt <= 0.0 {
-            return Norms { l1: 0.0, l2: 0.0, linf: 0.0 };
+            return Norms {
+                l1: 0.0,
+                l2: 0.0,
+                linf: 0.0,
+            };
         }
         let l1 = err.iter().zip(m).map(|(e, m)| m * e.abs()).sum::<f64>() / mt;
         let l2 = (err.iter().zip(m).map(|(e, m)| m * e * e).sum::<f64>() / mt).sqrt();

@@ -104,7 +104,12 @@ impl CpuEngine {
     fn regrid(&mut self, state: &mut State) -> Result<(), StepError> {
         let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
         xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
-        self.grid = Grid::build(&self.phys.domain, self.phys.cell_size, self.phys.support(), &xs)?;
+        self.grid = Grid::build(
+            &self.phys.domain,
+            self.phys.cell_size,
+            self.phys.support(),
+            &xs,
+        )?;
         let (perm, idx) = CellIndex::sort(&self.grid, &state.gas.ph.x);
         state.gas.permute(&perm);
         self.gas_idx = idx;
@@ -244,8 +249,16 @@ impl CpuEngine {
     /// dt = cfl · min(both); the drag never limits the step.
     pub fn dt_limits(&self, f: &Forces) -> (f64, f64) {
         let h = self.phys.h;
-        let dt_cfl = if f.vsig_max > 0.0 { h / f.vsig_max } else { f64::INFINITY };
-        let dt_force = if f.acc_max > 0.0 { (h / f.acc_max).sqrt() } else { f64::INFINITY };
+        let dt_cfl = if f.vsig_max > 0.0 {
+            h / f.vsig_max
+        } else {
+            f64::INFINITY
+        };
+        let dt_force = if f.acc_max > 0.0 {
+            (h / f.acc_max).sqrt()
+        } else {
+            f64::INFINITY
+        };
         (dt_cfl, dt_force)
     }
 
@@ -383,30 +396,36 @@ impl CpuEngine {
     fn idic(&self, state: &mut State, v_tilde: &[[f64; 3]], tau: f64) -> Option<Vec<f64>> {
         let t = self.cell_table(state, v_tilde);
         let nf = t.nf;
-        // Cell solve: independent per cell.
-        let solved: Vec<([f64; 3], Vec<[f64; 3]>, Vec<f64>)> = (0..t.n_cells)
-            .into_par_iter()
-            .map(|c| {
-                let mut ut = vec![[0.0; 3]; nf];
-                let mut beta = vec![0.0; nf];
-                let mut unew = vec![[0.0; 3]; nf];
-                let vt = if t.gas_mass[c] > 0.0 {
-                    dustsph_device::scale(1.0 / t.gas_mass[c], t.gas_mom[c])
-                } else {
-                    [0.0; 3]
-                };
-                for k in 0..nf {
-                    let s = c * nf + k;
-                    if t.dust_mass[s] > 0.0 {
-                        ut[k] = dustsph_device::scale(1.0 / t.dust_mass[s], t.dust_mom[s]);
+        // Cell solve: independent per cell, written into flat arrays (cell c, fraction k at c*nf+k).
+        let mut v_cell = vec![[0.0; 3]; t.n_cells];
+        let mut u_cell = vec![[0.0; 3]; t.n_cells * nf];
+        let mut beta_cell = vec![0.0; t.n_cells * nf];
+        v_cell
+            .par_iter_mut()
+            .zip(u_cell.par_chunks_mut(nf.max(1)))
+            .zip(beta_cell.par_chunks_mut(nf.max(1)))
+            .enumerate()
+            .for_each_init(
+                || vec![[0.0; 3]; nf],
+                |ut, (c, ((vnew, unew), beta))| {
+                    let vt = if t.gas_mass[c] > 0.0 {
+                        dustsph_device::scale(1.0 / t.gas_mass[c], t.gas_mom[c])
+                    } else {
+                        [0.0; 3]
+                    };
+                    for k in 0..nf {
+                        let s = c * nf + k;
+                        ut[k] = if t.dust_mass[s] > 0.0 {
+                            dustsph_device::scale(1.0 / t.dust_mass[s], t.dust_mom[s])
+                        } else {
+                            [0.0; 3]
+                        };
+                        let ts = t.t_stop[s];
+                        beta[k] = drag::cell_beta(tau, ts.is_finite().then_some(ts));
                     }
-                    let ts = t.t_stop[s];
-                    beta[k] = drag::cell_beta(tau, ts.is_finite().then_some(ts));
-                }
-                let vnew = drag::cell_solve(vt, &ut, &t.eps[c * nf..(c + 1) * nf], &beta, &mut unew);
-                (vnew, unew, beta)
-            })
-            .collect();
+                    *vnew = drag::cell_solve(vt, ut, &t.eps[c * nf..(c + 1) * nf], beta, unew);
+                },
+            );
         let gas_map = &t.gas_map;
         let gas_cell = &self.gas_idx.cell_of;
         let g = &mut state.gas.ph;
@@ -418,11 +437,20 @@ impl CpuEngine {
                     return g.v[i];
                 }
                 let c = gas_map[gas_cell[i] as usize] as usize;
-                let (_, unew, beta) = &solved[c];
-                drag::gas_update(v_tilde[i], &t.eps[c * nf..(c + 1) * nf], beta, unew)
+                let r = c * nf..(c + 1) * nf;
+                drag::gas_update(
+                    v_tilde[i],
+                    &t.eps[r.clone()],
+                    &beta_cell[r.clone()],
+                    &u_cell[r],
+                )
             })
             .collect();
-        let mut heat_cell = if self.pipe.heating { vec![0.0; t.n_cells] } else { Vec::new() };
+        let mut heat_cell = if self.pipe.heating {
+            vec![0.0; t.n_cells]
+        } else {
+            Vec::new()
+        };
         if self.pipe.heating {
             for (i, vn) in v_new.iter().enumerate() {
                 if !g.is_fixed(i) {
@@ -443,7 +471,7 @@ impl CpuEngine {
                         return d.v[j];
                     }
                     let c = map[idx.cell_of[j] as usize] as usize;
-                    drag::dust_update(d.v[j], solved[c].2[k], solved[c].0)
+                    drag::dust_update(d.v[j], beta_cell[c * nf + k], v_cell[c])
                 })
                 .collect();
             if self.pipe.heating {
@@ -472,8 +500,10 @@ impl CpuEngine {
 
     /// Advance one step of size τ from layer n (forces already computed at layer n).
     pub fn advance(&mut self, state: &mut State, f: &Forces, tau: f64) -> Result<(), StepError> {
-        let old_gas_v = (self.phys.position_update == PositionUpdate::Old).then(|| state.gas.ph.v.clone());
-        let old_dust_v: Option<Vec<Vec<[f64; 3]>>> = (self.phys.position_update == PositionUpdate::Old)
+        let old_gas_v =
+            (self.phys.position_update == PositionUpdate::Old).then(|| state.gas.ph.v.clone());
+        let old_dust_v: Option<Vec<Vec<[f64; 3]>>> = (self.phys.position_update
+            == PositionUpdate::Old)
             .then(|| state.dust.iter().map(|d| d.v.clone()).collect());
         let g = &state.gas.ph;
         let v_tilde: Vec<[f64; 3]> = (0..g.len())
@@ -490,7 +520,13 @@ impl CpuEngine {
             state.gas.ph.v = v_tilde
                 .into_iter()
                 .enumerate()
-                .map(|(i, v)| if fixed.as_ref().is_some_and(|f| f[i]) { [0.0; 3] } else { v })
+                .map(|(i, v)| {
+                    if fixed.as_ref().is_some_and(|f| f[i]) {
+                        [0.0; 3]
+                    } else {
+                        v
+                    }
+                })
                 .collect();
             None
         };
@@ -500,18 +536,17 @@ impl CpuEngine {
             let drift = |ph: &mut Phase, w: Option<&Vec<[f64; 3]>>| {
                 let fixed = ph.fixed.as_deref();
                 let w = w.unwrap_or(&ph.v);
-                let x: Vec<[f64; 3]> = ph
-                    .x
-                    .par_iter()
-                    .enumerate()
-                    .map(|(i, &x)| {
-                        if fixed.is_some_and(|f| f[i]) {
-                            x
-                        } else {
-                            dom.wrap(update::drift(x, w[i], tau))
-                        }
-                    })
-                    .collect();
+                let x: Vec<[f64; 3]> =
+                    ph.x.par_iter()
+                        .enumerate()
+                        .map(|(i, &x)| {
+                            if fixed.is_some_and(|f| f[i]) {
+                                x
+                            } else {
+                                dom.wrap(update::drift(x, w[i], tau))
+                            }
+                        })
+                        .collect();
                 ph.x = x;
             };
             drift(&mut state.gas.ph, old_gas_v.as_ref());
@@ -550,7 +585,11 @@ impl CpuEngine {
 
     /// Stop on NaN/Inf or a non-positive density, naming step, phase, particle and field.
     fn check(&self, state: &State) -> Result<(), StepError> {
-        let bad = |phase: &str, ph: &Phase, check_rho: bool, extra: Option<(&str, &[f64])>| -> Option<String> {
+        let bad = |phase: &str,
+                   ph: &Phase,
+                   check_rho: bool,
+                   extra: Option<(&str, &[f64])>|
+         -> Option<String> {
             let rho_ok = |i: usize| !check_rho || (ph.rho[i].is_finite() && ph.rho[i] > 0.0);
             let i = (0..ph.len()).into_par_iter().find_first(|&i| {
                 !(ph.x[i].iter().all(|v| v.is_finite())
@@ -578,11 +617,21 @@ impl CpuEngine {
             ))
         };
         let g = &state.gas;
-        if let Some(m) = bad("gas", &g.ph, true, g.e.as_deref().map(|e| ("internal energy", e))) {
+        if let Some(m) = bad(
+            "gas",
+            &g.ph,
+            true,
+            g.e.as_deref().map(|e| ("internal energy", e)),
+        ) {
             return Err(StepError::Blowup(m));
         }
         for (k, d) in state.dust.iter().enumerate() {
-            if let Some(m) = bad(&format!("dust fraction {k}"), d, self.dust_density_fresh, None) {
+            if let Some(m) = bad(
+                &format!("dust fraction {k}"),
+                d,
+                self.dust_density_fresh,
+                None,
+            ) {
                 return Err(StepError::Blowup(m));
             }
         }

@@ -79,8 +79,6 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         };
         err(key, e.into_inner().to_string())
     })?;
-    scene
-        .validate()
-        .map_err(|(key, msg)| err(Some(key), msg))?;
+    scene.validate().map_err(|(key, msg)| err(Some(key), msg))?;
     Ok(scene)
 }

@@ -255,13 +255,19 @@ impl Scene {
             return Err(("scene.name".into(), "must not be empty".into()));
         }
         if !(1..=3).contains(&s.dim) {
-            return Err(("scene.dim".into(), format!("must be 1, 2 or 3 (got {})", s.dim)));
+            return Err((
+                "scene.dim".into(),
+                format!("must be 1, 2 or 3 (got {})", s.dim),
+            ));
         }
         match s.problem {
             Problem::Dustywave | Problem::Dustyshock if s.dim != 1 => {
                 return Err((
                     "scene.dim".into(),
-                    format!("problem `{}` is one-dimensional: dim must be 1", s.problem.name()),
+                    format!(
+                        "problem `{}` is one-dimensional: dim must be 1",
+                        s.problem.name()
+                    ),
                 ))
             }
             _ => {}
@@ -274,10 +280,20 @@ impl Scene {
         ];
         for (p, present) in sections {
             if p == s.problem && !present {
-                return Err((p.name().into(), format!("section [{}] is required by scene.problem", p.name())));
+                return Err((
+                    p.name().into(),
+                    format!("section [{}] is required by scene.problem", p.name()),
+                ));
             }
             if p != s.problem && present {
-                return Err((p.name().into(), format!("section [{}] does not belong to problem `{}`", p.name(), s.problem.name())));
+                return Err((
+                    p.name().into(),
+                    format!(
+                        "section [{}] does not belong to problem `{}`",
+                        p.name(),
+                        s.problem.name()
+                    ),
+                ));
             }
         }
         self.validate_gas()?;
@@ -292,36 +308,70 @@ impl Scene {
         let g = &self.gas;
         match g.eos {
             EosKind::Isothermal => {
-                positive("gas.cs", g.cs.ok_or(("gas.cs".to_string(), "required for isothermal gas".to_string()))?)?;
+                positive(
+                    "gas.cs",
+                    g.cs.ok_or((
+                        "gas.cs".to_string(),
+                        "required for isothermal gas".to_string(),
+                    ))?,
+                )?;
                 if g.gamma.is_some() {
-                    return Err(("gas.gamma".into(), "not used by isothermal gas (remove it)".into()));
+                    return Err((
+                        "gas.gamma".into(),
+                        "not used by isothermal gas (remove it)".into(),
+                    ));
                 }
                 if g.p.is_some() {
-                    return Err(("gas.p".into(), "isothermal pressure is cs²ρ (remove it)".into()));
+                    return Err((
+                        "gas.p".into(),
+                        "isothermal pressure is cs²ρ (remove it)".into(),
+                    ));
                 }
             }
             EosKind::Adiabatic => {
-                let gamma = g.gamma.ok_or(("gas.gamma".to_string(), "required for adiabatic gas".to_string()))?;
+                let gamma = g.gamma.ok_or((
+                    "gas.gamma".to_string(),
+                    "required for adiabatic gas".to_string(),
+                ))?;
                 if !(gamma.is_finite() && gamma > 1.0) {
                     return Err(("gas.gamma".into(), format!("must be > 1 (got {gamma})")));
                 }
                 if g.cs.is_some() {
-                    return Err(("gas.cs".into(), "adiabatic sound speed follows from γ, p, ρ (remove it)".into()));
+                    return Err((
+                        "gas.cs".into(),
+                        "adiabatic sound speed follows from γ, p, ρ (remove it)".into(),
+                    ));
                 }
             }
         }
         let needs_background = self.scene.problem != Problem::Dustyshock;
         if needs_background {
-            positive("gas.rho", g.rho.ok_or(("gas.rho".to_string(), "required".to_string()))?)?;
+            positive(
+                "gas.rho",
+                g.rho
+                    .ok_or(("gas.rho".to_string(), "required".to_string()))?,
+            )?;
             if g.eos == EosKind::Adiabatic {
-                positive("gas.p", g.p.ok_or(("gas.p".to_string(), "required for adiabatic gas".to_string()))?)?;
+                positive(
+                    "gas.p",
+                    g.p.ok_or((
+                        "gas.p".to_string(),
+                        "required for adiabatic gas".to_string(),
+                    ))?,
+                )?;
             }
         } else {
             if g.rho.is_some() {
-                return Err(("gas.rho".into(), "the shock tube takes dustyshock.left/right instead".into()));
+                return Err((
+                    "gas.rho".into(),
+                    "the shock tube takes dustyshock.left/right instead".into(),
+                ));
             }
             if g.p.is_some() {
-                return Err(("gas.p".into(), "the shock tube takes dustyshock.left/right instead".into()));
+                return Err((
+                    "gas.p".into(),
+                    "the shock tube takes dustyshock.left/right instead".into(),
+                ));
             }
         }
         Ok(())
@@ -330,20 +380,32 @@ impl Scene {
     fn validate_dust(&self) -> VResult {
         let Some(d) = &self.dust else {
             if self.scene.problem == Problem::Dustybox {
-                return Err(("dust".into(), "dustybox needs a [dust] section with at least one fraction".into()));
+                return Err((
+                    "dust".into(),
+                    "dustybox needs a [dust] section with at least one fraction".into(),
+                ));
             }
             return Ok(());
         };
         if d.fractions.is_empty() {
-            return Err(("dust.fractions".into(), "must list at least one fraction ([[dust.fractions]])".into()));
+            return Err((
+                "dust.fractions".into(),
+                "must list at least one fraction ([[dust.fractions]])".into(),
+            ));
         }
         if d.heating && self.gas.eos == EosKind::Isothermal {
-            return Err(("dust.heating".into(), "drag heating needs adiabatic gas".into()));
+            return Err((
+                "dust.heating".into(),
+                "drag heating needs adiabatic gas".into(),
+            ));
         }
         if let Some(t) = d.t_stop {
             positive("dust.t_stop", t)?;
             if d.law != LawKind::ConstantT {
-                return Err(("dust.t_stop".into(), "only used with law = \"constant_t\"".into()));
+                return Err((
+                    "dust.t_stop".into(),
+                    "only used with law = \"constant_t\"".into(),
+                ));
             }
         }
         for (i, f) in d.fractions.iter().enumerate() {
@@ -356,7 +418,10 @@ impl Scene {
             };
             for (name, v) in other {
                 if v.is_some() {
-                    return Err((key(name), format!("not used by law `{:?}` (expects `{want}`)", d.law)));
+                    return Err((
+                        key(name),
+                        format!("not used by law `{:?}` (expects `{want}`)", d.law),
+                    ));
                 }
             }
             let v = match d.law {
@@ -373,11 +438,24 @@ impl Scene {
     fn validate_sph(&self) -> VResult {
         let s = &self.sph;
         if s.n < 2 {
-            return Err(("sph.n".into(), format!("must be ≥ 2 particles per unit length (got {})", s.n)));
+            return Err((
+                "sph.n".into(),
+                format!("must be ≥ 2 particles per unit length (got {})", s.n),
+            ));
         }
         match (s.h, s.hfact) {
-            (Some(_), Some(_)) => return Err(("sph.h".into(), "give either sph.h or sph.hfact, not both".into())),
-            (None, None) => return Err(("sph.hfact".into(), "give sph.hfact (h in units of the particle spacing) or sph.h".into())),
+            (Some(_), Some(_)) => {
+                return Err((
+                    "sph.h".into(),
+                    "give either sph.h or sph.hfact, not both".into(),
+                ))
+            }
+            (None, None) => {
+                return Err((
+                    "sph.hfact".into(),
+                    "give sph.hfact (h in units of the particle spacing) or sph.h".into(),
+                ))
+            }
             (Some(h), None) => positive("sph.h", h)?,
             (None, Some(f)) => positive("sph.hfact", f)?,
         }
@@ -390,8 +468,18 @@ impl Scene {
         let t = &self.time;
         positive("time.t_end", t.t_end)?;
         match (t.dt, t.cfl) {
-            (Some(_), Some(_)) => return Err(("time.dt".into(), "give either time.dt (fixed) or time.cfl, not both".into())),
-            (None, None) => return Err(("time.dt".into(), "give time.dt (fixed step) or time.cfl".into())),
+            (Some(_), Some(_)) => {
+                return Err((
+                    "time.dt".into(),
+                    "give either time.dt (fixed) or time.cfl, not both".into(),
+                ))
+            }
+            (None, None) => {
+                return Err((
+                    "time.dt".into(),
+                    "give time.dt (fixed step) or time.cfl".into(),
+                ))
+            }
             (Some(dt), None) => positive("time.dt", dt)?,
             (None, Some(c)) => {
                 positive("time.cfl", c)?;
@@ -401,7 +489,12 @@ impl Scene {
             }
         }
         match (&t.output_dt, &t.output_times) {
-            (Some(_), Some(_)) => return Err(("time.output_dt".into(), "give output_dt or output_times, not both".into())),
+            (Some(_), Some(_)) => {
+                return Err((
+                    "time.output_dt".into(),
+                    "give output_dt or output_times, not both".into(),
+                ))
+            }
             (Some(d), None) => positive("time.output_dt", *d)?,
             (None, Some(ts)) => {
                 for (i, &x) in ts.iter().enumerate() {
@@ -423,7 +516,13 @@ impl Scene {
             positive("dustybox.length", b.length)?;
             finite("dustybox.v_gas", b.v_gas)?;
             if b.u_dust.len() != nf {
-                return Err(("dustybox.u_dust".into(), format!("needs one velocity per dust fraction ({nf}), got {}", b.u_dust.len())));
+                return Err((
+                    "dustybox.u_dust".into(),
+                    format!(
+                        "needs one velocity per dust fraction ({nf}), got {}",
+                        b.u_dust.len()
+                    ),
+                ));
             }
             for (i, &u) in b.u_dust.iter().enumerate() {
                 finite(&format!("dustybox.u_dust.{i}"), u)?;
@@ -433,7 +532,13 @@ impl Scene {
             positive("dustywave.length", w.length)?;
             positive("dustywave.amplitude", w.amplitude)?;
             if w.amplitude > 0.1 {
-                return Err(("dustywave.amplitude".into(), format!("a linear wave needs a small amplitude (≤ 0.1, got {})", w.amplitude)));
+                return Err((
+                    "dustywave.amplitude".into(),
+                    format!(
+                        "a linear wave needs a small amplitude (≤ 0.1, got {})",
+                        w.amplitude
+                    ),
+                ));
             }
         }
         if let Some(s) = &self.dustyshock {
@@ -441,9 +546,19 @@ impl Scene {
             for (side, st) in [("left", s.left), ("right", s.right)] {
                 positive(&format!("dustyshock.{side}.rho"), st.rho)?;
                 match (self.gas.eos, st.p) {
-                    (EosKind::Adiabatic, None) => return Err((format!("dustyshock.{side}.p"), "required for adiabatic gas".into())),
+                    (EosKind::Adiabatic, None) => {
+                        return Err((
+                            format!("dustyshock.{side}.p"),
+                            "required for adiabatic gas".into(),
+                        ))
+                    }
                     (EosKind::Adiabatic, Some(p)) => positive(&format!("dustyshock.{side}.p"), p)?,
-                    (EosKind::Isothermal, Some(_)) => return Err((format!("dustyshock.{side}.p"), "isothermal pressure is cs²ρ (remove it)".into())),
+                    (EosKind::Isothermal, Some(_)) => {
+                        return Err((
+                            format!("dustyshock.{side}.p"),
+                            "isothermal pressure is cs²ρ (remove it)".into(),
+                        ))
+                    }
                     (EosKind::Isothermal, None) => {}
                 }
             }

@@ -15,7 +15,10 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     if x0 < 4.0 * h {
         return Err(SetupError {
             key: "dustyshock.length".into(),
-            msg: format!("tube half-length {x0} must exceed 4h = {} (raise sph.n or lower sph.hfact)", 4.0 * h),
+            msg: format!(
+                "tube half-length {x0} must exceed 4h = {} (raise sph.n or lower sph.hfact)",
+                4.0 * h
+            ),
         });
     }
     let m = s.left.rho * dx_l;

@@ -16,8 +16,14 @@ pub fn model(scene: &Scene) -> LinearWave {
             (WaveGas::Isothermal { cs }, cs)
         }
         EosKind::Adiabatic => {
-            let (gamma, p0) = (scene.gas.gamma.expect("validated"), scene.gas.p.expect("validated"));
-            (WaveGas::Adiabatic { gamma, p0 }, (gamma * p0 / rho_g0).sqrt())
+            let (gamma, p0) = (
+                scene.gas.gamma.expect("validated"),
+                scene.gas.p.expect("validated"),
+            );
+            (
+                WaveGas::Adiabatic { gamma, p0 },
+                (gamma * p0 / rho_g0).sqrt(),
+            )
         }
     };
     let (rho_d0, t_stop) = match &scene.dust {
@@ -107,7 +113,10 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let y = initial_amplitudes(scene, &lw);
     let (a, k) = (w.amplitude, lw.k);
     let x = place(n, w.length, lw.rho_g0, a, y.rho_g, k);
-    let v: Vec<[f64; 3]> = x.iter().map(|p| [field(0.0, a, y.v_g, k, p[0]), 0.0, 0.0]).collect();
+    let v: Vec<[f64; 3]> = x
+        .iter()
+        .map(|p| [field(0.0, a, y.v_g, k, p[0]), 0.0, 0.0])
+        .collect();
     let e = match (lw.gas, y.e) {
         (WaveGas::Adiabatic { gamma, p0 }, Some(eh)) => {
             let e0 = p0 / ((gamma - 1.0) * lw.rho_g0);
@@ -127,7 +136,10 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
         .map(|kf| {
             let rho0 = lw.rho_d0[kf];
             let x = place(n, w.length, rho0, a, y.rho_d[kf], k);
-            let v = x.iter().map(|p| [field(0.0, a, y.v_d[kf], k, p[0]), 0.0, 0.0]).collect();
+            let v = x
+                .iter()
+                .map(|p| [field(0.0, a, y.v_d[kf], k, p[0]), 0.0, 0.0])
+                .collect();
             Phase {
                 x,
                 v,

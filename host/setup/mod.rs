@@ -43,7 +43,10 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
 
 /// h from `sph.h` or `sph.hfact × spacing`.
 pub(crate) fn smoothing_length(scene: &Scene, spacing: f64) -> f64 {
-    scene.sph.h.unwrap_or_else(|| scene.sph.hfact.unwrap_or(1.2) * spacing)
+    scene
+        .sph
+        .h
+        .unwrap_or_else(|| scene.sph.hfact.unwrap_or(1.2) * spacing)
 }
 
 /// Periodic boxes must hold the kernel support twice over, so minimum-image pairs are unique.

@@ -1,0 +1,244 @@
+//! The formulas of `dustsph-device` against independent solutions: kernel normalisation and
+//! gradient, and the IDIC cell solve (method.md §3.3 properties 1–4).
+use dustsph_device::drag::{cell_solve, dust_update, gas_update};
+use dustsph_device::kernel;
+
+/// Small deterministic generator (xorshift64*), so the tests need no extra crate.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.next()
+    }
+    /// Log-uniform in [lo, hi].
+    fn log(&mut self, lo: f64, hi: f64) -> f64 {
+        (lo.ln() + (hi.ln() - lo.ln()) * self.next()).exp()
+    }
+}
+
+#[test]
+fn kernel_is_normalised_in_1d_2d_3d() {
+    let h = 0.7;
+    // Radial quadrature of W over its support: ∫ W dV with dV = 2 dr, 2πr dr, 4πr² dr.
+    let n = 200_000;
+    let dr = 2.0 * h / n as f64;
+    for dim in 1..=3u32 {
+        let mut s = 0.0;
+        for i in 0..n {
+            let r = (i as f64 + 0.5) * dr;
+            let shell = match dim {
+                1 => 2.0,
+                2 => 2.0 * std::f64::consts::PI * r,
+                _ => 4.0 * std::f64::consts::PI * r * r,
+            };
+            s += kernel::w(r, h, dim) * shell * dr;
+        }
+        assert!((s - 1.0).abs() < 1e-9, "dim {dim}: ∫W = {s}");
+    }
+}
+
+#[test]
+fn kernel_gradient_matches_finite_difference() {
+    let h = 0.3;
+    for dim in 1..=3u32 {
+        for i in 1..60 {
+            let r = i as f64 * 2.0 * h / 60.0;
+            let d = 1e-6;
+            let fd = (kernel::w(r + d, h, dim) - kernel::w(r - d, h, dim)) / (2.0 * d);
+            // ∇W = F r_vec, so dW/dr = F r.
+            let an = kernel::grad_w_factor(r, h, dim) * r;
+            assert!(
+                (fd - an).abs() < 1e-6 * (1.0 + an.abs()),
+                "dim {dim} r {r}: {fd} vs {an}"
+            );
+        }
+    }
+    assert_eq!(kernel::grad_w_factor(0.0, h, 3), 0.0);
+}
+
+/// Dense Gaussian elimination of the (N+1)×(N+1) backward-Euler system for one velocity
+/// component: v = ṽ + Σ ε_k β_k (u_k − v),  u_k = ũ_k − β_k (u_k − v).
+fn backward_euler_dense(vt: f64, ut: &[f64], eps: &[f64], beta: &[f64]) -> (f64, Vec<f64>) {
+    let n = ut.len() + 1;
+    let mut a = vec![vec![0.0; n]; n];
+    let mut b = vec![0.0; n];
+    a[0][0] = 1.0 + eps.iter().zip(beta).map(|(e, b)| e * b).sum::<f64>();
+    b[0] = vt;
+    for k in 0..ut.len() {
+        a[0][k + 1] = -eps[k] * beta[k];
+        a[k + 1][k + 1] = 1.0 + beta[k];
+        a[k + 1][0] = -beta[k];
+        b[k + 1] = ut[k];
+    }
+    for c in 0..n {
+        let p = (c..n)
+            .max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))
+            .unwrap();
+        a.swap(c, p);
+        b.swap(c, p);
+        for r in c + 1..n {
+            let f = a[r][c] / a[c][c];
+            let (top, bottom) = a.split_at_mut(r);
+            for (x, y) in bottom[0][c..].iter_mut().zip(&top[c][c..]) {
+                *x -= f * y;
+            }
+            b[r] -= f * b[c];
+        }
+    }
+    let mut x = vec![0.0; n];
+    for r in (0..n).rev() {
+        let s: f64 = (r + 1..n).map(|k| a[r][k] * x[k]).sum();
+        x[r] = (b[r] - s) / a[r][r];
+    }
+    (x[0], x[1..].to_vec())
+}
+
+#[test]
+fn cell_solve_is_backward_euler_and_conserves_momentum() {
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    // Deviation from the dense solve, in units of that solve's own round-off bound
+    // (1e-15 × condition estimate 1 + Σεβ + max β): must stay O(1).
+    let mut worst_be: f64 = 0.0;
+    let mut worst_mom: f64 = 0.0;
+    for nf in 1..=16 {
+        for _ in 0..200 {
+            let eps: Vec<f64> = (0..nf).map(|_| rng.log(1e-3, 10.0)).collect();
+            // β = τ/t_stop from 1e-3 to 1e8.
+            let beta: Vec<f64> = (0..nf).map(|_| rng.log(1e-3, 1e8)).collect();
+            let vt = [
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            ];
+            let ut: Vec<[f64; 3]> = (0..nf)
+                .map(|_| {
+                    [
+                        rng.range(-1.0, 1.0),
+                        rng.range(-1.0, 1.0),
+                        rng.range(-1.0, 1.0),
+                    ]
+                })
+                .collect();
+            let mut un = vec![[0.0; 3]; nf];
+            let vn = cell_solve(vt, &ut, &eps, &beta, &mut un);
+            let cond = 1.0
+                + eps.iter().zip(&beta).map(|(e, b)| e * b).sum::<f64>()
+                + beta.iter().cloned().fold(0.0, f64::max);
+            let tol = 1e-15 * cond;
+            for d in 0..3 {
+                let utd: Vec<f64> = ut.iter().map(|u| u[d]).collect();
+                let (v_ref, u_ref) = backward_euler_dense(vt[d], &utd, &eps, &beta);
+                worst_be = worst_be.max((vn[d] - v_ref).abs() / tol);
+                for k in 0..nf {
+                    worst_be = worst_be.max((un[k][d] - u_ref[k]).abs() / tol);
+                }
+                // Momentum per unit gas mass: ṽ + Σ ε ũ = v + Σ ε u.
+                let before = vt[d] + (0..nf).map(|k| eps[k] * ut[k][d]).sum::<f64>();
+                let after = vn[d] + (0..nf).map(|k| eps[k] * un[k][d]).sum::<f64>();
+                let scale = 1.0 + eps.iter().sum::<f64>();
+                worst_mom = worst_mom.max((after - before).abs() / scale);
+            }
+            assert!(vn.iter().all(|v| v.is_finite()));
+        }
+    }
+    assert!(
+        worst_be < 100.0,
+        "deviation from dense backward Euler: {worst_be:e} × its round-off bound"
+    );
+    assert!(worst_mom < 1e-14, "max momentum error {worst_mom:e}");
+}
+
+#[test]
+fn particle_updates_are_consistent_with_cell_means() {
+    // Cell means of the updated particle velocities equal the cell solution (property 1),
+    // and total momentum of the particles is conserved (property 2), with unequal counts.
+    let mut rng = Rng(42);
+    for nf in [1usize, 3, 8] {
+        for _ in 0..50 {
+            let mg = 0.7;
+            let ng = 1 + (rng.next() * 9.0) as usize;
+            let md: Vec<f64> = (0..nf).map(|_| rng.log(1e-3, 1.0)).collect();
+            let nd: Vec<usize> = (0..nf).map(|_| 1 + (rng.next() * 9.0) as usize).collect();
+            let vg: Vec<[f64; 3]> = (0..ng)
+                .map(|_| [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), 0.0])
+                .collect();
+            let ud: Vec<Vec<[f64; 3]>> = (0..nf)
+                .map(|k| {
+                    (0..nd[k])
+                        .map(|_| [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), 0.0])
+                        .collect()
+                })
+                .collect();
+            let mean = |v: &[[f64; 3]]| -> [f64; 3] {
+                let n = v.len() as f64;
+                [0, 1, 2].map(|d| v.iter().map(|x| x[d]).sum::<f64>() / n)
+            };
+            let eps: Vec<f64> = (0..nf)
+                .map(|k| md[k] * nd[k] as f64 / (mg * ng as f64))
+                .collect();
+            let beta: Vec<f64> = (0..nf).map(|_| rng.log(1e-3, 1e8)).collect();
+            let ut: Vec<[f64; 3]> = ud.iter().map(|u| mean(u)).collect();
+            let mut un = vec![[0.0; 3]; nf];
+            let vn = cell_solve(mean(&vg), &ut, &eps, &beta, &mut un);
+            let vg_new: Vec<[f64; 3]> = vg
+                .iter()
+                .map(|&v| gas_update(v, &eps, &beta, &un))
+                .collect();
+            let ud_new: Vec<Vec<[f64; 3]>> = (0..nf)
+                .map(|k| ud[k].iter().map(|&u| dust_update(u, beta[k], vn)).collect())
+                .collect();
+            let mg_new = mean(&vg_new);
+            for d in 0..2 {
+                assert!(
+                    (mg_new[d] - vn[d]).abs() < 1e-12,
+                    "gas mean {} vs {}",
+                    mg_new[d],
+                    vn[d]
+                );
+                for k in 0..nf {
+                    assert!((mean(&ud_new[k])[d] - un[k][d]).abs() < 1e-12);
+                }
+                let p0 = mg * vg.iter().map(|v| v[d]).sum::<f64>()
+                    + (0..nf)
+                        .map(|k| md[k] * ud[k].iter().map(|u| u[d]).sum::<f64>())
+                        .sum::<f64>();
+                let p1 = mg * vg_new.iter().map(|v| v[d]).sum::<f64>()
+                    + (0..nf)
+                        .map(|k| md[k] * ud_new[k].iter().map(|u| u[d]).sum::<f64>())
+                        .sum::<f64>();
+                let scale = mg * ng as f64 + (0..nf).map(|k| md[k] * nd[k] as f64).sum::<f64>();
+                assert!(
+                    (p1 - p0).abs() < 1e-14 * scale.max(1.0) * 10.0,
+                    "momentum {p0} → {p1}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn stiff_limit_gives_the_barycentric_velocity_and_no_coupling_is_uncoupled() {
+    // β → ∞: every phase moves with (ṽ + Σ ε ũ)/(1 + Σ ε) (property 4).
+    let eps = [0.5, 1.5, 0.25];
+    let vt = [1.0, -2.0, 0.5];
+    let ut = [[0.0, 1.0, 2.0], [3.0, 0.0, -1.0], [-1.0, 1.0, 1.0]];
+    let mut un = [[0.0; 3]; 3];
+    let vn = cell_solve(vt, &ut, &eps, &[1e14; 3], &mut un);
+    let se: f64 = eps.iter().sum();
+    for d in 0..3 {
+        let bary = (vt[d] + (0..3).map(|k| eps[k] * ut[k][d]).sum::<f64>()) / (1.0 + se);
+        assert!((vn[d] - bary).abs() < 1e-12);
+        for u in &un {
+            assert!((u[d] - bary).abs() < 1e-12);
+        }
+    }
+    // β = 0 (t_stop → ∞, or no gas in the cell): nothing changes (property 5; ballistic dust).
+    let vn = cell_solve(vt, &ut, &eps, &[0.0; 3], &mut un);
+    assert_eq!(vn, vt);
+    assert_eq!(un, ut);
+}
