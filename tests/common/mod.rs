@@ -1,0 +1,39 @@
+//! Shared helpers: run a scene from `configs/` with overrides into a temporary directory.
+#![allow(dead_code)]
+use dustsph::analysis::norms::Norms;
+use dustsph::particles::State;
+use dustsph::run::{run, RunOptions, Summary};
+use std::path::PathBuf;
+
+pub fn config(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("configs")
+        .join(format!("{name}.toml"))
+}
+
+/// Run `configs/<name>.toml` with `--set` overrides; returns the summary and final state.
+pub fn run_scene(name: &str, sets: &[&str]) -> (Summary, State) {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    let loaded = dustsph::scene::load(&config(name), &sets).unwrap_or_else(|e| panic!("{e}"));
+    let dir = tempfile::tempdir().unwrap();
+    let opts = RunOptions {
+        out: dir.path().join("out"),
+        force: false,
+        verbose: false,
+    };
+    run(&loaded, &opts).unwrap_or_else(|e| panic!("{name} {sets:?}: {e}"))
+}
+
+/// Final-time error norms of `field` against the first reference of the summary
+/// (`which` = 0: the exact solution; 1: the discrete oracle where there is one).
+pub fn final_error(s: &Summary, which: usize, field: &str) -> Norms {
+    let at_end: Vec<_> = s.errors.iter().filter(|e| e.t == s.t_final).collect();
+    *at_end[which]
+        .get(field)
+        .unwrap_or_else(|| panic!("no field {field}"))
+}
+
+/// Measured order of convergence from errors at resolutions differing by `ratio`.
+pub fn order(e_coarse: f64, e_fine: f64, ratio: f64) -> f64 {
+    (e_coarse / e_fine).ln() / ratio.ln()
+}
