@@ -132,6 +132,11 @@ fn write_snapshot(
     let t_stop = eng.dust_stopping_times(state);
     let h = eng.phys.h;
     let g = &state.gas;
+    // The snapshot contract has InternalEnergy for every gas; isothermal gas solves no energy
+    // equation, so it gets p/ρ (= c_s²), made here for output only.
+    let e_iso: Option<Vec<f64>> =
+        g.e.is_none()
+            .then(|| g.p.iter().zip(&g.ph.rho).map(|(p, r)| p / r).collect());
     let view = SnapshotView {
         time: state.t,
         dim: loaded.scene.dim(),
@@ -144,7 +149,7 @@ fn write_snapshot(
             rho: &g.ph.rho,
             h,
             id: &g.ph.id,
-            e: g.e.as_deref(),
+            e: g.e.as_deref().or(e_iso.as_deref()),
             p: Some(&g.p),
             t_stop: None,
         }),

@@ -1,0 +1,210 @@
+//! The command and output contract: `dustsph run SCENE [--set]... [--out DIR] [--force]`,
+//! GADGET-style snapshots at every output time (t = 0 included) and summary.json.
+use std::path::Path;
+use std::process::Command;
+
+fn dustsph(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dustsph"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap()
+}
+
+fn out_dir(dir: &Path) -> String {
+    dir.join("run").display().to_string()
+}
+
+#[test]
+fn run_writes_snapshots_at_output_times_and_a_summary() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = out_dir(tmp.path());
+    let o = dustsph(&["run", "configs/dustybox.toml", "--out", &out, "-q"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene_text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/dustybox.toml"),
+    )
+    .unwrap();
+    let times = [0.0, 0.25, 0.5, 0.75, 1.0];
+    for (i, t) in times.iter().enumerate() {
+        let p = Path::new(&out).join(format!("snapshot_{i:04}.h5"));
+        let s = dustsph::io::read_snapshot(&p).unwrap();
+        assert!(
+            (s.time - t).abs() < 1e-12,
+            "{} at t = {}",
+            p.display(),
+            s.time
+        );
+        assert_eq!(s.dim, 1);
+        assert_eq!(s.scene_text, scene_text);
+        assert_eq!(s.num_part, [64, 0, 0, 4 * 64, 0, 0]);
+        let d = s.dust.as_ref().unwrap();
+        for k in 0..4u32 {
+            assert_eq!(
+                d.fraction
+                    .as_ref()
+                    .unwrap()
+                    .iter()
+                    .filter(|&&f| f == k)
+                    .count(),
+                64
+            );
+        }
+        assert!(
+            s.gas.as_ref().unwrap().e.is_some(),
+            "InternalEnergy is part of the contract"
+        );
+    }
+    assert!(!Path::new(&out).join("snapshot_0005.h5").exists());
+    // Header attribute types as external readers expect them.
+    let f = hdf5::File::open(Path::new(&out).join("snapshot_0004.h5")).unwrap();
+    let h = f.group("Header").unwrap();
+    assert_eq!(
+        h.attr("NumPart_Total").unwrap().read_raw::<u64>().unwrap(),
+        vec![64, 0, 0, 256, 0, 0]
+    );
+    assert_eq!(
+        h.attr("MassTable").unwrap().read_raw::<f64>().unwrap(),
+        vec![0.0; 6]
+    );
+    assert_eq!(
+        h.attr("Dimension").unwrap().read_scalar::<i32>().unwrap(),
+        1
+    );
+    assert_eq!(
+        h.attr("NumFilesPerSnapshot")
+            .unwrap()
+            .read_scalar::<i32>()
+            .unwrap(),
+        1
+    );
+    assert_eq!(
+        h.attr("BoxSize").unwrap().read_scalar::<f64>().unwrap(),
+        1.0
+    );
+    for ds in [
+        "Coordinates",
+        "Velocities",
+        "Masses",
+        "Density",
+        "InternalEnergy",
+        "Pressure",
+        "SmoothingLength",
+        "ParticleIDs",
+    ] {
+        assert!(
+            f.dataset(&format!("PartType0/{ds}")).is_ok(),
+            "PartType0/{ds}"
+        );
+    }
+    for ds in [
+        "Coordinates",
+        "Velocities",
+        "Masses",
+        "Density",
+        "SmoothingLength",
+        "ParticleIDs",
+        "FractionIndex",
+        "StoppingTime",
+    ] {
+        assert!(
+            f.dataset(&format!("PartType3/{ds}")).is_ok(),
+            "PartType3/{ds}"
+        );
+    }
+    // The summary.
+    let s: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(Path::new(&out).join("summary.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(s["scene"], "dustybox");
+    assert_eq!(s["dimension"], 1);
+    assert_eq!(s["steps"], 100);
+    assert_eq!(s["t_final"], 1.0);
+    assert_eq!(s["particles"]["dust"].as_array().unwrap().len(), 4);
+    assert!(s["wall_seconds"].as_f64().unwrap() > 0.0);
+    for k in ["mass_gas", "mass_dust", "momentum_drift_relative", "energy"] {
+        assert!(!s["conservation"][k].is_null(), "conservation.{k}");
+    }
+    let last = s["errors"].as_array().unwrap().last().unwrap();
+    assert_eq!(last["t"], 1.0);
+    let fields: Vec<&str> = last["fields"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["field"].as_str().unwrap())
+        .collect();
+    for f in ["rho_g", "v_g", "rho_d0", "v_d0", "rho_d3", "v_d3"] {
+        assert!(fields.contains(&f), "{f} in {fields:?}");
+    }
+    assert!(
+        last["fields"][0]["l1"].is_number()
+            && last["fields"][0]["l2"].is_number()
+            && last["fields"][0]["linf"].is_number()
+    );
+}
+
+#[test]
+fn an_existing_non_empty_output_is_never_overwritten_without_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = out_dir(tmp.path());
+    let short = [
+        "run",
+        "configs/dustybox.toml",
+        "--set",
+        "time.t_end=0.05",
+        "--set",
+        "time.output_dt=",
+        "--out",
+        &out,
+        "-q",
+    ];
+    assert!(dustsph(&short).status.success());
+    let summary = Path::new(&out).join("summary.json");
+    let before = std::fs::read(&summary).unwrap();
+    std::fs::write(Path::new(&out).join("notes.txt"), "mine").unwrap();
+    let o = dustsph(&short);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains(&out),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(
+        std::fs::read(&summary).unwrap(),
+        before,
+        "refused run must not touch the summary"
+    );
+    let mut forced = short.to_vec();
+    forced.push("--force");
+    assert!(dustsph(&forced).status.success());
+    assert_eq!(
+        std::fs::read_to_string(Path::new(&out).join("notes.txt")).unwrap(),
+        "mine"
+    );
+}
+
+#[test]
+fn bad_input_exits_non_zero_naming_key_and_file_and_writes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = out_dir(tmp.path());
+    let o = dustsph(&[
+        "run",
+        "configs/dustywave.toml",
+        "--set",
+        "sph.hfact=-2",
+        "--out",
+        &out,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("sph.hfact") && err.contains("dustywave.toml"),
+        "{err}"
+    );
+    assert!(!Path::new(&out).exists());
+    let o = dustsph(&["run", "configs/missing.toml", "--out", &out]);
+    assert_ne!(o.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("missing.toml"));
+    assert!(!Path::new(&out).exists());
+}

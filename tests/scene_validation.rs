@@ -1,0 +1,131 @@
+//! Bad input is rejected before any output, with a message naming the file and the key.
+mod common;
+use common::config;
+use dustsph::scene::{load, SceneError};
+
+fn err(scene: &str, sets: &[&str]) -> SceneError {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    match load(&config(scene), &sets) {
+        Ok(_) => panic!("{scene} {sets:?} was accepted"),
+        Err(e) => e,
+    }
+}
+
+#[test]
+fn every_scene_in_configs_is_valid() {
+    for s in ["dustybox", "dustywave", "dustyshock"] {
+        load(&config(s), &[]).unwrap_or_else(|e| panic!("{e}"));
+    }
+}
+
+#[test]
+fn impossible_values_name_their_key_and_file() {
+    let cases: &[(&str, &str, &str)] = &[
+        ("dustybox", "sph.hfact=-1", "sph.hfact"),
+        ("dustybox", "sph.hfact=0", "sph.hfact"),
+        ("dustyshock", "sph.hfact=", "sph.hfact"),
+        ("dustybox", "gas.rho=-1", "gas.rho"),
+        (
+            "dustybox",
+            "dust.fractions.0.t_stop=-1e-3",
+            "dust.fractions.0.t_stop",
+        ),
+        (
+            "dustybox",
+            "dust.fractions.2.eps=-0.1",
+            "dust.fractions.2.eps",
+        ),
+        ("dustybox", "dust.fractions=[]", "dust.fractions"),
+        ("dustybox", "time.dt=0", "time.dt"),
+        ("dustybox", "time.dt=-0.1", "time.dt"),
+        ("dustybox", "time.cfl=0.3", "time.dt"),
+        ("dustywave", "time.cfl=2", "time.cfl"),
+        ("dustybox", "time.t_end=0", "time.t_end"),
+        ("dustybox", "scene.dim=4", "scene.dim"),
+        ("dustywave", "scene.dim=3", "scene.dim"),
+        ("dustybox", "dustybox.u_dust=[1.0]", "dustybox.u_dust"),
+        ("dustybox", "dust.fractions.0.k=1.0", "dust.fractions.0.k"),
+        ("dustybox", "dust.heating=true", "dust.heating"),
+        ("dustyshock", "dustyshock.left.p=", "dustyshock.left.p"),
+        (
+            "dustyshock",
+            "dustyshock.right.rho=0",
+            "dustyshock.right.rho",
+        ),
+        ("dustywave", "gas.cs=", "gas.cs"),
+        (
+            "dustywave",
+            "dustywave.amplitude=0.5",
+            "dustywave.amplitude",
+        ),
+        (
+            "dustybox",
+            "time.output_times=[0.5, 2.0]",
+            "time.output_times.1",
+        ),
+    ];
+    for (scene, set, key) in cases {
+        let e = err(scene, &[set]);
+        assert_eq!(e.key.as_deref(), Some(*key), "{scene} --set {set}: {e}");
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&format!("{scene}.toml")),
+            "message must name the file: {msg}"
+        );
+        assert!(msg.contains(key), "message must name the key: {msg}");
+    }
+}
+
+#[test]
+fn output_times_after_the_end_are_refused() {
+    let e = err(
+        "dustybox",
+        &["time.output_dt=", "time.output_times=[0.5, 2.0]"],
+    );
+    assert_eq!(e.key.as_deref(), Some("time.output_times.1"), "{e}");
+}
+
+#[test]
+fn unknown_keys_and_wrong_types_name_their_key() {
+    let e = err("dustybox", &["gas.gammma=1.4"]);
+    assert!(e.to_string().contains("gammma"), "{e}");
+    let e = err("dustybox", &["sph.hfact=\"four\""]);
+    assert_eq!(e.key.as_deref(), Some("sph.hfact"), "{e}");
+    let e = err("dustybox", &["dust.law=\"stokes\""]);
+    assert_eq!(e.key.as_deref(), Some("dust.law"), "{e}");
+    let e = err("dustybox", &["dust.fractions.9.eps=1"]);
+    assert_eq!(e.key.as_deref(), Some("dust.fractions.9.eps"), "{e}");
+    let e = err("dustybox", &["no_equals_sign"]);
+    assert!(e.to_string().contains("key=value"), "{e}");
+}
+
+#[test]
+fn a_missing_or_broken_file_is_named() {
+    let e = load(std::path::Path::new("configs/no_such_scene.toml"), &[]).unwrap_err();
+    assert!(e.to_string().contains("no_such_scene.toml"), "{e}");
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("broken.toml");
+    std::fs::write(&p, "[scene\nname = 1").unwrap();
+    let e = load(&p, &[]).unwrap_err();
+    assert!(
+        e.to_string().contains("broken.toml") && e.to_string().contains("TOML"),
+        "{e}"
+    );
+}
+
+#[test]
+fn set_up_errors_name_the_key_and_write_nothing() {
+    // Kernel support too large for the periodic box: caught before the output directory exists.
+    let loaded = load(&config("dustybox"), &["sph.hfact=40".to_string()]).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never");
+    let opts = dustsph::run::RunOptions {
+        out: out.clone(),
+        force: false,
+        verbose: false,
+    };
+    let e = dustsph::run::run(&loaded, &opts).unwrap_err();
+    assert!(matches!(e, dustsph::run::RunError::Input(_)), "{e}");
+    assert!(e.to_string().contains("dustybox.length"), "{e}");
+    assert!(!out.exists());
+}
