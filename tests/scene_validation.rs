@@ -58,11 +58,6 @@ fn impossible_values_name_their_key_and_file() {
             "dustywave.amplitude=0.5",
             "dustywave.amplitude",
         ),
-        (
-            "dustybox",
-            "time.output_times=[0.5, 2.0]",
-            "time.output_times.1",
-        ),
     ];
     for (scene, set, key) in cases {
         let e = err(scene, &[set]);
