@@ -132,3 +132,73 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
         "momentum {p:?} vs scale {pscale}"
     );
 }
+
+#[test]
+fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
+    // Gas at rest near the origin; a dust cloud far away moving at u = 1 with a tiny t_stop.
+    // method.md §3.5: the reference code drags such dust towards zero velocity; here it must
+    // coast, exactly.
+    let n = 100;
+    let dx = 0.01;
+    let gx: Vec<[f64; 3]> = (0..n).map(|i| [(i as f64 + 0.5) * dx, 0.0, 0.0]).collect();
+    let dxs: Vec<[f64; 3]> = (0..n)
+        .map(|i| [5.0 + (i as f64 + 0.5) * dx, 0.0, 0.0])
+        .collect();
+    let mut st = State {
+        t: 0.0,
+        step: 0,
+        gas: Gas {
+            ph: Phase {
+                x: gx,
+                v: vec![[0.0; 3]; n],
+                m: vec![dx; n],
+                rho: vec![1.0; n],
+                id: (0..n as u64).collect(),
+                fixed: None,
+            },
+            p: vec![0.0; n],
+            c: vec![0.0; n],
+            e: None,
+        },
+        dust: vec![Phase {
+            x: dxs.clone(),
+            v: vec![[1.0, 0.0, 0.0]; n],
+            m: vec![dx; n],
+            rho: vec![1.0; n],
+            id: (n as u64..2 * n as u64).collect(),
+            fixed: None,
+        }],
+    };
+    let h = 2.0 * dx;
+    let phys = Physics {
+        dim: 1,
+        h,
+        eos: Eos::Isothermal { cs: 1.0 },
+        av: None,
+        laws: vec![StoppingLaw::ConstantTime { t_stop: 1e-9 }],
+        heating: false,
+        cell_size: 0.5 * h,
+        domain: Domain {
+            dim: 1,
+            periodic: [None; 3],
+        },
+        position_update: PositionUpdate::New,
+    };
+    let mut eng = CpuEngine::new(phys, &mut st).unwrap();
+    for _ in 0..10 {
+        eng.step(&mut st, 1e-3).unwrap();
+    }
+    for (d, x0) in st.dust[0].v.iter().zip(st.dust[0].x.iter()) {
+        assert_eq!(d[0], 1.0, "uncoupled dust must keep its velocity exactly");
+        assert!(x0[0] > 5.0);
+    }
+    let mut xs: Vec<f64> = st.dust[0].x.iter().map(|x| x[0]).collect();
+    xs.sort_by(f64::total_cmp);
+    for (x, x0) in xs.iter().zip(&dxs) {
+        assert!(
+            (x - (x0[0] + 0.01)).abs() < 1e-12,
+            "ballistic drift {x} vs {}",
+            x0[0] + 0.01
+        );
+    }
+}
