@@ -134,7 +134,7 @@ fn run_writes_snapshots_at_output_times_and_a_summary() {
         .iter()
         .map(|f| f["field"].as_str().unwrap())
         .collect();
-    for f in ["rho_g", "v_g", "rho_d0", "v_d0", "rho_d3", "v_d3"] {
+    for f in ["rho_g", "v_g", "rho_d0", "u_d0", "rho_d3", "u_d3"] {
         assert!(fields.contains(&f), "{f} in {fields:?}");
     }
     assert!(

@@ -3,7 +3,7 @@
 mod common;
 use common::*;
 
-const FIELDS: [&str; 5] = ["v_g", "v_d0", "v_d1", "v_d2", "v_d3"];
+const FIELDS: [&str; 5] = ["v_g", "u_d0", "u_d1", "u_d2", "u_d3"];
 
 #[test]
 fn equals_the_discrete_idic_oracle_to_round_off() {

@@ -89,7 +89,7 @@ fn phase_errors(
             norms: Norms::of(&rho, &m),
         },
         FieldError {
-            field: format!("v_{name}"),
+            field: format!("{}_{name}", if name == "g" { "v" } else { "u" }),
             norms: Norms::of(&v, &m),
         },
     ]
