@@ -73,63 +73,25 @@ impl Grid {
         phases: &[&[[f64; 3]]],
     ) -> Result<Grid, GridError> {
         let dim = domain.dim as usize;
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for x in phases {
-            let (l, h) = x
-                .par_iter()
-                .fold(
-                    || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-                    |(mut l, mut h), p| {
-                        for k in 0..3 {
-                            // NaN fails both comparisons: caught by the finiteness check below.
-                            l[k] = if p[k] < l[k] || p[k].is_nan() {
-                                p[k]
-                            } else {
-                                l[k]
-                            };
-                            h[k] = if p[k] > h[k] || p[k].is_nan() {
-                                p[k]
-                            } else {
-                                h[k]
-                            };
-                        }
-                        (l, h)
-                    },
-                )
-                .reduce(
-                    || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-                    |(a, b), (c, d)| {
-                        let mut l = a;
-                        let mut h = b;
-                        for k in 0..3 {
-                            l[k] = if c[k] < l[k] || c[k].is_nan() {
-                                c[k]
-                            } else {
-                                l[k]
-                            };
-                            h[k] = if d[k] > h[k] || d[k].is_nan() {
-                                d[k]
-                            } else {
-                                h[k]
-                            };
-                        }
-                        (l, h)
-                    },
-                );
+        type Bounds = ([f64; 3], [f64; 3]);
+        const EMPTY: Bounds = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        // Merge two bounding boxes; a NaN wins, so the finiteness check below catches it.
+        fn merge((l0, h0): Bounds, (l1, h1): Bounds) -> Bounds {
+            let mut out = (l0, h0);
             for k in 0..3 {
-                lo[k] = if l[k] < lo[k] || l[k].is_nan() {
-                    l[k]
-                } else {
-                    lo[k]
-                };
-                hi[k] = if h[k] > hi[k] || h[k].is_nan() {
-                    h[k]
-                } else {
-                    hi[k]
-                };
+                if l1[k] < out.0[k] || l1[k].is_nan() {
+                    out.0[k] = l1[k];
+                }
+                if h1[k] > out.1[k] || h1[k].is_nan() {
+                    out.1[k] = h1[k];
+                }
             }
+            out
         }
+        let (lo, hi) = phases
+            .iter()
+            .map(|x| x.par_iter().map(|&p| (p, p)).reduce(|| EMPTY, merge))
+            .fold(EMPTY, merge);
         let mut g = Grid {
             dim: domain.dim,
             origin: [0.0; 3],

@@ -38,16 +38,12 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     for p in periodic.iter_mut().take(dim as usize) {
         *p = Some((0.0, b.length));
     }
-    Ok(Setup {
-        state: State {
-            t: 0.0,
-            step: 0,
-            gas: gas_phase(gas, e),
-            dust,
-        },
+    Ok(Setup::at_start(
+        gas_phase(gas, e),
+        dust,
         h,
-        domain: Domain { dim, periodic },
-        spacing: dx,
-        box_size: b.length,
-    })
+        Domain { dim, periodic },
+        dx,
+        b.length,
+    ))
 }

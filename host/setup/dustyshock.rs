@@ -82,19 +82,15 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
                 .collect()
         })
         .unwrap_or_default();
-    Ok(Setup {
-        state: State {
-            t: 0.0,
-            step: 0,
-            gas: gas_phase(gas, e),
-            dust,
-        },
+    Ok(Setup::at_start(
+        gas_phase(gas, e),
+        dust,
         h,
-        domain: Domain {
+        Domain {
             dim: 1,
             periodic: [None; 3],
         },
         spacing,
-        box_size: len,
-    })
+        len,
+    ))
 }

@@ -150,19 +150,15 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
             }
         })
         .collect();
-    Ok(Setup {
-        state: State {
-            t: 0.0,
-            step: 0,
-            gas: gas_phase(gas, e),
-            dust,
-        },
+    Ok(Setup::at_start(
+        gas_phase(gas, e),
+        dust,
         h,
-        domain: Domain {
+        Domain {
             dim: 1,
             periodic: [Some((0.0, w.length)), None, None],
         },
-        spacing: dx,
-        box_size: w.length,
-    })
+        dx,
+        w.length,
+    ))
 }

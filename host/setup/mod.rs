@@ -19,6 +19,31 @@ pub struct Setup {
     pub box_size: f64,
 }
 
+impl Setup {
+    /// A set-up at t = 0 from its phases.
+    pub(crate) fn at_start(
+        gas: Gas,
+        dust: Vec<Phase>,
+        h: f64,
+        domain: Domain,
+        spacing: f64,
+        box_size: f64,
+    ) -> Setup {
+        Setup {
+            state: State {
+                t: 0.0,
+                step: 0,
+                gas,
+                dust,
+            },
+            h,
+            domain,
+            spacing,
+            box_size,
+        }
+    }
+}
+
 /// A set-up error names the scene key at fault.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SetupError {
