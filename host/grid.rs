@@ -104,7 +104,13 @@ impl Grid {
         let mut total: u128 = 1;
         for k in 0..dim {
             if let Some((plo, len)) = domain.periodic[k] {
-                let n = ((len / cell_size).floor() as u64).max(1);
+                let nf = (len / cell_size).floor();
+                if !(nf < (1u64 << 40) as f64) {
+                    return Err(GridError(format!(
+                        "{nf} cells of size {cell_size} along periodic axis {k}: too many"
+                    )));
+                }
+                let n = (nf as u64).max(1);
                 g.origin[k] = plo;
                 g.cell[k] = len / n as f64;
                 g.n[k] = n;
@@ -121,6 +127,16 @@ impl Grid {
                 }
                 let i0 = (lo[k] / cell_size).floor();
                 let i1 = (hi[k] / cell_size).floor();
+                // Checked in f64 before any integer cast can saturate or wrap.
+                if !(i1 - i0 + 1.0 < (1u64 << 40) as f64) {
+                    return Err(GridError(format!(
+                        "particles span [{}, {}] along axis {k}: {} cells of size {cell_size}, too many \
+                         (the cloud has spread too far for this cell size)",
+                        lo[k],
+                        hi[k],
+                        i1 - i0 + 1.0
+                    )));
+                }
                 g.origin[k] = i0 * cell_size;
                 g.cell[k] = cell_size;
                 g.n[k] = (i1 - i0) as u64 + 1;
@@ -296,6 +312,25 @@ mod tests {
             let c = g.coord(x[old as usize]);
             assert_eq!(idx.keys[idx.cell_of[new] as usize], g.key_of_coord(c));
         }
+    }
+
+    #[test]
+    fn a_huge_extent_is_an_error_not_an_overflow() {
+        let dom = Domain {
+            dim: 1,
+            periodic: [None; 3],
+        };
+        let x = vec![[0.0; 3], [1e20, 0.0, 0.0]];
+        assert!(Grid::build(&dom, 0.05, 0.2, &[&x]).is_err());
+        let dom = Domain {
+            dim: 3,
+            periodic: [None; 3],
+        };
+        let x = vec![[0.0; 3], [1e5, 1e5, 1e5]];
+        assert!(
+            Grid::build(&dom, 1e-3, 0.2, &[&x]).is_err(),
+            "1e24 cells overflow 64-bit keys"
+        );
     }
 
     #[test]

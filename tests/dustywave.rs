@@ -99,3 +99,104 @@ fn adiabatic_wave_matches_the_exact_solution() {
     assert!(e < 2e-2, "max L1 {e:e} (measured 9.4e-3)");
     assert!(s.conservation.momentum_drift_relative < 1e-12);
 }
+
+/// Final gas and dust velocities ordered by particle id.
+fn velocities_by_id(st: &dustsph::particles::State) -> Vec<f64> {
+    let mut all: Vec<(u64, f64)> = st
+        .gas
+        .ph
+        .id
+        .iter()
+        .zip(&st.gas.ph.v)
+        .map(|(&i, v)| (i, v[0]))
+        .collect();
+    for d in &st.dust {
+        all.extend(d.id.iter().zip(&d.v).map(|(&i, v)| (i, v[0])));
+    }
+    all.sort_by_key(|p| p.0);
+    all.into_iter().map(|p| p.1).collect()
+}
+
+#[test]
+fn constant_k_and_epstein_laws_reproduce_the_equivalent_constant_stopping_time() {
+    // In the linear wave t = ρ_d0/K and t = sρ_s/(ρ_g0 c_s) are constant to O(A), so the three
+    // laws must give the same particles: t = 0.4 ⇔ K = 2.24/0.4 = 5.6 ⇔ sρ_s = 0.4 (c_s = 1).
+    let a = 1e-4;
+    let (_, t) = run_scene("dustywave", &["dust.fractions=[{eps=2.24, t_stop=0.4}]"]);
+    let (_, k) = run_scene(
+        "dustywave",
+        &[
+            "dust.law=\"constant_k\"",
+            "dust.fractions=[{eps=2.24, k=5.6}]",
+        ],
+    );
+    let (_, e) = run_scene(
+        "dustywave",
+        &[
+            "dust.law=\"epstein\"",
+            "dust.fractions=[{eps=2.24, s_rho=0.4}]",
+        ],
+    );
+    let (vt, vk, ve) = (
+        velocities_by_id(&t),
+        velocities_by_id(&k),
+        velocities_by_id(&e),
+    );
+    let dk = vt
+        .iter()
+        .zip(&vk)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+        / a;
+    let de = vt
+        .iter()
+        .zip(&ve)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+        / a;
+    assert!(
+        dk < 1e-3,
+        "constant K vs constant t: {dk:e} of the amplitude"
+    );
+    assert!(de < 1e-3, "Epstein vs constant t: {de:e} of the amplitude");
+    // A wrong law (t off by 10%) must be visible at this tolerance.
+    let (_, w) = run_scene("dustywave", &["dust.fractions=[{eps=2.24, t_stop=0.44}]"]);
+    let dw = vt
+        .iter()
+        .zip(&velocities_by_id(&w))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+        / a;
+    assert!(
+        dw > 1e-2,
+        "a 10% change of t_stop moves velocities by only {dw:e}"
+    );
+    // Adiabatic Epstein: c_s = √(γp/ρ) = √1.4, so sρ_s = 0.4√1.4 gives t = 0.4 again.
+    let adi = [
+        "gas.eos=\"adiabatic\"",
+        "gas.cs=",
+        "gas.gamma=1.4",
+        "gas.p=1.0",
+    ];
+    let mut st = adi.to_vec();
+    st.push("dust.fractions=[{eps=2.24, t_stop=0.4}]");
+    let (_, ta) = run_scene("dustywave", &st);
+    let s_rho = format!(
+        "dust.fractions=[{{eps=2.24, s_rho={}}}]",
+        0.4 * 1.4f64.sqrt()
+    );
+    let mut se = adi.to_vec();
+    se.push("dust.law=\"epstein\"");
+    se.push(&s_rho);
+    let (_, ea) = run_scene("dustywave", &se);
+    let da = velocities_by_id(&ta)
+        .iter()
+        .zip(&velocities_by_id(&ea))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+        / a;
+    assert!(
+        da < 1e-3,
+        "adiabatic Epstein vs constant t: {da:e} of the amplitude"
+    );
+}

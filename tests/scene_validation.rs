@@ -59,7 +59,13 @@ fn impossible_values_name_their_key_and_file() {
             "dustywave.amplitude",
         ),
     ];
-    for (scene, set, key) in cases {
+    let more: &[(&str, &str, &str)] = &[
+        ("dustyshock", "idic.cell=1e-300", "idic.cell"),
+        ("dustyshock", "idic.cell=10", "idic.cell"),
+        ("dustybox", "time.output_dt=1e-14", "time.output_dt"),
+        ("dustywave", "sph.n=1", "sph.n"),
+    ];
+    for (scene, set, key) in cases.iter().chain(more) {
         let e = err(scene, &[set]);
         assert_eq!(e.key.as_deref(), Some(*key), "{scene} --set {set}: {e}");
         let msg = e.to_string();

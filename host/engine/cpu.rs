@@ -516,18 +516,13 @@ impl CpuEngine {
             self.timers = timers;
             h
         } else {
-            let fixed = state.gas.ph.fixed.clone();
-            state.gas.ph.v = v_tilde
+            let g = &mut state.gas.ph;
+            let v_new: Vec<[f64; 3]> = v_tilde
                 .into_iter()
                 .enumerate()
-                .map(|(i, v)| {
-                    if fixed.as_ref().is_some_and(|f| f[i]) {
-                        [0.0; 3]
-                    } else {
-                        v
-                    }
-                })
+                .map(|(i, v)| if g.is_fixed(i) { g.v[i] } else { v })
                 .collect();
+            g.v = v_new;
             None
         };
         let dom = self.phys.domain;

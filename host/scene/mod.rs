@@ -71,13 +71,20 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
     }
     let value = toml::Value::Table(table);
     let scene: Scene = serde_path_to_error::deserialize(value).map_err(|e| {
-        let path = e.path().to_string();
+        // serde writes sequence indices as `a[0].b`; scene keys are `a.0.b` everywhere.
+        let path = e.path().to_string().replace('[', ".").replace(']', "");
         let key = if path == "." || path.is_empty() {
             None
         } else {
             Some(path)
         };
-        err(key, e.into_inner().to_string())
+        let msg = e.into_inner().to_string();
+        // toml appends its own, index-less location ("in `a.b`"); the key already says where.
+        let msg = match msg.find("\nin `").or_else(|| msg.find(" in `")) {
+            Some(i) => msg[..i].trim_end().to_string(),
+            None => msg,
+        };
+        err(key, msg)
     })?;
     scene.validate().map_err(|(key, msg)| err(Some(key), msg))?;
     Ok(scene)

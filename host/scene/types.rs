@@ -3,11 +3,23 @@ use serde::Deserialize;
 
 type VResult = Result<(), (String, String)>;
 
+/// A number as a person would write it: plain in a friendly range, else in e-notation.
+pub(crate) fn num(v: f64) -> String {
+    if v == 0.0 || (1e-4..1e6).contains(&v.abs()) || !v.is_finite() {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
 fn positive(key: &str, v: f64) -> VResult {
     if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
-        Err((key.into(), format!("must be a finite number > 0 (got {v})")))
+        Err((
+            key.into(),
+            format!("must be a finite number > 0 (got {})", num(v)),
+        ))
     }
 }
 
@@ -15,7 +27,10 @@ fn non_negative(key: &str, v: f64) -> VResult {
     if v.is_finite() && v >= 0.0 {
         Ok(())
     } else {
-        Err((key.into(), format!("must be a finite number ≥ 0 (got {v})")))
+        Err((
+            key.into(),
+            format!("must be a finite number ≥ 0 (got {})", num(v)),
+        ))
     }
 }
 
@@ -23,7 +38,7 @@ fn finite(key: &str, v: f64) -> VResult {
     if v.is_finite() {
         Ok(())
     } else {
-        Err((key.into(), format!("must be finite (got {v})")))
+        Err((key.into(), format!("must be finite (got {})", num(v))))
     }
 }
 
@@ -300,6 +315,17 @@ impl Scene {
         self.validate_dust()?;
         self.validate_sph()?;
         positive("idic.cell", self.idic.cell)?;
+        // Below 0.05h the neighbour reach (2h/Δc rows per axis) explodes; above 4h a cell
+        // averages over several kernel supports.
+        if !(0.05..=4.0).contains(&self.idic.cell) {
+            return Err((
+                "idic.cell".into(),
+                format!(
+                    "must be between 0.05 and 4 (cell size in units of h; got {})",
+                    num(self.idic.cell)
+                ),
+            ));
+        }
         self.validate_time()?;
         self.validate_problem()
     }
@@ -495,8 +521,25 @@ impl Scene {
                     "give output_dt or output_times, not both".into(),
                 ))
             }
-            (Some(d), None) => positive("time.output_dt", *d)?,
+            (Some(d), None) => {
+                positive("time.output_dt", *d)?;
+                if t.t_end / d > 100_000.0 {
+                    return Err((
+                        "time.output_dt".into(),
+                        format!(
+                            "{} snapshots would be written (limit 100000)",
+                            (t.t_end / d).floor()
+                        ),
+                    ));
+                }
+            }
             (None, Some(ts)) => {
+                if ts.len() > 100_000 {
+                    return Err((
+                        "time.output_times".into(),
+                        format!("{} snapshots would be written (limit 100000)", ts.len()),
+                    ));
+                }
                 for (i, &x) in ts.iter().enumerate() {
                     let key = format!("time.output_times.{i}");
                     non_negative(&key, x)?;

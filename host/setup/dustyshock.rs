@@ -6,8 +6,11 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let s = scene.dustyshock.as_ref().expect("validated");
     let len = s.length;
     let x0 = 0.5 * len;
-    let dx_l = 1.0 / scene.sph.n as f64;
-    let dx_r = dx_l * s.left.rho / s.right.rho;
+    // Equal masses: sph.n particles per unit length on the denser side.
+    let dx_dense = 1.0 / scene.sph.n as f64;
+    let rho_dense = s.left.rho.max(s.right.rho);
+    let dx_l = dx_dense * rho_dense / s.left.rho;
+    let dx_r = dx_dense * rho_dense / s.right.rho;
     // h refers to the coarser spacing, so every particle has enough neighbours.
     let spacing = dx_l.max(dx_r);
     let h = smoothing_length(scene, spacing);

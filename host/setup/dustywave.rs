@@ -52,24 +52,26 @@ pub fn model(scene: &Scene) -> LinearWave {
     }
 }
 
-/// Initial complex amplitudes for the scene's mode.
+/// Initial complex amplitudes for the scene's mode, normalised so that `amplitude` is relative:
+/// δρ_g = A ρ_g0 (eigenmode), or δρ = A ρ0 and δv = A c_s in every phase (sine).
 pub fn initial_amplitudes(scene: &Scene, lw: &LinearWave) -> WaveAmplitudes {
     let w = scene.dustywave.as_ref().expect("validated");
     match w.mode {
-        WaveMode::Eigen => lw.eigenmode().1,
+        WaveMode::Eigen => lw.eigenmode().1.scale(C::new(lw.rho_g0, 0.0)),
         WaveMode::Sine => {
-            // f = f0 + A sin(kx) = f0 + A Re[−i e^{ikx}] for every density (relative) and velocity.
+            // f = f0 + A sin(kx) = f0 + A Re[−i e^{ikx}] for densities (× ρ0) and velocities (× c_s).
             let mi = C::new(0.0, -1.0);
+            let cs = lw.sound_speed();
             let e = match lw.gas {
                 WaveGas::Isothermal { .. } => None,
                 WaveGas::Adiabatic { p0, .. } => Some(mi * (p0 / lw.rho_g0)),
             };
             WaveAmplitudes {
                 rho_g: mi * lw.rho_g0,
-                v_g: mi,
+                v_g: mi * cs,
                 e,
                 rho_d: lw.rho_d0.iter().map(|&r| mi * r).collect(),
-                v_d: vec![mi; lw.rho_d0.len()],
+                v_d: vec![mi * cs; lw.rho_d0.len()],
             }
         }
     }
