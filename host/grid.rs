@@ -105,7 +105,7 @@ impl Grid {
         for k in 0..dim {
             if let Some((plo, len)) = domain.periodic[k] {
                 let nf = (len / cell_size).floor();
-                if !(nf < (1u64 << 40) as f64) {
+                if nf.is_nan() || nf >= (1u64 << 40) as f64 {
                     return Err(GridError(format!(
                         "{nf} cells of size {cell_size} along periodic axis {k}: too many"
                     )));
@@ -128,7 +128,7 @@ impl Grid {
                 let i0 = (lo[k] / cell_size).floor();
                 let i1 = (hi[k] / cell_size).floor();
                 // Checked in f64 before any integer cast can saturate or wrap.
-                if !(i1 - i0 + 1.0 < (1u64 << 40) as f64) {
+                if (i1 - i0 + 1.0).is_nan() || i1 - i0 + 1.0 >= (1u64 << 40) as f64 {
                     return Err(GridError(format!(
                         "particles span [{}, {}] along axis {k}: {} cells of size {cell_size}, too many \
                          (the cloud has spread too far for this cell size)",
