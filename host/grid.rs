@@ -61,6 +61,7 @@ pub struct Grid {
     periodic: [bool; 3],
     /// Neighbour reach in cells along each axis: ceil(support / cell).
     reach: [u64; 3],
+    support: f64,
 }
 
 impl Grid {
@@ -100,6 +101,7 @@ impl Grid {
             n: [1; 3],
             periodic: [false; 3],
             reach: [0; 3],
+            support,
         };
         let mut total: u128 = 1;
         for k in 0..dim {
@@ -183,9 +185,8 @@ impl Grid {
     }
 
     /// Cell ranges within reach along axis k of cell coordinate c (one or two ranges, inclusive).
-    fn axis_ranges(&self, k: usize, c: u64) -> ([(u64, u64); 2], usize) {
+    fn axis_ranges(&self, k: usize, c: u64, r: u64) -> ([(u64, u64); 2], usize) {
         let n = self.n[k];
-        let r = self.reach[k];
         if self.periodic[k] {
             if 2 * r + 1 >= n {
                 return ([(0, n - 1), (0, 0)], 1);
@@ -206,17 +207,43 @@ impl Grid {
         }
     }
 
-    /// Calls `f(lo_key, hi_key)` for every row of cells (inclusive key range along x) within
-    /// reach of the cell `c`. Each cell is visited once.
+    /// Total number of cells in the grid box.
+    pub fn total_cells(&self) -> u64 {
+        self.n[0] * self.n[1] * self.n[2]
+    }
+
+    /// Lower bound of the distance between cell coordinate `a` and `b` along axis k.
+    #[inline(always)]
+    fn gap(&self, k: usize, a: u64, b: u64) -> f64 {
+        let mut d = a.abs_diff(b);
+        if self.periodic[k] {
+            d = d.min(self.n[k] - d);
+        }
+        d.saturating_sub(1) as f64 * self.cell[k]
+    }
+
+    /// Calls `f(lo_key, hi_key)` for every row of cells (inclusive key range along x) that may
+    /// hold a point within the support of some point of cell `c`. Rows are trimmed to the
+    /// support sphere, so about half the cells of the bounding cube are skipped in 3D. Each cell
+    /// is visited at most once.
     #[inline]
     pub fn for_each_neighbour_row(&self, c: [u64; 3], mut f: impl FnMut(u64, u64)) {
-        let (xr, nx) = self.axis_ranges(0, c[0]);
-        let (yr, ny) = self.axis_ranges(1, c[1]);
-        let (zr, nz) = self.axis_ranges(2, c[2]);
+        let s2 = self.support * self.support;
+        let (yr, ny) = self.axis_ranges(1, c[1], self.reach[1]);
+        let (zr, nz) = self.axis_ranges(2, c[2], self.reach[2]);
         for &(z0, z1) in &zr[..nz] {
             for iz in z0..=z1 {
+                let gz = self.gap(2, iz, c[2]);
                 for &(y0, y1) in &yr[..ny] {
                     for iy in y0..=y1 {
+                        let gy = self.gap(1, iy, c[1]);
+                        let g2 = gy * gy + gz * gz;
+                        if g2 >= s2 {
+                            continue;
+                        }
+                        let rx =
+                            (((s2 - g2).sqrt() / self.cell[0]).ceil() as u64).min(self.reach[0]);
+                        let (xr, nx) = self.axis_ranges(0, c[0], rx);
                         for &(x0, x1) in &xr[..nx] {
                             f(
                                 self.key_of_coord([x0, iy, iz]),
@@ -239,6 +266,9 @@ pub struct CellIndex {
     pub start: Vec<u32>,
     /// Cell index (into `keys`) of every particle.
     pub cell_of: Vec<u32>,
+    /// Dense start table over every key of the grid box (first particle with key ≥ k), when
+    /// the box is small enough; makes a row lookup O(1) instead of two binary searches.
+    dense: Vec<u32>,
 }
 
 impl CellIndex {
@@ -262,6 +292,16 @@ impl CellIndex {
             idx.cell_of.push(idx.keys.len() as u32 - 1);
         }
         idx.start.push(kp.len() as u32);
+        let total = grid.total_cells();
+        // Up to 8 cells per particle (+ a floor for small runs): 32 bytes per particle at most.
+        if total <= (8 * kp.len() as u64).max(1 << 20) {
+            let mut dense = Vec::with_capacity(total as usize + 1);
+            for (c, &k) in idx.keys.iter().enumerate() {
+                dense.resize(k as usize + 1, idx.start[c]);
+            }
+            dense.resize(total as usize + 1, kp.len() as u32);
+            idx.dense = dense;
+        }
         (perm, idx)
     }
 
@@ -277,6 +317,9 @@ impl CellIndex {
     /// Particles whose cells have keys in [lo, hi].
     #[inline(always)]
     pub fn particles_in_keys(&self, lo: u64, hi: u64) -> Range<usize> {
+        if !self.dense.is_empty() {
+            return self.dense[lo as usize] as usize..self.dense[hi as usize + 1] as usize;
+        }
         let a = self.keys.partition_point(|&k| k < lo);
         let b = a + self.keys[a..].partition_point(|&k| k <= hi);
         self.start[a] as usize..self.start[b] as usize
@@ -311,6 +354,43 @@ mod tests {
         for (new, &old) in perm.iter().enumerate() {
             let c = g.coord(x[old as usize]);
             assert_eq!(idx.keys[idx.cell_of[new] as usize], g.key_of_coord(c));
+        }
+    }
+
+    #[test]
+    fn sparse_and_dense_lookups_find_all_3d_neighbours() {
+        // Two clusters far apart: the grid box has ~1e9 cells, so the sparse path is used;
+        // a compact cloud uses the dense table. Both must match brute force.
+        for spread in [1.0, 2000.0] {
+            let dom = Domain {
+                dim: 3,
+                periodic: [None; 3],
+            };
+            let x: Vec<[f64; 3]> = (0..600)
+                .map(|i| {
+                    let f = i as f64 * 0.618_033_988_7;
+                    let off = if i % 2 == 0 { 0.0 } else { spread };
+                    [f.fract() + off, (f * 1.37).fract(), (f * 2.11).fract()]
+                })
+                .collect();
+            let support = 0.2;
+            let g = Grid::build(&dom, 0.05, support, &[&x]).unwrap();
+            let (perm, idx) = CellIndex::sort(&g, &x);
+            assert_eq!(idx.dense.is_empty(), spread > 1.0);
+            let xs: Vec<[f64; 3]> = perm.iter().map(|&p| x[p as usize]).collect();
+            let within = |a: [f64; 3], b: [f64; 3]| {
+                let d = dom.separation(a, b);
+                d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < support * support
+            };
+            for (i, &xi) in xs.iter().enumerate() {
+                let mut found = Vec::new();
+                g.for_each_neighbour_row(g.coord(xi), |lo, hi| {
+                    found.extend(idx.particles_in_keys(lo, hi).filter(|&j| within(xi, xs[j])));
+                });
+                found.sort();
+                let brute: Vec<usize> = (0..xs.len()).filter(|&j| within(xi, xs[j])).collect();
+                assert_eq!(found, brute, "particle {i}, spread {spread}");
+            }
         }
     }
 
