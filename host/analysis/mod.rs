@@ -129,6 +129,8 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
     let t = state.t;
     let mut out = Vec::new();
     match scene.scene.problem {
+        // Compared with the 1D spherical reference by the ball diagnostics, not here.
+        Problem::Dustyball => {}
         Problem::Dustybox => {
             let rho = scene.gas.rho.expect("validated");
             let (bx, v0, u0) = dustybox_model(scene);

@@ -59,6 +59,8 @@ pub struct Scene {
     pub dustywave: Option<WaveCfg>,
     #[serde(default)]
     pub dustyshock: Option<ShockCfg>,
+    #[serde(default)]
+    pub dustyball: Option<BallCfg>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
@@ -67,6 +69,7 @@ pub enum Problem {
     Dustybox,
     Dustywave,
     Dustyshock,
+    Dustyball,
 }
 
 impl Problem {
@@ -75,6 +78,7 @@ impl Problem {
             Problem::Dustybox => "dustybox",
             Problem::Dustywave => "dustywave",
             Problem::Dustyshock => "dustyshock",
+            Problem::Dustyball => "dustyball",
         }
     }
 }
@@ -254,6 +258,14 @@ pub struct ShockCfg {
     pub right: ShockState,
 }
 
+/// The seed's ball (method.md §6.1): uniform gas and dust at rest in a ball, vacuum outside.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BallCfg {
+    #[serde(default = "one")]
+    pub radius: f64,
+}
+
 impl Scene {
     pub fn dim(&self) -> u32 {
         self.scene.dim
@@ -292,6 +304,7 @@ impl Scene {
             (Problem::Dustybox, self.dustybox.is_some()),
             (Problem::Dustywave, self.dustywave.is_some()),
             (Problem::Dustyshock, self.dustyshock.is_some()),
+            (Problem::Dustyball, self.dustyball.is_some()),
         ];
         for (p, present) in sections {
             if p == s.problem && !present {
@@ -583,6 +596,9 @@ impl Scene {
                     ),
                 ));
             }
+        }
+        if let Some(b) = &self.dustyball {
+            positive("dustyball.radius", b.radius)?;
         }
         if let Some(s) = &self.dustyshock {
             positive("dustyshock.length", s.length)?;

@@ -1,4 +1,5 @@
 //! Scene → initial particles. One file per problem; each builds the [`Setup`] the engine starts from.
+mod dustyball;
 mod dustybox;
 mod dustyshock;
 pub mod dustywave;
@@ -63,6 +64,7 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
         Problem::Dustybox => dustybox::build(scene),
         Problem::Dustywave => dustywave::build(scene),
         Problem::Dustyshock => dustyshock::build(scene),
+        Problem::Dustyball => dustyball::build(scene),
     }
 }
 
