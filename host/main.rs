@@ -1,8 +1,10 @@
 //! `dustsph` command line.
 use clap::{Parser, Subcommand};
-use dustsph::run::{run, RunError, RunOptions};
+use dustsph::run::{RunError, RunOptions, Runner, Stop, Summary};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 #[derive(Parser)]
 #[command(
@@ -30,10 +32,82 @@ enum Cmd {
         /// Write into a non-empty output directory (replaces only dustsph's own files)
         #[arg(long)]
         force: bool,
-        /// No per-snapshot progress lines
+        /// Write DIR/checkpoint.h5 every N steps (Ctrl-C always writes one)
+        #[arg(long, value_name = "N")]
+        checkpoint_every: Option<u64>,
+        /// No progress output
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
+    Resume {
+        dir: PathBuf,
+        #[arg(long, value_name = "N")]
+        checkpoint_every: Option<u64>,
+        #[arg(long, short)]
+        quiet: bool,
+    },
+}
+
+fn report(s: &Summary, out: &std::path::Path) {
+    println!(
+        "{}: {} steps to t = {} in {:.2} s ({:.3e} particle-steps/s); summary: {}",
+        s.scene,
+        s.steps,
+        s.t_final,
+        s.wall_seconds,
+        s.particle_steps_per_second,
+        out.join("summary.json").display()
+    );
+    if let Some(last) = s.errors.iter().rev().find(|e| e.t == s.t_final) {
+        for f in &last.fields {
+            println!(
+                "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",
+                f.field, f.norms.l1, f.norms.l2, f.norms.linf
+            );
+        }
+    }
+}
+
+fn drive(r: Result<Runner, RunError>, checkpoint_every: Option<u64>) -> ExitCode {
+    let fail = |e: RunError| {
+        eprintln!("error: {e}");
+        ExitCode::from(match e {
+            RunError::Input(_) => 2,
+            _ => 1,
+        })
+    };
+    let mut r = match r {
+        Ok(r) => r,
+        Err(e) => return fail(e),
+    };
+    // Ctrl-C asks the loop to stop after the current step and write a checkpoint.
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
+        eprintln!("warning: Ctrl-C will not checkpoint ({e})");
+    }
+    match r.advance(None, checkpoint_every, Some(&stop)) {
+        Ok(Stop::Finished) => {}
+        Ok(Stop::Interrupted) => {
+            eprintln!(
+                "interrupted at step {}, t = {}: checkpoint written; continue with `dustsph resume {}`",
+                r.state.step,
+                r.state.t,
+                r.out_dir().display()
+            );
+            return ExitCode::from(130);
+        }
+        Err(e) => return fail(e),
+    }
+    let out = r.out_dir().to_path_buf();
+    match r.finish() {
+        Ok((s, _)) => {
+            report(&s, &out);
+            ExitCode::SUCCESS
+        }
+        Err(e) => fail(e),
+    }
 }
 
 fn main() -> ExitCode {
@@ -44,6 +118,7 @@ fn main() -> ExitCode {
             set,
             out,
             force,
+            checkpoint_every,
             quiet,
         } => {
             let loaded = match dustsph::scene::load(&scene, &set) {
@@ -54,43 +129,25 @@ fn main() -> ExitCode {
                 }
             };
             let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.scene.name));
-            let opts = RunOptions {
-                out: out.clone(),
-                force,
-                verbose: !quiet,
-            };
             if !quiet {
                 eprintln!("dustsph: {} → {}", scene.display(), out.display());
             }
-            match run(&loaded, &opts) {
-                Ok((s, _)) => {
-                    println!(
-                        "{}: {} steps to t = {} in {:.2} s ({:.3e} particle-steps/s); summary: {}",
-                        s.scene,
-                        s.steps,
-                        s.t_final,
-                        s.wall_seconds,
-                        s.particle_steps_per_second,
-                        out.join("summary.json").display()
-                    );
-                    if let Some(last) = s.errors.iter().rev().find(|e| e.t == s.t_final) {
-                        for f in &last.fields {
-                            println!(
-                                "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",
-                                f.field, f.norms.l1, f.norms.l2, f.norms.linf
-                            );
-                        }
-                    }
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::from(match e {
-                        RunError::Input(_) => 2,
-                        _ => 1,
-                    })
-                }
+            let opts = RunOptions {
+                out,
+                force,
+                verbose: !quiet,
+            };
+            drive(Runner::start(&loaded, &opts), checkpoint_every)
+        }
+        Cmd::Resume {
+            dir,
+            checkpoint_every,
+            quiet,
+        } => {
+            if !quiet {
+                eprintln!("dustsph: resuming {}", dir.display());
             }
+            drive(Runner::resume(&dir, !quiet), checkpoint_every)
         }
     }
 }

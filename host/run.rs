@@ -6,7 +6,7 @@ use crate::io::{self, PhaseView, SnapshotView};
 use crate::particles::State;
 use crate::scene::LoadedScene;
 use crate::setup;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -35,7 +35,7 @@ impl std::fmt::Display for RunError {
 }
 impl std::error::Error for RunError {}
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ParticleCounts {
     pub gas: usize,
     pub gas_fixed: usize,
@@ -173,148 +173,365 @@ fn write_snapshot(
     io::write_snapshot(path, &view).map_err(|e| RunError::Io(e.to_string()))
 }
 
-/// Run a scene to its end time; returns the summary and the final state.
-pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), RunError> {
-    let scene = &loaded.scene;
-    let file = loaded.path.display().to_string();
-    let su = setup::build(scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
-    // All input is valid: only now touch the output directory.
-    let out =
-        io::prepare_output_dir(&opts.out, opts.force).map_err(|e| RunError::Io(e.to_string()))?;
-    let wall0 = Instant::now();
-    let mut state = su.state;
-    let phys = Physics::from_scene(scene, su.h, su.domain);
-    let idic_cell = phys.cell_size;
-    let mut eng = CpuEngine::new(phys, &mut state).map_err(|e| RunError::Step(e.to_string()))?;
-    let counts = ParticleCounts {
-        gas: state.gas.ph.len(),
-        gas_fixed: (0..state.gas.ph.len())
-            .filter(|&i| state.gas.ph.is_fixed(i))
-            .count(),
-        dust: state.dust.iter().map(|d| d.len()).collect(),
-        dust_fixed: state
-            .dust
-            .iter()
-            .map(|d| (0..d.len()).filter(|&i| d.is_fixed(i)).count())
-            .collect(),
-    };
-    let mass0 = (
-        state.gas.ph.total_mass(),
-        state
-            .dust
-            .iter()
-            .map(|d| d.total_mass())
-            .collect::<Vec<_>>(),
-    );
-    let p0 = state.total_momentum();
-    let e0 = state.total_energy();
-    let mut pscale = state.momentum_scale();
-    let fixed_dt = scene.time.dt;
-    let mut errors = Vec::new();
-    let mut snaps = Vec::new();
-    let times = output_times(loaded);
-    let mut next = 0usize;
-    let (mut dt_min, mut dt_max, mut cfl_max) = (f64::INFINITY, 0.0f64, 0.0f64);
-    let write = |eng: &mut CpuEngine,
-                 state: &mut State,
-                 errors: &mut Vec<ExactErrors>,
-                 snaps: &mut Vec<String>|
-     -> Result<(), RunError> {
-        let name = io::snapshot_name(snaps.len());
-        write_snapshot(&out.join(&name), loaded, eng, state, su.box_size)?;
-        errors.extend(analysis::exact_errors(scene, state, fixed_dt));
-        if opts.verbose {
-            eprintln!("  t = {:.6}  step {:>7}  → {}", state.t, state.step, name);
-        }
-        snaps.push(name);
-        Ok(())
-    };
-    write(&mut eng, &mut state, &mut errors, &mut snaps)?;
-    next += 1;
-    let t_end = scene.time.t_end;
-    let h = eng.phys.h;
-    while next < times.len() {
-        let forces = {
-            let mut timers = std::mem::take(&mut eng.timers);
-            let f = timers.time("gas forces", || eng.forces(&state));
-            eng.timers = timers;
-            f
-        };
-        let (dt_cfl, dt_force) = eng.dt_limits(&forces);
-        let mut dt = match (fixed_dt, scene.time.cfl) {
-            (Some(dt), _) => dt,
-            (None, Some(c)) => c * dt_cfl.min(dt_force),
-            _ => unreachable!("validated"),
-        };
-        if !(dt.is_finite() && dt > 0.0) {
-            return Err(RunError::Step(format!(
-                "step {}: time step is {dt} (no signal speed or force to set it); give time.dt",
-                state.step
-            )));
-        }
-        let t_out = times[next];
-        let landing = state.t + dt >= t_out - 1e-9 * dt;
-        if landing {
-            dt = t_out - state.t;
-        }
-        dt_min = dt_min.min(dt);
-        dt_max = dt_max.max(dt);
-        cfl_max = cfl_max.max(dt * forces.vsig_max / h);
-        eng.advance(&mut state, &forces, dt)
-            .map_err(|e| RunError::Step(e.to_string()))?;
-        pscale = pscale.max(state.momentum_scale());
-        if landing {
-            state.t = t_out;
-            write(&mut eng, &mut state, &mut errors, &mut snaps)?;
-            next += 1;
-        }
-    }
-    debug_assert!((state.t - t_end).abs() <= 1e-9 * t_end);
-    let wall = wall0.elapsed().as_secs_f64();
-    let p1 = state.total_momentum();
-    let dp = ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2) + (p1[2] - p0[2]).powi(2)).sqrt();
-    let n_part = state.gas.ph.len() + state.dust.iter().map(|d| d.len()).sum::<usize>();
-    let summary = Summary {
-        code: "dustsph",
-        version: env!("CARGO_PKG_VERSION"),
-        git: env!("DUSTSPH_GIT"),
-        scene: scene.scene.name.clone(),
-        problem: scene.scene.problem.name(),
-        scene_file: file,
-        overrides: loaded.overrides.clone(),
-        dimension: scene.dim(),
-        backend: format!("cpu (rayon, {} threads)", rayon::current_num_threads()),
-        precision: "f64",
-        particles: counts,
-        h,
-        idic_cell,
-        position_update: format!("{:?}", eng.phys.position_update).to_lowercase(),
-        pipeline: eng.pipe.stages(),
-        steps: state.step,
-        t_final: state.t,
-        dt_min,
-        dt_max,
-        cfl_max,
-        wall_seconds: wall,
-        particle_steps_per_second: n_part as f64 * state.step as f64 / wall.max(1e-12),
-        conservation: Conservation {
-            mass_gas: Drift::new(mass0.0, state.gas.ph.total_mass()),
-            mass_dust: state
+/// The driver's progress: everything besides the particles that a resumed run must know.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Progress {
+    next_output: usize,
+    snapshots: Vec<String>,
+    errors: Vec<ExactErrors>,
+    dt_min: f64,
+    dt_max: f64,
+    cfl_max: f64,
+    pscale: f64,
+    mass0: (f64, Vec<f64>),
+    p0: [f64; 3],
+    e0: f64,
+    /// Wall seconds of earlier sessions of this run.
+    wall_before: f64,
+    counts: ParticleCounts,
+}
+
+/// Why a run loop returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stop {
+    Finished,
+    /// Interrupted (Ctrl-C): a checkpoint was written; `dustsph resume DIR` continues.
+    Interrupted,
+}
+
+/// A run in progress: scene, engine, state and the driver's bookkeeping.
+pub struct Runner {
+    loaded: LoadedScene,
+    out: PathBuf,
+    eng: CpuEngine,
+    pub state: State,
+    box_size: f64,
+    times: Vec<f64>,
+    prog: Progress,
+    wall0: Instant,
+    verbose: bool,
+}
+
+impl Runner {
+    /// Validate, set up, and write the t = 0 snapshot.
+    pub fn start(loaded: &LoadedScene, opts: &RunOptions) -> Result<Runner, RunError> {
+        let (mut eng, mut state, box_size) = Self::engine(loaded, None)?;
+        // All input is valid: only now touch the output directory.
+        let out = io::prepare_output_dir(&opts.out, opts.force)
+            .map_err(|e| RunError::Io(e.to_string()))?;
+        let counts = ParticleCounts {
+            gas: state.gas.ph.len(),
+            gas_fixed: (0..state.gas.ph.len())
+                .filter(|&i| state.gas.ph.is_fixed(i))
+                .count(),
+            dust: state.dust.iter().map(|d| d.len()).collect(),
+            dust_fixed: state
                 .dust
                 .iter()
-                .zip(&mass0.1)
-                .map(|(d, &m)| Drift::new(m, d.total_mass()))
+                .map(|d| (0..d.len()).filter(|&i| d.is_fixed(i)).count())
                 .collect(),
-            momentum_initial: p0,
-            momentum_final: p1,
-            momentum_drift_relative: if pscale > 0.0 { dp / pscale } else { dp },
-            energy: Drift::new(e0, state.total_energy()),
-        },
-        errors,
-        snapshots: snaps,
-        stage_seconds: eng.timers.entries().to_vec(),
+        };
+        let prog = Progress {
+            next_output: 0,
+            snapshots: Vec::new(),
+            errors: Vec::new(),
+            dt_min: f64::INFINITY,
+            dt_max: 0.0,
+            cfl_max: 0.0,
+            pscale: state.momentum_scale(),
+            mass0: (
+                state.gas.ph.total_mass(),
+                state.dust.iter().map(|d| d.total_mass()).collect(),
+            ),
+            p0: state.total_momentum(),
+            e0: state.total_energy(),
+            wall_before: 0.0,
+            counts,
+        };
+        let mut r = Runner {
+            times: output_times(loaded),
+            loaded: loaded.clone(),
+            out,
+            box_size,
+            prog,
+            wall0: Instant::now(),
+            verbose: opts.verbose,
+            eng: {
+                eng.timers = Default::default();
+                eng
+            },
+            state: {
+                state.t = 0.0;
+                state
+            },
+        };
+        r.write_output()?;
+        Ok(r)
+    }
+
+    /// Continue a run from `DIR/checkpoint.h5`.
+    pub fn resume(dir: &Path, verbose: bool) -> Result<Runner, RunError> {
+        let ck = dir.join(io::checkpoint::CHECKPOINT_NAME);
+        let (state, meta) =
+            io::checkpoint::read_checkpoint(&ck).map_err(|e| RunError::Io(e.to_string()))?;
+        let bad = |e: String| RunError::Io(format!("{}: {e}", ck.display()));
+        let overrides: Vec<String> =
+            serde_json::from_str(&meta.overrides_json).map_err(|e| bad(e.to_string()))?;
+        let file = PathBuf::from(&meta.scene_file);
+        let scene = crate::scene::parse(&meta.scene_text, &file, &overrides)
+            .map_err(|e| bad(e.to_string()))?;
+        let loaded = LoadedScene {
+            scene,
+            path: file,
+            text: meta.scene_text,
+            overrides,
+        };
+        let prog: Progress =
+            serde_json::from_str(&meta.progress_json).map_err(|e| bad(e.to_string()))?;
+        let (eng, state, box_size) = Self::engine(&loaded, Some(state))?;
+        Ok(Runner {
+            times: output_times(&loaded),
+            loaded,
+            out: dir.to_path_buf(),
+            eng,
+            state,
+            box_size,
+            prog,
+            wall0: Instant::now(),
+            verbose,
+        })
+    }
+
+    /// The engine for a scene, on its initial state or on a given (checkpointed) one. Sorting
+    /// an already sorted state is the identity and densities are recomputed by the same code
+    /// in the same order, so a resumed run continues bit for bit.
+    fn engine(
+        loaded: &LoadedScene,
+        state: Option<State>,
+    ) -> Result<(CpuEngine, State, f64), RunError> {
+        let file = loaded.path.display().to_string();
+        let su =
+            setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
+        let mut state = state.unwrap_or(su.state);
+        let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
+        // The initial grid and densities come from the scene alone: a failure here is bad input.
+        let eng = CpuEngine::new(phys, &mut state).map_err(|e| {
+            RunError::Input(format!(
+                "{file}: the initial state cannot be set up (check idic.cell, sph.h/hfact, sph.n): {e}"
+            ))
+        })?;
+        Ok((eng, state, su.box_size))
+    }
+
+    pub fn out_dir(&self) -> &Path {
+        &self.out
+    }
+
+    fn write_output(&mut self) -> Result<(), RunError> {
+        let name = io::snapshot_name(self.prog.snapshots.len());
+        write_snapshot(
+            &self.out.join(&name),
+            &self.loaded,
+            &mut self.eng,
+            &mut self.state,
+            self.box_size,
+        )?;
+        let fixed_dt = self.loaded.scene.time.dt;
+        self.prog.errors.extend(analysis::exact_errors(
+            &self.loaded.scene,
+            &self.state,
+            fixed_dt,
+        ));
+        if self.verbose {
+            eprintln!(
+                "  t = {:.6}  step {:>7}  → {}",
+                self.state.t, self.state.step, name
+            );
+        }
+        self.prog.snapshots.push(name);
+        self.prog.next_output += 1;
+        Ok(())
+    }
+
+    /// Write `DIR/checkpoint.h5` (atomically).
+    pub fn checkpoint(&self) -> Result<(), RunError> {
+        let mut prog = self.prog.clone();
+        prog.wall_before += self.wall0.elapsed().as_secs_f64();
+        let meta = io::checkpoint::CheckpointMeta {
+            scene_text: self.loaded.text.clone(),
+            scene_file: self.loaded.path.display().to_string(),
+            overrides_json: serde_json::to_string(&self.loaded.overrides)
+                .expect("strings serialise"),
+            progress_json: serde_json::to_string(&prog).map_err(|e| RunError::Io(e.to_string()))?,
+        };
+        io::checkpoint::write_checkpoint(
+            &self.out.join(io::checkpoint::CHECKPOINT_NAME),
+            &self.state,
+            &meta,
+        )
+        .map_err(|e| RunError::Io(e.to_string()))
+    }
+
+    /// Step until t_end (or `max_steps` more steps, or `stop` is raised); a checkpoint every
+    /// `checkpoint_every` steps and on interruption.
+    pub fn advance(
+        &mut self,
+        max_steps: Option<u64>,
+        checkpoint_every: Option<u64>,
+        stop: Option<&std::sync::atomic::AtomicBool>,
+    ) -> Result<Stop, RunError> {
+        let fixed_dt = self.loaded.scene.time.dt;
+        let cfl = self.loaded.scene.time.cfl;
+        let h = self.eng.phys.h;
+        let t_end = self.loaded.scene.time.t_end;
+        let bar = progress_bar(t_end, self.verbose);
+        let mut taken = 0u64;
+        while self.prog.next_output < self.times.len() {
+            if stop.is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed)) {
+                bar.finish_and_clear();
+                self.checkpoint()?;
+                return Ok(Stop::Interrupted);
+            }
+            if max_steps.is_some_and(|m| taken >= m) {
+                bar.finish_and_clear();
+                return Ok(Stop::Interrupted);
+            }
+            let forces = {
+                let mut timers = std::mem::take(&mut self.eng.timers);
+                let f = timers.time("gas forces", || self.eng.forces(&self.state));
+                self.eng.timers = timers;
+                f
+            };
+            let (dt_cfl, dt_force) = self.eng.dt_limits(&forces);
+            let mut dt = match (fixed_dt, cfl) {
+                (Some(dt), _) => dt,
+                (None, Some(c)) => c * dt_cfl.min(dt_force),
+                _ => unreachable!("validated"),
+            };
+            if !(dt.is_finite() && dt > 0.0) {
+                return Err(RunError::Step(format!(
+                    "step {}: time step is {dt} (no signal speed or force to set it); give time.dt",
+                    self.state.step
+                )));
+            }
+            let t_out = self.times[self.prog.next_output];
+            let landing = self.state.t + dt >= t_out - 1e-9 * dt;
+            if landing {
+                dt = t_out - self.state.t;
+            }
+            self.prog.dt_min = self.prog.dt_min.min(dt);
+            self.prog.dt_max = self.prog.dt_max.max(dt);
+            self.prog.cfl_max = self.prog.cfl_max.max(dt * forces.vsig_max / h);
+            self.eng
+                .advance(&mut self.state, &forces, dt)
+                .map_err(|e| {
+                    RunError::Step(format!("{e}; the snapshots written so far are kept"))
+                })?;
+            taken += 1;
+            self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());
+            if landing {
+                self.state.t = t_out;
+                bar.suspend(|| self.write_output())?;
+            }
+            bar.set_position((self.state.t / t_end * 1e4) as u64);
+            bar.set_message(format!(
+                "step {} t = {:.5} dt = {:.3e}",
+                self.state.step, self.state.t, dt
+            ));
+            if checkpoint_every.is_some_and(|k| k > 0 && self.state.step % k == 0) {
+                self.checkpoint()?;
+            }
+        }
+        bar.finish_and_clear();
+        Ok(Stop::Finished)
+    }
+
+    /// The summary (also written to `DIR/summary.json`).
+    pub fn finish(self) -> Result<(Summary, State), RunError> {
+        let Runner {
+            loaded,
+            out,
+            eng,
+            state,
+            prog,
+            wall0,
+            ..
+        } = self;
+        let scene = &loaded.scene;
+        let wall = prog.wall_before + wall0.elapsed().as_secs_f64();
+        let p1 = state.total_momentum();
+        let p0 = prog.p0;
+        let dp =
+            ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2) + (p1[2] - p0[2]).powi(2)).sqrt();
+        let n_part = state.gas.ph.len() + state.dust.iter().map(|d| d.len()).sum::<usize>();
+        let summary = Summary {
+            code: "dustsph",
+            version: env!("CARGO_PKG_VERSION"),
+            git: env!("DUSTSPH_GIT"),
+            scene: scene.scene.name.clone(),
+            problem: scene.scene.problem.name(),
+            scene_file: loaded.path.display().to_string(),
+            overrides: loaded.overrides.clone(),
+            dimension: scene.dim(),
+            backend: format!("cpu (rayon, {} threads)", rayon::current_num_threads()),
+            precision: "f64",
+            particles: prog.counts.clone(),
+            h: eng.phys.h,
+            idic_cell: eng.phys.cell_size,
+            position_update: format!("{:?}", eng.phys.position_update).to_lowercase(),
+            pipeline: eng.pipe.stages(),
+            steps: state.step,
+            t_final: state.t,
+            dt_min: prog.dt_min,
+            dt_max: prog.dt_max,
+            cfl_max: prog.cfl_max,
+            wall_seconds: wall,
+            particle_steps_per_second: n_part as f64 * state.step as f64 / wall.max(1e-12),
+            conservation: Conservation {
+                mass_gas: Drift::new(prog.mass0.0, state.gas.ph.total_mass()),
+                mass_dust: state
+                    .dust
+                    .iter()
+                    .zip(&prog.mass0.1)
+                    .map(|(d, &m)| Drift::new(m, d.total_mass()))
+                    .collect(),
+                momentum_initial: p0,
+                momentum_final: p1,
+                momentum_drift_relative: if prog.pscale > 0.0 {
+                    dp / prog.pscale
+                } else {
+                    dp
+                },
+                energy: Drift::new(prog.e0, state.total_energy()),
+            },
+            errors: prog.errors,
+            snapshots: prog.snapshots,
+            stage_seconds: eng.timers.entries().to_vec(),
+        };
+        io::write_json_atomic(&out.join("summary.json"), &summary)
+            .map_err(|e| RunError::Io(e.to_string()))?;
+        Ok((summary, state))
+    }
+}
+
+fn progress_bar(t_end: f64, visible: bool) -> indicatif::ProgressBar {
+    let _ = t_end;
+    // Hidden unless asked for and stderr is a terminal (indicatif checks the latter).
+    let bar = if visible {
+        indicatif::ProgressBar::new(10_000)
+    } else {
+        indicatif::ProgressBar::hidden()
     };
-    io::write_json_atomic(&out.join("summary.json"), &summary)
-        .map_err(|e| RunError::Io(e.to_string()))?;
-    Ok((summary, state))
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:30} {percent:>3}% {msg}  ETA {eta}")
+            .expect("valid template"),
+    );
+    bar
+}
+
+/// Run a scene to its end time; returns the summary and the final state.
+pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), RunError> {
+    let mut r = Runner::start(loaded, opts)?;
+    r.advance(None, None, None)?;
+    r.finish()
 }

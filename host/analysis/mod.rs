@@ -9,10 +9,10 @@ use crate::particles::{Phase, State};
 use crate::scene::{EosKind, LawKind, Problem, Scene};
 use crate::setup::dustywave;
 use norms::Norms;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Error norms of one field.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct FieldError {
     pub field: String,
     #[serde(flatten)]
@@ -20,7 +20,7 @@ pub struct FieldError {
 }
 
 /// Errors of a snapshot against the scene's exact solution.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct ExactErrors {
     pub t: f64,
     /// What the errors are measured against, and how they are normalised.

@@ -1,7 +1,7 @@
 //! Mass-weighted particle norms (method.md §8).
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
 pub struct Norms {
     pub l1: f64,
     pub l2: f64,

@@ -4,6 +4,7 @@
 //! a crash never leaves a half-written file under a name a reader would pick up. Every error names
 //! the file or directory it concerns.
 
+pub mod checkpoint;
 pub mod output_dir;
 pub mod snapshot;
 

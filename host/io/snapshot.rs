@@ -215,7 +215,10 @@ impl<'a> Columns<'a> {
 }
 
 /// Maps an HDF5 error to an [`IoError`] naming the file and the object inside it.
-fn h5err<'a>(path: &'a Path, object: &'a str) -> impl FnOnce(hdf5::Error) -> IoError + 'a {
+pub(crate) fn h5err<'a>(
+    path: &'a Path,
+    object: &'a str,
+) -> impl FnOnce(hdf5::Error) -> IoError + 'a {
     move |e| IoError::hdf5(path, object, e)
 }
 
@@ -317,7 +320,12 @@ fn write_header(
     Ok(())
 }
 
-fn put_scalar<T: H5Type>(g: &Group, name: &str, value: &T, path: &Path) -> Result<(), IoError> {
+pub(crate) fn put_scalar<T: H5Type>(
+    g: &Group,
+    name: &str,
+    value: &T,
+    path: &Path,
+) -> Result<(), IoError> {
     let obj = format!("{}/{name}", g.name());
     g.new_attr::<T>()
         .shape(())
@@ -360,7 +368,7 @@ fn write_group(file: &File, name: &str, c: &Columns, path: &Path) -> Result<(), 
 }
 
 /// Writes `data` as an N (width 1) or N×width dataset, chunked and compressed unless empty.
-fn put_dataset<T: H5Type>(
+pub(crate) fn put_dataset<T: H5Type>(
     g: &Group,
     name: &str,
     data: &[T],
@@ -429,7 +437,7 @@ pub fn read_snapshot(path: &Path) -> Result<SnapshotData, IoError> {
 }
 
 /// Reads a one-value attribute; accepts shape () or (1,) as other writers use both.
-fn get_scalar<T: H5Type>(loc: &Location, name: &str, path: &Path) -> Result<T, IoError> {
+pub(crate) fn get_scalar<T: H5Type>(loc: &Location, name: &str, path: &Path) -> Result<T, IoError> {
     let obj = format!("{}/{name}", loc.name());
     let mut v: Vec<T> = loc
         .attr(name)
@@ -455,7 +463,7 @@ fn get_counts(loc: &Location, name: &str, path: &Path) -> Result<[u64; 6], IoErr
 }
 
 /// Reads a variable-length string attribute (UTF-8 or ASCII).
-fn get_string(loc: &Location, name: &str, path: &Path) -> Result<String, IoError> {
+pub(crate) fn get_string(loc: &Location, name: &str, path: &Path) -> Result<String, IoError> {
     let obj = format!("{}/{name}", loc.name());
     let attr = loc.attr(name).map_err(h5err(path, &obj))?;
     let desc = attr
@@ -512,7 +520,7 @@ fn read_group(
 }
 
 /// Reads a dataset whose shape must be exactly `shape`, flattened row-major.
-fn get_shaped<T: H5Type>(
+pub(crate) fn get_shaped<T: H5Type>(
     g: &Group,
     name: &str,
     shape: &[usize],
@@ -530,11 +538,16 @@ fn get_shaped<T: H5Type>(
     ds.read_raw().map_err(h5err(path, &obj))
 }
 
-fn get_column<T: H5Type>(g: &Group, name: &str, n: usize, path: &Path) -> Result<Vec<T>, IoError> {
+pub(crate) fn get_column<T: H5Type>(
+    g: &Group,
+    name: &str,
+    n: usize,
+    path: &Path,
+) -> Result<Vec<T>, IoError> {
     get_shaped(g, name, &[n], path)
 }
 
-fn get_optional<T: H5Type>(
+pub(crate) fn get_optional<T: H5Type>(
     g: &Group,
     name: &str,
     n: usize,
@@ -547,7 +560,12 @@ fn get_optional<T: H5Type>(
     }
 }
 
-fn get_vec3(g: &Group, name: &str, n: usize, path: &Path) -> Result<Vec<[f64; 3]>, IoError> {
+pub(crate) fn get_vec3(
+    g: &Group,
+    name: &str,
+    n: usize,
+    path: &Path,
+) -> Result<Vec<[f64; 3]>, IoError> {
     let flat: Vec<f64> = get_shaped(g, name, &[n, 3], path)?;
     Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
 }
