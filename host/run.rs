@@ -103,6 +103,8 @@ pub struct Summary {
     pub errors: Vec<ExactErrors>,
     pub snapshots: Vec<String>,
     pub stage_seconds: Vec<(&'static str, f64)>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ball: Option<BallReport>,
 }
 
 fn output_times(loaded: &LoadedScene) -> Vec<f64> {
@@ -189,6 +191,22 @@ struct Progress {
     /// Wall seconds of earlier sessions of this run.
     wall_before: f64,
     counts: ParticleCounts,
+    /// Ball only: (t, I, 2Σm|v|² + 2dΣm p/ρ) after every step, and the core checks per output.
+    lagrange_jacobi: Vec<(f64, f64, f64)>,
+    core: Vec<analysis::ball::CoreCheck>,
+}
+
+/// Exact checks of the ball into vacuum (method.md §6.1).
+#[derive(Debug, Clone, Serialize)]
+pub struct BallReport {
+    /// Undisturbed core at each output time: largest relative deviations from the initial state.
+    pub core: Vec<analysis::ball::CoreCheck>,
+    /// Largest |d²I/dt² − (2Σm|v|² + 6Σ_gas m p/ρ)| / rhs over the run (central differences).
+    pub lagrange_jacobi_max_relative: Option<f64>,
+    /// R_est = sqrt(5 Σm r² / (3 Σm)) of gas and of all dust at the end (the radius of a
+    /// uniform ball with that moment of inertia).
+    pub radius_estimate_gas: f64,
+    pub radius_estimate_dust: f64,
 }
 
 /// Why a run loop returned.
@@ -247,6 +265,8 @@ impl Runner {
             e0: state.total_energy(),
             wall_before: 0.0,
             counts,
+            lagrange_jacobi: Vec::new(),
+            core: Vec::new(),
         };
         let mut r = Runner {
             times: output_times(loaded),
@@ -265,6 +285,7 @@ impl Runner {
                 state
             },
         };
+        r.record_ball_step();
         r.write_output()?;
         Ok(r)
     }
@@ -342,6 +363,9 @@ impl Runner {
             &self.state,
             fixed_dt,
         ));
+        if let Some(c) = self.ball_core() {
+            self.prog.core.push(c);
+        }
         if self.verbose {
             eprintln!(
                 "  t = {:.6}  step {:>7}  → {}",
@@ -351,6 +375,39 @@ impl Runner {
         self.prog.snapshots.push(name);
         self.prog.next_output += 1;
         Ok(())
+    }
+
+    /// Ball only: the Lagrange–Jacobi terms after a step.
+    fn record_ball_step(&mut self) {
+        if self.loaded.scene.scene.problem == crate::scene::Problem::Dustyball {
+            let (i, rhs) =
+                analysis::ball::lagrange_jacobi_terms(&self.state, self.loaded.scene.dim());
+            self.prog.lagrange_jacobi.push((self.state.t, i, rhs));
+        }
+    }
+
+    fn ball_core(&self) -> Option<analysis::ball::CoreCheck> {
+        let sc = &self.loaded.scene;
+        let b = sc.dustyball.as_ref()?;
+        let rho = sc.gas.rho?;
+        let p = match sc.gas.eos {
+            crate::scene::EosKind::Adiabatic => sc.gas.p?,
+            crate::scene::EosKind::Isothermal => sc.gas.cs? * sc.gas.cs? * rho,
+        };
+        let cs = self.eng.phys.eos.sound_speed(rho, p);
+        let eps: f64 = sc
+            .dust
+            .as_ref()
+            .map_or(0.0, |d| d.fractions.iter().map(|f| f.eps).sum());
+        analysis::ball::core_check(
+            &self.state,
+            b.radius,
+            rho,
+            eps * rho,
+            p,
+            cs,
+            self.eng.phys.h,
+        )
     }
 
     /// Write `DIR/checkpoint.h5` (atomically).
@@ -428,6 +485,7 @@ impl Runner {
                     RunError::Step(format!("{e}; the snapshots written so far are kept"))
                 })?;
             taken += 1;
+            self.record_ball_step();
             self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());
             if landing {
                 self.state.t = t_out;
@@ -464,6 +522,28 @@ impl Runner {
         let dp =
             ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2) + (p1[2] - p0[2]).powi(2)).sqrt();
         let n_part = state.gas.ph.len() + state.dust.iter().map(|d| d.len()).sum::<usize>();
+        let r_est = |phs: &[&crate::particles::Phase]| -> f64 {
+            let (mut mr2, mut m) = (0.0, 0.0);
+            for ph in phs {
+                for (mi, x) in ph.m.iter().zip(&ph.x) {
+                    mr2 += mi * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+                    m += mi;
+                }
+            }
+            if m > 0.0 {
+                (5.0 * mr2 / (3.0 * m)).sqrt()
+            } else {
+                0.0
+            }
+        };
+        let ball = scene.dustyball.as_ref().map(|_| BallReport {
+            core: prog.core.clone(),
+            lagrange_jacobi_max_relative: analysis::ball::lagrange_jacobi_deviation(
+                &prog.lagrange_jacobi,
+            ),
+            radius_estimate_gas: r_est(&[&state.gas.ph]),
+            radius_estimate_dust: r_est(&state.dust.iter().collect::<Vec<_>>()),
+        });
         let summary = Summary {
             code: "dustsph",
             version: env!("CARGO_PKG_VERSION"),
@@ -507,6 +587,7 @@ impl Runner {
             errors: prog.errors,
             snapshots: prog.snapshots,
             stage_seconds: eng.timers.entries().to_vec(),
+            ball,
         };
         io::write_json_atomic(&out.join("summary.json"), &summary)
             .map_err(|e| RunError::Io(e.to_string()))?;

@@ -1,4 +1,5 @@
 //! Comparison with exact solutions (method.md §8) and conservation diagnostics.
+pub mod ball;
 pub mod norms;
 pub mod radial;
 
