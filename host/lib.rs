@@ -4,6 +4,7 @@
 //! particles) → [`engine`] (the step, on a backend; physics formulas in `dustsph-device`) →
 //! [`io`] (snapshots, summary) with [`analysis`] (errors against [`exact`] solutions).
 pub mod analysis;
+pub mod bench;
 pub mod engine;
 pub mod exact;
 pub mod grid;

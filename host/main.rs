@@ -39,6 +39,18 @@ enum Cmd {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// CPU speed: a uniform 3D box at ≈60 neighbours and the 3D ball, on 1 and 2 threads.
+    Bench {
+        /// Steps to time per case
+        #[arg(long, default_value_t = 10)]
+        steps: u64,
+        /// Thread counts to run, e.g. 1,2
+        #[arg(long, value_delimiter = ',', default_values_t = vec![1usize, 2])]
+        threads: Vec<usize>,
+        /// Also the full seed ball (2 × 248 439 particles, ≈2000 neighbours; minutes per step count)
+        #[arg(long)]
+        full: bool,
+    },
     /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
     Resume {
         dir: PathBuf,
@@ -138,6 +150,81 @@ fn main() -> ExitCode {
                 verbose: !quiet,
             };
             drive(Runner::start(&loaded, &opts), checkpoint_every)
+        }
+        Cmd::Bench {
+            steps,
+            threads,
+            full,
+        } => {
+            let box60 = [
+                "scene.dim=3",
+                "sph.n=32",
+                "sph.hfact=1.215",
+                "dust.fractions=[{eps=0.5, t_stop=0.1}]",
+                "dustybox.u_dust=[1.0]",
+            ];
+            let mut cases: Vec<(&str, &str, Vec<&str>)> = vec![
+                (
+                    "box 3D, ~60 neighbours",
+                    "configs/dustybox.toml",
+                    box60.to_vec(),
+                ),
+                (
+                    "ball 3D, n=20, h=0.1",
+                    "configs/dusty_ball.toml",
+                    vec!["sph.n=20"],
+                ),
+            ];
+            if full {
+                cases.push((
+                    "ball 3D seed (n=39, h=0.1)",
+                    "configs/dusty_ball.toml",
+                    vec![],
+                ));
+            }
+            println!(
+                "{:<28} {:>7} {:>9} {:>9} {:>10} {:>6} {:>9} {:>14} {:>14}",
+                "case",
+                "threads",
+                "gas",
+                "dust",
+                "neighbours",
+                "steps",
+                "seconds",
+                "particle-st/s",
+                "interact./s"
+            );
+            for (name, file, sets) in cases {
+                let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+                let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
+                    Ok(l) => l,
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        return ExitCode::from(2);
+                    }
+                };
+                for &t in &threads {
+                    match dustsph::bench::bench(name, &loaded.scene, steps, t) {
+                        Ok(r) => println!(
+                            "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e}",
+                            r.case,
+                            r.threads,
+                            r.gas,
+                            r.dust,
+                            r.mean_neighbours,
+                            r.steps,
+                            r.seconds,
+                            r.particle_steps_per_s(),
+                            r.interactions_per_s()
+                        ),
+                        Err(e) => {
+                            eprintln!("error: {name}: {e}");
+                            return ExitCode::from(1);
+                        }
+                    }
+                }
+            }
+            ExitCode::SUCCESS
         }
         Cmd::Resume {
             dir,

@@ -192,6 +192,20 @@ impl CpuEngine {
         self.dust_density_fresh = true;
     }
 
+    /// Mean number of gas neighbours within the support (self excluded), for benchmarks.
+    pub fn mean_gas_neighbours(&self, state: &State) -> f64 {
+        let ph = &state.gas.ph;
+        let total: usize = (0..ph.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut n = 0usize;
+                self.for_neighbours(&self.gas_idx, &ph.x, i, |j, _, _| n += (j != i) as usize);
+                n
+            })
+            .sum();
+        total as f64 / ph.len().max(1) as f64
+    }
+
     /// Non-drag gas accelerations A^n (pressure + AV) and de/dt^n.
     pub fn forces(&self, state: &State) -> Forces {
         let g = &state.gas;
