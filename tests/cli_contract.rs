@@ -208,3 +208,46 @@ fn bad_input_exits_non_zero_naming_key_and_file_and_writes_nothing() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing.toml"));
     assert!(!Path::new(&out).exists());
 }
+
+#[test]
+fn a_blow_up_stops_naming_step_particle_and_field_and_keeps_good_snapshots() {
+    // τ = 0.05 is ten times the CFL step of this tube: the run must fail loudly, not write junk.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = out_dir(tmp.path());
+    let o = dustsph(&[
+        "run",
+        "configs/dustyshock.toml",
+        "--set",
+        "time.cfl=",
+        "--set",
+        "time.dt=0.05",
+        "--set",
+        "time.t_end=2",
+        "--out",
+        &out,
+        "-q",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("step ") && err.contains("particle id") && err.contains("has a bad"),
+        "{err}"
+    );
+    assert!(
+        Path::new(&out).join("snapshot_0000.h5").exists(),
+        "earlier snapshots are kept"
+    );
+    assert!(!Path::new(&out).join("summary.json").exists());
+    // Every snapshot left behind is complete and readable.
+    for e in std::fs::read_dir(&out).unwrap() {
+        let p = e.unwrap().path();
+        assert!(
+            !p.to_string_lossy().ends_with(".tmp"),
+            "temporary left: {}",
+            p.display()
+        );
+        if p.extension().is_some_and(|x| x == "h5") {
+            dustsph::io::read_snapshot(&p).unwrap();
+        }
+    }
+}

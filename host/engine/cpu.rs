@@ -604,7 +604,7 @@ impl CpuEngine {
                 !(ph.x[i].iter().all(|v| v.is_finite())
                     && ph.v[i].iter().all(|v| v.is_finite())
                     && rho_ok(i)
-                    && extra.is_none_or(|(_, e)| e[i].is_finite()))
+                    && extra.is_none_or(|(_, e)| e[i].is_finite() && e[i] >= 0.0))
             })?;
             let field = if !ph.x[i].iter().all(|v| v.is_finite()) {
                 "position"
