@@ -1,6 +1,7 @@
 //! Comparison with exact solutions (method.md §8) and conservation diagnostics.
 pub mod norms;
 pub mod radial;
+pub mod spherical;
 
 use crate::exact::dustybox::DustyBox;
 use crate::exact::dustywave::WaveGas;
