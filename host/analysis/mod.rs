@@ -2,6 +2,7 @@
 pub mod ball;
 pub mod norms;
 pub mod radial;
+pub mod spherical;
 
 use crate::exact::dustybox::DustyBox;
 use crate::exact::dustywave::WaveGas;
