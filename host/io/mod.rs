@@ -200,7 +200,7 @@ pub(crate) fn commit_tmp(tmp: &Path, path: &Path) -> Result<(), IoError> {
 
 /// Writes `bytes` to `path` atomically: a temporary in the same directory, fsync, rename. On
 /// failure the temporary is removed and nothing carries the final name.
-pub(crate) fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
     require_parent_dir(path)?;
     let tmp = tmp_path(path)?;
     remove_stale(&tmp)?;
