@@ -6,6 +6,7 @@
 
 pub mod output_dir;
 pub mod snapshot;
+pub mod xdmf;
 
 use std::fmt;
 use std::fs;
@@ -16,6 +17,7 @@ pub use output_dir::{prepare_output_dir, snapshot_name, write_json_atomic};
 pub use snapshot::{
     read_snapshot, write_snapshot, PhaseData, PhaseView, SnapshotData, SnapshotView,
 };
+pub use xdmf::{write_xdmf, write_xdmf_series, write_xdmf_view};
 
 /// An output error; the message always names the offending file or directory.
 #[derive(Debug)]
