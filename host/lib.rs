@@ -10,6 +10,7 @@ pub mod exact;
 pub mod grid;
 pub mod io;
 pub mod particles;
+pub mod plot;
 pub mod run;
 pub mod scene;
 pub mod setup;

@@ -1,6 +1,7 @@
 //! Comparison with exact solutions (method.md §8) and conservation diagnostics.
 pub mod ball;
 pub mod norms;
+pub mod profiles;
 pub mod radial;
 pub mod spherical;
 

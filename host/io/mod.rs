@@ -7,15 +7,18 @@
 pub mod checkpoint;
 pub mod output_dir;
 pub mod snapshot;
+pub mod xdmf;
 
 use std::fmt;
 use std::fs;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 pub use output_dir::{prepare_output_dir, snapshot_name, write_json_atomic};
 pub use snapshot::{
     read_snapshot, write_snapshot, PhaseData, PhaseView, SnapshotData, SnapshotView,
 };
+pub use xdmf::{write_xdmf, write_xdmf_series, write_xdmf_view};
 
 /// An output error; the message always names the offending file or directory.
 #[derive(Debug)]
@@ -196,4 +199,25 @@ pub(crate) fn commit_tmp(tmp: &Path, path: &Path) -> Result<(), IoError> {
         let _ = d.sync_all();
     }
     Ok(())
+}
+
+/// Writes `bytes` to `path` atomically: a temporary in the same directory, fsync, rename. On
+/// failure the temporary is removed and nothing carries the final name.
+pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    require_parent_dir(path)?;
+    let tmp = tmp_path(path)?;
+    remove_stale(&tmp)?;
+    // create_new: never write through something that appeared under the temporary name.
+    let result = fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&tmp)
+        .and_then(|mut f| f.write_all(bytes))
+        .with_path(&tmp)
+        .and_then(|()| commit_tmp(&tmp, path));
+    if result.is_err() {
+        // Best effort: the original error matters more than a failed cleanup.
+        let _ = fs::remove_file(&tmp);
+    }
+    result
 }

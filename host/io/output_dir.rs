@@ -1,12 +1,9 @@
 //! The output directory policy and atomic JSON output.
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use super::{
-    commit_tmp, remove_stale, require_parent_dir, tmp_path, IoError, WithPath, TMP_SUFFIX,
-};
+use super::{write_bytes_atomic, IoError, WithPath, TMP_SUFFIX};
 
 /// Name of the run summary written next to the snapshots.
 pub const SUMMARY_NAME: &str = "summary.json";
@@ -90,24 +87,7 @@ pub fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> Result<
     // Serialise first: a value that cannot be serialised never touches the disk.
     let mut text = serde_json::to_string_pretty(value).with_path(path)?;
     text.push('\n');
-    require_parent_dir(path)?;
-    let tmp = tmp_path(path)?;
-    remove_stale(&tmp)?;
-    let result = write_new(&tmp, text.as_bytes()).and_then(|()| commit_tmp(&tmp, path));
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
-}
-
-fn write_new(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
-    // create_new: never write through something that appeared under the temporary name.
-    fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(path)
-        .and_then(|mut f| f.write_all(bytes))
-        .with_path(path)
+    write_bytes_atomic(path, text.as_bytes())
 }
 
 #[cfg(test)]
