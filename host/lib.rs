@@ -11,6 +11,7 @@ pub mod grid;
 pub mod io;
 pub mod particles;
 pub mod plot;
+pub mod post;
 pub mod run;
 pub mod scene;
 pub mod setup;

@@ -51,6 +51,14 @@ enum Cmd {
         #[arg(long)]
         full: bool,
     },
+    /// Radial profiles (CSV) and figures (PNG) of a snapshot, written next to it; for the ball
+    /// also the errors against the 1D reference and the spherical-symmetry check.
+    Profile {
+        snapshot: PathBuf,
+        /// Number of radial bins
+        #[arg(long, default_value_t = 100)]
+        bins: usize,
+    },
     /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
     Resume {
         dir: PathBuf,
@@ -225,6 +233,39 @@ fn main() -> ExitCode {
                 }
             }
             ExitCode::SUCCESS
+        }
+        Cmd::Profile { snapshot, bins } => {
+            if bins == 0 {
+                eprintln!("error: --bins must be at least 1");
+                return ExitCode::from(2);
+            }
+            match dustsph::post::post_process(&snapshot, bins) {
+                Ok(r) => {
+                    for f in &r.files {
+                        println!("wrote {}", f.display());
+                    }
+                    for e in &r.errors {
+                        println!("errors against {}", e.reference);
+                        for f in &e.fields {
+                            println!(
+                                "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",
+                                f.field, f.norms.l1, f.norms.l2, f.norms.linf
+                            );
+                        }
+                    }
+                    if let Some(s) = &r.symmetry {
+                        println!(
+                            "symmetry (axes vs diagonals, r < {}): rho_g {:.3e}, |v| {:.3e} (relative L1)",
+                            s.r_max, s.rho_g_relative_l1, s.speed_relative_l1
+                        );
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::from(1)
+                }
+            }
         }
         Cmd::Resume {
             dir,

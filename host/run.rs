@@ -172,7 +172,9 @@ fn write_snapshot(
             })
             .collect(),
     };
-    io::write_snapshot(path, &view).map_err(|e| RunError::Io(e.to_string()))
+    io::write_snapshot(path, &view).map_err(|e| RunError::Io(e.to_string()))?;
+    // ParaView sidecar: gas and dust as two point sets.
+    io::write_xdmf_view(path, &view).map_err(|e| RunError::Io(e.to_string()))
 }
 
 /// The driver's progress: everything besides the particles that a resumed run must know.
@@ -194,6 +196,8 @@ struct Progress {
     /// Ball only: (t, I, 2Σm|v|² + 2dΣm p/ρ) after every step, and the core checks per output.
     lagrange_jacobi: Vec<(f64, f64, f64)>,
     core: Vec<analysis::ball::CoreCheck>,
+    /// Time of each snapshot (for the XDMF time series).
+    snapshot_times: Vec<f64>,
 }
 
 /// Exact checks of the ball into vacuum (method.md §6.1).
@@ -207,6 +211,10 @@ pub struct BallReport {
     /// uniform ball with that moment of inertia).
     pub radius_estimate_gas: f64,
     pub radius_estimate_dust: f64,
+    /// Axis vs diagonal profiles at the end.
+    pub symmetry: Option<crate::post::Symmetry>,
+    /// Profiles CSV and figures of the last snapshot.
+    pub figures: Vec<String>,
 }
 
 /// Why a run loop returned.
@@ -267,6 +275,7 @@ impl Runner {
             counts,
             lagrange_jacobi: Vec::new(),
             core: Vec::new(),
+            snapshot_times: Vec::new(),
         };
         let mut r = Runner {
             times: output_times(loaded),
@@ -373,6 +382,15 @@ impl Runner {
             );
         }
         self.prog.snapshots.push(name);
+        self.prog.snapshot_times.push(self.state.t);
+        let series: Vec<(f64, String)> = self
+            .prog
+            .snapshot_times
+            .iter()
+            .copied()
+            .zip(self.prog.snapshots.iter().cloned())
+            .collect();
+        io::write_xdmf_series(&self.out, &series).map_err(|e| RunError::Io(e.to_string()))?;
         self.prog.next_output += 1;
         Ok(())
     }
@@ -536,7 +554,21 @@ impl Runner {
                 0.0
             }
         };
+        let post = match (&scene.dustyball, prog.snapshots.last()) {
+            (Some(_), Some(last)) => Some(
+                crate::post::post_process(&out.join(last), 100)
+                    .map_err(|e| RunError::Io(e.to_string()))?,
+            ),
+            _ => None,
+        };
         let ball = scene.dustyball.as_ref().map(|_| BallReport {
+            symmetry: post.as_ref().and_then(|p| p.symmetry.clone()),
+            figures: post.as_ref().map_or(Vec::new(), |p| {
+                p.files
+                    .iter()
+                    .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+                    .collect()
+            }),
             core: prog.core.clone(),
             lagrange_jacobi_max_relative: analysis::ball::lagrange_jacobi_deviation(
                 &prog.lagrange_jacobi,

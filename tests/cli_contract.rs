@@ -251,3 +251,91 @@ fn a_blow_up_stops_naming_step_particle_and_field_and_keeps_good_snapshots() {
         }
     }
 }
+
+#[test]
+fn ball_run_writes_xdmf_profiles_and_figures_and_profile_command_works() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = out_dir(tmp.path());
+    let o = dustsph(&[
+        "run",
+        "configs/dusty_ball.toml",
+        "--set",
+        "sph.n=8",
+        "--set",
+        "sph.h=0.25",
+        "--set",
+        "time.output_dt=0.1",
+        "--out",
+        &out,
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let d = Path::new(&out);
+    for f in [
+        "snapshot_0000.xmf",
+        "snapshot_0002.xmf",
+        "snapshots.xmf",
+        "snapshot_0002_profile.csv",
+    ] {
+        assert!(d.join(f).exists(), "{f}");
+    }
+    for f in [
+        "snapshot_0002_profiles.png",
+        "snapshot_0002_speed_tstop.png",
+        "snapshot_0002_xy.png",
+    ] {
+        let bytes = std::fs::read(d.join(f)).unwrap();
+        assert!(
+            bytes.starts_with(b"\x89PNG\r\n\x1a\n") && bytes.len() > 10_000,
+            "{f}"
+        );
+    }
+    let csv = std::fs::read_to_string(d.join("snapshot_0002_profile.csv")).unwrap();
+    assert!(
+        csv.starts_with("r,rho_g,rho_d,p,e,v_g,u_d,t_stop,n_gas,n_dust"),
+        "{csv}"
+    );
+    let series = std::fs::read_to_string(d.join("snapshots.xmf")).unwrap();
+    assert_eq!(series.matches("<Time ").count(), 3, "{series}");
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("summary.json")).unwrap()).unwrap();
+    assert!(s["ball"]["symmetry"]["rho_g_relative_l1"].as_f64().unwrap() < 0.05);
+    // The profile command on an earlier snapshot prints the reference errors.
+    let o = dustsph(&["profile", &d.join("snapshot_0001.h5").display().to_string()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("whole ball") && text.contains("symmetry"),
+        "{text}"
+    );
+    assert!(d.join("snapshot_0001_profiles.png").exists());
+    // --force replaces all of these, and keeps a user's own file.
+    std::fs::write(d.join("my_plot.png"), "mine").unwrap();
+    let o = dustsph(&[
+        "run",
+        "configs/dusty_ball.toml",
+        "--set",
+        "sph.n=8",
+        "--set",
+        "sph.h=0.25",
+        "--set",
+        "time.t_end=0.05",
+        "--set",
+        "time.output_dt=",
+        "--out",
+        &out,
+        "--force",
+        "-q",
+    ]);
+    assert!(o.status.success());
+    // (This run ends at snapshot 1, so nothing of snapshot 2 may survive.)
+    for f in [
+        "snapshot_0002.h5",
+        "snapshot_0002.xmf",
+        "snapshot_0002_profiles.png",
+        "snapshot_0002_profile.csv",
+    ] {
+        assert!(!d.join(f).exists(), "{f} survived --force");
+    }
+    assert!(d.join("my_plot.png").exists());
+}

@@ -29,7 +29,26 @@ fn is_ours(name: &str) -> bool {
         .strip_prefix('.')
         .and_then(|s| s.strip_suffix(TMP_SUFFIX))
         .unwrap_or(name);
-    final_name == SUMMARY_NAME || is_snapshot_name(final_name)
+    if final_name == SUMMARY_NAME
+        || final_name == super::xdmf::SERIES_NAME
+        || final_name == super::checkpoint::CHECKPOINT_NAME
+        || is_snapshot_name(final_name)
+    {
+        return true;
+    }
+    // Sidecars and post-processing of a snapshot: snapshot_NNNN.xmf, snapshot_NNNN_<what>.
+    let derived = [
+        ".xmf",
+        "_profile.csv",
+        "_profiles.png",
+        "_speed_tstop.png",
+        "_xy.png",
+    ];
+    derived.iter().any(|suffix| {
+        final_name
+            .strip_suffix(suffix)
+            .is_some_and(|stem| is_snapshot_name(&format!("{stem}.h5")))
+    })
 }
 
 /// Prepare an output directory: create it if missing; if it exists and is non-empty, refuse with
