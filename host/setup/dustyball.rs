@@ -29,7 +29,7 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     // differs from ρ·V_ball by the lattice's volume error (0.02% at the seed's Δ = 2/78).
     let vol = dx.powi(dim as i32);
     let gas = Phase {
-        x: x.clone(),
+        x,
         v: vec![[0.0; 3]; n],
         m: vec![rho * vol; n],
         rho: vec![rho; n],
@@ -37,24 +37,7 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
         fixed: None,
     };
     let e = internal_energy(scene, rho, p).map(|e| vec![e; n]);
-    let dust = scene
-        .dust
-        .as_ref()
-        .map(|d| {
-            d.fractions
-                .iter()
-                .enumerate()
-                .map(|(k, f)| Phase {
-                    x: x.clone(),
-                    v: vec![[0.0; 3]; n],
-                    m: vec![f.eps * rho * vol; n],
-                    rho: vec![f.eps * rho; n],
-                    id: ((k as u64 + 1) * n as u64..(k as u64 + 2) * n as u64).collect(),
-                    fixed: None,
-                })
-                .collect()
-        })
-        .unwrap_or_default();
+    let dust = co_located_dust(scene, &gas, |_| [0.0; 3]);
     Ok(Setup::at_start(
         gas_phase(gas, e),
         dust,

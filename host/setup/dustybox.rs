@@ -13,7 +13,7 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let vol = dx.powi(dim as i32);
     let n = x.len();
     let gas = Phase {
-        x: x.clone(),
+        x,
         v: vec![[b.v_gas, 0.0, 0.0]; n],
         m: vec![rho * vol; n],
         rho: vec![rho; n],
@@ -21,19 +21,7 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
         fixed: None,
     };
     let e = internal_energy(scene, rho, scene.gas.p.unwrap_or(0.0)).map(|e| vec![e; n]);
-    let fr = &scene.dust.as_ref().expect("validated").fractions;
-    let dust = fr
-        .iter()
-        .enumerate()
-        .map(|(k, f)| Phase {
-            x: x.clone(),
-            v: vec![[b.u_dust[k], 0.0, 0.0]; n],
-            m: vec![f.eps * rho * vol; n],
-            rho: vec![f.eps * rho; n],
-            id: ((k as u64 + 1) * n as u64..(k as u64 + 2) * n as u64).collect(),
-            fixed: None,
-        })
-        .collect();
+    let dust = co_located_dust(scene, &gas, |k| [b.u_dust[k], 0.0, 0.0]);
     let mut periodic = [None; 3];
     for p in periodic.iter_mut().take(dim as usize) {
         *p = Some((0.0, b.length));

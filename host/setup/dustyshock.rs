@@ -48,12 +48,12 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let n = x.len();
     let fixed: Vec<bool> = x.iter().map(|p| p[0] < 0.0 || p[0] > len).collect();
     let gas = Phase {
-        x: x.clone(),
+        x,
         v: vec![[0.0; 3]; n],
         m: vec![m; n],
-        rho: rho.clone(),
+        rho,
         id: (0..n as u64).collect(),
-        fixed: Some(fixed.clone()),
+        fixed: Some(fixed),
     };
     let e = match scene.gas.eos {
         crate::scene::EosKind::Isothermal => None,
@@ -67,24 +67,7 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
                 .collect(),
         ),
     };
-    let dust = scene
-        .dust
-        .as_ref()
-        .map(|d| {
-            d.fractions
-                .iter()
-                .enumerate()
-                .map(|(k, f)| Phase {
-                    x: x.clone(),
-                    v: vec![[0.0; 3]; n],
-                    m: vec![f.eps * m; n],
-                    rho: rho.iter().map(|r| f.eps * r).collect(),
-                    id: ((k as u64 + 1) * n as u64..(k as u64 + 2) * n as u64).collect(),
-                    fixed: Some(fixed.clone()),
-                })
-                .collect()
-        })
-        .unwrap_or_default();
+    let dust = co_located_dust(scene, &gas, |_| [0.0; 3]);
     Ok(Setup::at_start(
         gas_phase(gas, e),
         dust,

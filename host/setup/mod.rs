@@ -110,6 +110,31 @@ pub(crate) fn gas_phase(ph: Phase, e: Option<Vec<f64>>) -> Gas {
     }
 }
 
+/// One dust phase per fraction at the gas particles' places: fraction k gets mass ε_k m and
+/// density ε_k ρ of the gas particle it sits on, velocity `u(k)`, and ids after the gas and the
+/// earlier fractions. No dust section: no dust phases.
+pub(crate) fn co_located_dust(
+    scene: &Scene,
+    gas: &Phase,
+    u: impl Fn(usize) -> [f64; 3],
+) -> Vec<Phase> {
+    let n = gas.len() as u64;
+    scene.dust.as_ref().map_or_else(Vec::new, |d| {
+        d.fractions
+            .iter()
+            .enumerate()
+            .map(|(k, f)| Phase {
+                x: gas.x.clone(),
+                v: vec![u(k); gas.len()],
+                m: gas.m.iter().map(|m| f.eps * m).collect(),
+                rho: gas.rho.iter().map(|r| f.eps * r).collect(),
+                id: ((k as u64 + 1) * n..(k as u64 + 2) * n).collect(),
+                fixed: gas.fixed.clone(),
+            })
+            .collect()
+    })
+}
+
 /// Uniform lattice of `n_axis` points per axis in [0, length)^dim at cell centres.
 pub(crate) fn lattice(dim: u32, n_axis: usize, length: f64) -> Vec<[f64; 3]> {
     let dx = length / n_axis as f64;
