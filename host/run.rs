@@ -459,7 +459,7 @@ impl Runner {
         let cfl = self.loaded.scene.time.cfl;
         let h = self.eng.phys.h;
         let t_end = self.loaded.scene.time.t_end;
-        let bar = progress_bar(t_end, self.verbose);
+        let bar = progress_bar(self.verbose);
         let mut taken = 0u64;
         while self.prog.next_output < self.times.len() {
             if stop.is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed)) {
@@ -627,8 +627,8 @@ impl Runner {
     }
 }
 
-fn progress_bar(t_end: f64, visible: bool) -> indicatif::ProgressBar {
-    let _ = t_end;
+/// Progress in units of 1e-4 of t_end.
+fn progress_bar(visible: bool) -> indicatif::ProgressBar {
     // Hidden unless asked for and stderr is a terminal (indicatif checks the latter).
     let bar = if visible {
         indicatif::ProgressBar::new(10_000)
