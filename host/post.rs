@@ -4,13 +4,11 @@
 use crate::analysis::profiles::{
     directional_profile, radial_profiles, write_profiles_csv, ProfileOptions,
 };
-use crate::analysis::radial::RadialCurve;
-use crate::analysis::spherical::{equilibrium_ball, BallProblem};
-use crate::analysis::{exact_errors, ExactErrors};
+use crate::analysis::{ball_reference, exact_errors, ExactErrors};
 use crate::io::{read_snapshot, IoError, SnapshotData};
 use crate::particles::{Gas, Phase, State};
 use crate::plot;
-use crate::scene::{EosKind, Problem, Scene};
+use crate::scene::{Problem, Scene};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -71,27 +69,6 @@ pub fn state_from_snapshot(s: &SnapshotData) -> State {
         gas,
         dust,
     }
-}
-
-/// The 1D equilibrium reference of a ball scene at time t (None for other scenes).
-pub fn ball_reference(scene: &Scene, t: f64) -> Option<RadialCurve> {
-    let b = scene.dustyball.as_ref()?;
-    if scene.gas.eos != EosKind::Adiabatic {
-        return None;
-    }
-    let rho = scene.gas.rho?;
-    let eps: f64 = scene
-        .dust
-        .as_ref()
-        .map_or(0.0, |d| d.fractions.iter().map(|f| f.eps).sum());
-    let prob = BallProblem {
-        rho_gas: rho,
-        rho_dust: eps * rho,
-        p: scene.gas.p?,
-        gamma: scene.gas.gamma?,
-        radius: b.radius,
-    };
-    Some(equilibrium_ball(&prob, t, 2000))
 }
 
 /// Axes vs diagonals (3D snapshots only).

@@ -246,20 +246,14 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
 /// Zones of the 1D reference: 2000 is converged to ~3e-5 in ρ (far below SPH errors).
 const BALL_REFERENCE_ZONES: usize = 2000;
 
-/// The ball against the 1D spherical equilibrium reference (method.md §6.1): L1/L2/L∞ of ρ_g,
-/// p, radial v_g, ρ_d, radial u_d inside r < R0 − 2h (away from the kernel-truncated edge) and
-/// over the whole ball. Absolute errors (the initial state is ρ_g = 1, p = 1 in the seed).
-fn ball_reference_errors(scene: &Scene, state: &State) -> Vec<ExactErrors> {
-    let b = scene.dustyball.as_ref().expect("validated");
-    let rho = scene.gas.rho.expect("validated");
-    let (p, gamma) = match scene.gas.eos {
-        EosKind::Adiabatic => (
-            scene.gas.p.expect("validated"),
-            scene.gas.gamma.expect("validated"),
-        ),
-        // Isothermal gas is the γ → 1 limit, which the reference does not cover.
-        EosKind::Isothermal => return Vec::new(),
-    };
+/// The 1D spherical equilibrium reference of a ball scene at time t (None for other scenes, and
+/// for isothermal gas: the γ → 1 limit is outside the reference).
+pub fn ball_reference(scene: &Scene, t: f64) -> Option<radial::RadialCurve> {
+    let b = scene.dustyball.as_ref()?;
+    if scene.gas.eos != EosKind::Adiabatic {
+        return None;
+    }
+    let rho = scene.gas.rho?;
     let eps: f64 = scene
         .dust
         .as_ref()
@@ -267,11 +261,21 @@ fn ball_reference_errors(scene: &Scene, state: &State) -> Vec<ExactErrors> {
     let prob = spherical::BallProblem {
         rho_gas: rho,
         rho_dust: eps * rho,
-        p,
-        gamma,
+        p: scene.gas.p?,
+        gamma: scene.gas.gamma?,
         radius: b.radius,
     };
-    let reference = spherical::equilibrium_ball(&prob, state.t, BALL_REFERENCE_ZONES);
+    Some(spherical::equilibrium_ball(&prob, t, BALL_REFERENCE_ZONES))
+}
+
+/// The ball against the 1D spherical equilibrium reference (method.md §6.1): L1/L2/L∞ of ρ_g,
+/// p, radial v_g, ρ_d, radial u_d inside r < R0 − 2h (away from the kernel-truncated edge) and
+/// over the whole ball. Absolute errors (the initial state is ρ_g = 1, p = 1 in the seed).
+fn ball_reference_errors(scene: &Scene, state: &State) -> Vec<ExactErrors> {
+    let b = scene.dustyball.as_ref().expect("validated");
+    let Some(reference) = ball_reference(scene, state.t) else {
+        return Vec::new();
+    };
     let h = crate::setup::smoothing_length(scene, 1.0 / scene.sph.n as f64);
     let r_in = b.radius - 2.0 * h;
     let radius = |x: &[f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
