@@ -4,7 +4,7 @@
 //! fixed global lattice (cells are [iΔ, (i+1)Δ) for integer i), so the partition of space never
 //! changes while the domain follows the particles. No particle is ever dropped: a position that
 //! cannot be placed (NaN, or an extent too large for 64-bit keys) is an error.
-use dustsph_device::cell;
+use dustsph_device::grid::{CellLookup, GridGeom};
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -13,31 +13,6 @@ use std::ops::Range;
 pub struct Domain {
     pub dim: u32,
     pub periodic: [Option<(f64, f64)>; 3],
-}
-
-impl Domain {
-    /// Separation vector a − b with minimum image on periodic axes.
-    #[inline(always)]
-    pub fn separation(&self, a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-        let mut d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-        for (k, dk) in d.iter_mut().enumerate() {
-            if let Some((_, len)) = self.periodic[k] {
-                *dk = dustsph_device::update::min_image(*dk, len);
-            }
-        }
-        d
-    }
-
-    /// Wrap a position into the periodic box.
-    #[inline(always)]
-    pub fn wrap(&self, mut x: [f64; 3]) -> [f64; 3] {
-        for (k, xk) in x.iter_mut().enumerate() {
-            if let Some((lo, len)) = self.periodic[k] {
-                *xk = dustsph_device::update::wrap(*xk, lo, len);
-            }
-        }
-        x
-    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -50,18 +25,29 @@ impl std::fmt::Display for GridError {
 }
 impl std::error::Error for GridError {}
 
-/// Geometry of the grid for one step.
+/// Axis-aligned bounds (lo, hi) of a set of positions; empty sets give (+∞, −∞).
+pub type Bounds = ([f64; 3], [f64; 3]);
+pub const EMPTY_BOUNDS: Bounds = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+
+/// Merge two bounding boxes; a NaN wins, so the finiteness check of [`Grid::from_bounds`]
+/// catches it.
+pub fn merge_bounds((l0, h0): Bounds, (l1, h1): Bounds) -> Bounds {
+    let mut out = (l0, h0);
+    for k in 0..3 {
+        if l1[k] < out.0[k] || l1[k].is_nan() {
+            out.0[k] = l1[k];
+        }
+        if h1[k] > out.1[k] || h1[k].is_nan() {
+            out.1[k] = h1[k];
+        }
+    }
+    out
+}
+
+/// The grid of one step: the shared geometry of `dustsph-device` built from the bounds.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Grid {
-    pub dim: u32,
-    pub origin: [f64; 3],
-    pub cell: [f64; 3],
-    inv: [f64; 3],
-    pub n: [u64; 3],
-    periodic: [bool; 3],
-    /// Neighbour reach in cells along each axis: ceil(support / cell).
-    reach: [u64; 3],
-    support: f64,
+    pub geom: GridGeom<f64>,
 }
 
 impl Grid {
@@ -73,35 +59,35 @@ impl Grid {
         support: f64,
         phases: &[&[[f64; 3]]],
     ) -> Result<Grid, GridError> {
-        let dim = domain.dim as usize;
-        type Bounds = ([f64; 3], [f64; 3]);
-        const EMPTY: Bounds = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        // Merge two bounding boxes; a NaN wins, so the finiteness check below catches it.
-        fn merge((l0, h0): Bounds, (l1, h1): Bounds) -> Bounds {
-            let mut out = (l0, h0);
-            for k in 0..3 {
-                if l1[k] < out.0[k] || l1[k].is_nan() {
-                    out.0[k] = l1[k];
-                }
-                if h1[k] > out.1[k] || h1[k].is_nan() {
-                    out.1[k] = h1[k];
-                }
-            }
-            out
-        }
-        let (lo, hi) = phases
+        let b = phases
             .iter()
-            .map(|x| x.par_iter().map(|&p| (p, p)).reduce(|| EMPTY, merge))
-            .fold(EMPTY, merge);
-        let mut g = Grid {
-            dim: domain.dim,
+            .map(|x| {
+                x.par_iter()
+                    .map(|&p| (p, p))
+                    .reduce(|| EMPTY_BOUNDS, merge_bounds)
+            })
+            .fold(EMPTY_BOUNDS, merge_bounds);
+        Grid::from_bounds(domain, cell_size, support, b)
+    }
+
+    /// The grid over given particle bounds (the GPU path reduces them on the device).
+    pub fn from_bounds(
+        domain: &Domain,
+        cell_size: f64,
+        support: f64,
+        (lo, hi): Bounds,
+    ) -> Result<Grid, GridError> {
+        let dim = domain.dim as usize;
+        let mut g = GridGeom {
             origin: [0.0; 3],
             cell: [1.0; 3],
             inv: [1.0; 3],
+            period: [0.0; 3],
             n: [1; 3],
-            periodic: [false; 3],
             reach: [0; 3],
             support,
+            dim: domain.dim,
+            periodic: [0; 3],
         };
         let mut total: u128 = 1;
         for k in 0..dim {
@@ -115,8 +101,9 @@ impl Grid {
                 let n = (nf as u64).max(1);
                 g.origin[k] = plo;
                 g.cell[k] = len / n as f64;
+                g.period[k] = len;
                 g.n[k] = n;
-                g.periodic[k] = true;
+                g.periodic[k] = 1;
             } else {
                 if !lo[k].is_finite() || !hi[k].is_finite() {
                     if lo[k] > hi[k] {
@@ -154,107 +141,24 @@ impl Grid {
                 &g.n[..dim]
             )));
         }
-        Ok(g)
-    }
-
-    /// Integer cell coordinates of a position (clamped against rounding at the edges).
-    #[inline(always)]
-    pub fn coord(&self, x: [f64; 3]) -> [u64; 3] {
-        let mut c = [0u64; 3];
-        for k in 0..self.dim as usize {
-            let i = cell::cell_coord(x[k], self.origin[k], self.inv[k]);
-            c[k] = i.clamp(0, self.n[k] as i64 - 1) as u64;
-        }
-        c
-    }
-
-    #[inline(always)]
-    pub fn key_of_coord(&self, c: [u64; 3]) -> u64 {
-        cell::key(c[0], c[1], c[2], self.n[0], self.n[1])
+        Ok(Grid { geom: g })
     }
 
     #[inline(always)]
     pub fn key(&self, x: [f64; 3]) -> u64 {
-        self.key_of_coord(self.coord(x))
-    }
-
-    pub fn coord_of_key(&self, key: u64) -> [u64; 3] {
-        let ix = key % self.n[0];
-        let r = key / self.n[0];
-        [ix, r % self.n[1], r / self.n[1]]
-    }
-
-    /// Cell ranges within reach along axis k of cell coordinate c (one or two ranges, inclusive).
-    fn axis_ranges(&self, k: usize, c: u64, r: u64) -> ([(u64, u64); 2], usize) {
-        let n = self.n[k];
-        if self.periodic[k] {
-            if 2 * r + 1 >= n {
-                return ([(0, n - 1), (0, 0)], 1);
-            }
-            let lo = c as i64 - r as i64;
-            let hi = c + r;
-            if lo < 0 {
-                ([((lo + n as i64) as u64, n - 1), (0, hi)], 2)
-            } else if hi >= n {
-                ([(lo as u64, n - 1), (0, hi - n)], 2)
-            } else {
-                ([(lo as u64, hi), (0, 0)], 1)
-            }
-        } else {
-            let lo = c.saturating_sub(r);
-            let hi = (c + r).min(n - 1);
-            ([(lo, hi), (0, 0)], 1)
-        }
+        self.geom.key(x)
     }
 
     /// Total number of cells in the grid box.
     pub fn total_cells(&self) -> u64 {
-        self.n[0] * self.n[1] * self.n[2]
+        self.geom.total_cells()
     }
+}
 
-    /// Lower bound of the distance between cell coordinate `a` and `b` along axis k.
-    #[inline(always)]
-    fn gap(&self, k: usize, a: u64, b: u64) -> f64 {
-        let mut d = a.abs_diff(b);
-        if self.periodic[k] {
-            d = d.min(self.n[k] - d);
-        }
-        d.saturating_sub(1) as f64 * self.cell[k]
-    }
-
-    /// Calls `f(lo_key, hi_key)` for every row of cells (inclusive key range along x) that may
-    /// hold a point within the support of some point of cell `c`. Rows are trimmed to the
-    /// support sphere, so about half the cells of the bounding cube are skipped in 3D. Each cell
-    /// is visited at most once.
-    #[inline]
-    pub fn for_each_neighbour_row(&self, c: [u64; 3], mut f: impl FnMut(u64, u64)) {
-        let s2 = self.support * self.support;
-        let (yr, ny) = self.axis_ranges(1, c[1], self.reach[1]);
-        let (zr, nz) = self.axis_ranges(2, c[2], self.reach[2]);
-        for &(z0, z1) in &zr[..nz] {
-            for iz in z0..=z1 {
-                let gz = self.gap(2, iz, c[2]);
-                for &(y0, y1) in &yr[..ny] {
-                    for iy in y0..=y1 {
-                        let gy = self.gap(1, iy, c[1]);
-                        let g2 = gy * gy + gz * gz;
-                        if g2 >= s2 {
-                            continue;
-                        }
-                        let rx =
-                            (((s2 - g2).sqrt() / self.cell[0]).ceil() as u64).min(self.reach[0]);
-                        let (xr, nx) = self.axis_ranges(0, c[0], rx);
-                        for &(x0, x1) in &xr[..nx] {
-                            f(
-                                self.key_of_coord([x0, iy, iz]),
-                                self.key_of_coord([x1, iy, iz]),
-                            );
-                        }
-                    }
-                }
-            }
-        }
-    }
+/// Whether a phase of `n` particles gets a dense start table over a box of `total` cells:
+/// up to 8 cells per particle (+ a floor for small runs), i.e. 32 bytes per particle at most.
+pub fn dense_table_fits(total: u64, n: usize) -> bool {
+    total <= (8 * n as u64).max(1 << 20)
 }
 
 /// The occupied cells of one phase, with particles sorted by cell key.
@@ -293,8 +197,7 @@ impl CellIndex {
         }
         idx.start.push(kp.len() as u32);
         let total = grid.total_cells();
-        // Up to 8 cells per particle (+ a floor for small runs): 32 bytes per particle at most.
-        if total <= (8 * kp.len() as u64).max(1 << 20) {
+        if dense_table_fits(total, kp.len()) {
             let mut dense = Vec::with_capacity(total as usize + 1);
             for (c, &k) in idx.keys.iter().enumerate() {
                 dense.resize(k as usize + 1, idx.start[c]);
@@ -314,15 +217,21 @@ impl CellIndex {
         self.start[c] as usize..self.start[c + 1] as usize
     }
 
+    /// The lookup the shared neighbour walk uses.
+    #[inline(always)]
+    pub fn lookup(&self) -> CellLookup<'_> {
+        CellLookup {
+            keys: &self.keys,
+            start: &self.start,
+            dense: &self.dense,
+        }
+    }
+
     /// Particles whose cells have keys in [lo, hi].
     #[inline(always)]
     pub fn particles_in_keys(&self, lo: u64, hi: u64) -> Range<usize> {
-        if !self.dense.is_empty() {
-            return self.dense[lo as usize] as usize..self.dense[hi as usize + 1] as usize;
-        }
-        let a = self.keys.partition_point(|&k| k < lo);
-        let b = a + self.keys[a..].partition_point(|&k| k <= hi);
-        self.start[a] as usize..self.start[b] as usize
+        let (a, b) = self.lookup().particles_in_keys(lo, hi);
+        a..b
     }
 }
 
@@ -352,8 +261,8 @@ mod tests {
         assert!(seen.iter().all(|&s| s));
         // Each particle's cell contains it.
         for (new, &old) in perm.iter().enumerate() {
-            let c = g.coord(x[old as usize]);
-            assert_eq!(idx.keys[idx.cell_of[new] as usize], g.key_of_coord(c));
+            let c = g.geom.coord(x[old as usize]);
+            assert_eq!(idx.keys[idx.cell_of[new] as usize], g.geom.key_of_coord(c));
         }
     }
 
@@ -379,12 +288,12 @@ mod tests {
             assert_eq!(idx.dense.is_empty(), spread > 1.0);
             let xs: Vec<[f64; 3]> = perm.iter().map(|&p| x[p as usize]).collect();
             let within = |a: [f64; 3], b: [f64; 3]| {
-                let d = dom.separation(a, b);
+                let d = g.geom.separation(a, b);
                 d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < support * support
             };
             for (i, &xi) in xs.iter().enumerate() {
                 let mut found = Vec::new();
-                g.for_each_neighbour_row(g.coord(xi), |lo, hi| {
+                g.geom.for_each_neighbour_row(g.geom.coord(xi), |lo, hi| {
                     found.extend(idx.particles_in_keys(lo, hi).filter(|&j| within(xi, xs[j])));
                 });
                 found.sort();
@@ -447,9 +356,9 @@ mod tests {
             let xs: Vec<[f64; 3]> = perm.iter().map(|&p| x[p as usize]).collect();
             for (i, &xi) in xs.iter().enumerate() {
                 let mut found = Vec::new();
-                g.for_each_neighbour_row(g.coord(xi), |lo, hi| {
+                g.geom.for_each_neighbour_row(g.geom.coord(xi), |lo, hi| {
                     for j in idx.particles_in_keys(lo, hi) {
-                        let d = dom.separation(xi, xs[j]);
+                        let d = g.geom.separation(xi, xs[j]);
                         if d[0] * d[0] + d[1] * d[1] < support * support {
                             found.push(j);
                         }
@@ -458,7 +367,7 @@ mod tests {
                 found.sort();
                 let brute: Vec<usize> = (0..xs.len())
                     .filter(|&j| {
-                        let d = dom.separation(xi, xs[j]);
+                        let d = g.geom.separation(xi, xs[j]);
                         d[0] * d[0] + d[1] * d[1] < support * support
                     })
                     .collect();

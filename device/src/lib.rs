@@ -14,6 +14,7 @@
 pub mod cell;
 pub mod drag;
 pub mod eos;
+pub mod grid;
 pub mod kernel;
 pub mod real;
 pub mod sph;

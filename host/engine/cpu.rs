@@ -129,21 +129,9 @@ impl CpuEngine {
         idx: &CellIndex,
         x: &[[f64; 3]],
         i: usize,
-        mut f: impl FnMut(usize, [f64; 3], f64),
+        f: impl FnMut(usize, [f64; 3], f64),
     ) {
-        let s2 = self.phys.support() * self.phys.support();
-        let xi = x[i];
-        let dom = &self.phys.domain;
-        let c = self.grid.coord_of_key(idx.keys[idx.cell_of[i] as usize]);
-        self.grid.for_each_neighbour_row(c, |lo, hi| {
-            for j in idx.particles_in_keys(lo, hi) {
-                let dx = dom.separation(xi, x[j]);
-                let r2 = dot(dx, dx);
-                if r2 < s2 {
-                    f(j, dx, r2);
-                }
-            }
-        });
+        dustsph_device::grid::for_neighbours(&self.grid.geom, &idx.lookup(), x, x[i], f);
     }
 
     /// SPH density by summation within one phase (self-contribution included).
@@ -539,7 +527,7 @@ impl CpuEngine {
             g.v = v_new;
             None
         };
-        let dom = self.phys.domain;
+        let geom = self.grid.geom;
         let mut timers = std::mem::take(&mut self.timers);
         timers.time("positions + energy", || {
             let drift = |ph: &mut Phase, w: Option<&Vec<[f64; 3]>>| {
@@ -552,7 +540,7 @@ impl CpuEngine {
                             if fixed.is_some_and(|f| f[i]) {
                                 x
                             } else {
-                                dom.wrap(update::drift(x, w[i], tau))
+                                geom.wrap(update::drift(x, w[i], tau))
                             }
                         })
                         .collect();

@@ -1,0 +1,231 @@
+//! Geometry of the auxiliary grid and the neighbour walk over it (method.md §3.1, §3.6).
+//!
+//! The host builds a [`GridGeom`] each step from the particles' bounding box; the CPU loops and
+//! the GPU kernels then use the very same cell arithmetic and the same walk, so both backends
+//! visit neighbours in the same order and produce the same sums.
+use crate::{cell, dot, update, Real, Vec3};
+
+/// One step's grid: cells [origin + iΔ, origin + (i+1)Δ) along each axis, `n` cells per axis.
+/// Plain data (`repr(C)`), so it travels to a GPU kernel by value.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridGeom<R> {
+    pub origin: [R; 3],
+    pub cell: [R; 3],
+    pub inv: [R; 3],
+    /// Period length on periodic axes (the periodic interval starts at `origin`); 0 on open axes.
+    pub period: [R; 3],
+    pub n: [u64; 3],
+    /// Neighbour reach in cells along each axis: ceil(support / cell).
+    pub reach: [u64; 3],
+    /// Kernel support radius (2h).
+    pub support: R,
+    pub dim: u32,
+    /// 1 on periodic axes.
+    pub periodic: [u32; 3],
+}
+
+#[inline(always)]
+fn ceil_u64<R: Real>(x: R) -> u64 {
+    let f = x.floor();
+    let c = if f < x { f + R::ONE } else { f };
+    if c > R::ZERO {
+        c.to_f64() as u64
+    } else {
+        0
+    }
+}
+
+impl<R: Real> GridGeom<R> {
+    #[inline(always)]
+    pub fn is_periodic(&self, k: usize) -> bool {
+        self.periodic[k] != 0
+    }
+
+    /// Integer cell coordinates of a position (clamped against rounding at the edges).
+    #[inline(always)]
+    pub fn coord(&self, x: Vec3<R>) -> [u64; 3] {
+        let mut c = [0u64; 3];
+        let mut k = 0;
+        while k < self.dim as usize {
+            let i = cell::cell_coord(x[k], self.origin[k], self.inv[k]);
+            let top = self.n[k] as i64 - 1;
+            c[k] = if i < 0 {
+                0
+            } else if i > top {
+                top as u64
+            } else {
+                i as u64
+            };
+            k += 1;
+        }
+        c
+    }
+
+    #[inline(always)]
+    pub fn key_of_coord(&self, c: [u64; 3]) -> u64 {
+        cell::key(c[0], c[1], c[2], self.n[0], self.n[1])
+    }
+
+    #[inline(always)]
+    pub fn key(&self, x: Vec3<R>) -> u64 {
+        self.key_of_coord(self.coord(x))
+    }
+
+    #[inline(always)]
+    pub fn coord_of_key(&self, key: u64) -> [u64; 3] {
+        let ix = key % self.n[0];
+        let r = key / self.n[0];
+        [ix, r % self.n[1], r / self.n[1]]
+    }
+
+    /// Total number of cells in the grid box.
+    #[inline(always)]
+    pub fn total_cells(&self) -> u64 {
+        self.n[0] * self.n[1] * self.n[2]
+    }
+
+    /// Separation a − b with the minimum image on periodic axes.
+    #[inline(always)]
+    pub fn separation(&self, a: Vec3<R>, b: Vec3<R>) -> Vec3<R> {
+        let mut d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        for (k, dk) in d.iter_mut().enumerate() {
+            if self.is_periodic(k) {
+                *dk = update::min_image(*dk, self.period[k]);
+            }
+        }
+        d
+    }
+
+    /// Wrap a position into the periodic box.
+    #[inline(always)]
+    pub fn wrap(&self, mut x: Vec3<R>) -> Vec3<R> {
+        for (k, xk) in x.iter_mut().enumerate() {
+            if self.is_periodic(k) {
+                *xk = update::wrap(*xk, self.origin[k], self.period[k]);
+            }
+        }
+        x
+    }
+
+    /// Cell ranges within reach `r` along axis k of coordinate c (one or two inclusive ranges).
+    #[inline(always)]
+    fn axis_ranges(&self, k: usize, c: u64, r: u64) -> ([(u64, u64); 2], usize) {
+        let n = self.n[k];
+        if self.is_periodic(k) {
+            if 2 * r + 1 >= n {
+                return ([(0, n - 1), (0, 0)], 1);
+            }
+            let lo = c as i64 - r as i64;
+            let hi = c + r;
+            if lo < 0 {
+                ([((lo + n as i64) as u64, n - 1), (0, hi)], 2)
+            } else if hi >= n {
+                ([(lo as u64, n - 1), (0, hi - n)], 2)
+            } else {
+                ([(lo as u64, hi), (0, 0)], 1)
+            }
+        } else {
+            let lo = c.saturating_sub(r);
+            let hi = if c + r < n - 1 { c + r } else { n - 1 };
+            ([(lo, hi), (0, 0)], 1)
+        }
+    }
+
+    /// Lower bound of the distance between cell coordinates a and b along axis k.
+    #[inline(always)]
+    fn gap(&self, k: usize, a: u64, b: u64) -> R {
+        let mut d = a.abs_diff(b);
+        if self.is_periodic(k) && self.n[k] - d < d {
+            d = self.n[k] - d;
+        }
+        R::from_f64(d.saturating_sub(1) as f64) * self.cell[k]
+    }
+
+    /// Calls `f(lo_key, hi_key)` for every row of cells (inclusive key range along x) that may
+    /// hold a point within the support of some point of cell `c`. Rows are trimmed to the
+    /// support sphere, so about half the cells of the bounding cube are skipped in 3D. Each cell
+    /// is visited at most once, always in the same order.
+    #[inline(always)]
+    pub fn for_each_neighbour_row(&self, c: [u64; 3], mut f: impl FnMut(u64, u64)) {
+        let s2 = self.support * self.support;
+        let (yr, ny) = self.axis_ranges(1, c[1], self.reach[1]);
+        let (zr, nz) = self.axis_ranges(2, c[2], self.reach[2]);
+        for &(z0, z1) in &zr[..nz] {
+            for iz in z0..=z1 {
+                let gz = self.gap(2, iz, c[2]);
+                for &(y0, y1) in &yr[..ny] {
+                    for iy in y0..=y1 {
+                        let gy = self.gap(1, iy, c[1]);
+                        let g2 = gy * gy + gz * gz;
+                        if g2 >= s2 {
+                            continue;
+                        }
+                        let rx = ceil_u64((s2 - g2).sqrt() / self.cell[0]);
+                        let rx = if rx < self.reach[0] {
+                            rx
+                        } else {
+                            self.reach[0]
+                        };
+                        let (xr, nx) = self.axis_ranges(0, c[0], rx);
+                        for &(x0, x1) in &xr[..nx] {
+                            f(
+                                self.key_of_coord([x0, iy, iz]),
+                                self.key_of_coord([x1, iy, iz]),
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Where one phase's particles (sorted by cell key) sit: `keys`/`start` list the occupied
+/// cells; `dense`, when not empty, is the first particle with key ≥ k for every key of the box
+/// (an O(1) row lookup instead of two binary searches).
+#[derive(Clone, Copy, Debug)]
+pub struct CellLookup<'a> {
+    pub keys: &'a [u64],
+    pub start: &'a [u32],
+    pub dense: &'a [u32],
+}
+
+impl CellLookup<'_> {
+    /// Particle index range of the cells with keys in [lo, hi].
+    #[inline(always)]
+    pub fn particles_in_keys(&self, lo: u64, hi: u64) -> (usize, usize) {
+        if !self.dense.is_empty() {
+            return (
+                self.dense[lo as usize] as usize,
+                self.dense[hi as usize + 1] as usize,
+            );
+        }
+        let a = self.keys.partition_point(|&k| k < lo);
+        let b = a + self.keys[a..].partition_point(|&k| k <= hi);
+        (self.start[a] as usize, self.start[b] as usize)
+    }
+}
+
+/// Visit the particles j of a sorted phase within the kernel support of the point `xi`:
+/// `f(j, xi − x_j, r²)` (minimum image on periodic axes). The one neighbour walk of the code.
+#[inline(always)]
+pub fn for_neighbours<R: Real>(
+    g: &GridGeom<R>,
+    look: &CellLookup<'_>,
+    x: &[Vec3<R>],
+    xi: Vec3<R>,
+    mut f: impl FnMut(usize, Vec3<R>, R),
+) {
+    let s2 = g.support * g.support;
+    g.for_each_neighbour_row(g.coord(xi), |lo, hi| {
+        let (a, b) = look.particles_in_keys(lo, hi);
+        for (o, &xj) in x[a..b].iter().enumerate() {
+            let dx = g.separation(xi, xj);
+            let r2 = dot(dx, dx);
+            if r2 < s2 {
+                f(a + o, dx, r2);
+            }
+        }
+    });
+}
