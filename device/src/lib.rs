@@ -16,6 +16,7 @@ pub mod drag;
 pub mod eos;
 pub mod grid;
 pub mod kernel;
+pub mod kernels;
 pub mod real;
 pub mod sph;
 pub mod update;

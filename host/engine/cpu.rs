@@ -8,7 +8,7 @@ use crate::grid::{CellIndex, Grid, GridError};
 use crate::particles::{Phase, State};
 use crate::scene::PositionUpdate;
 use dustsph_device::drag::{self, CellMeans};
-use dustsph_device::sph::{self, GasState};
+use dustsph_device::kernels::{self, GasView, Sorted};
 use dustsph_device::{dot, kernel, update};
 use rayon::prelude::*;
 
@@ -134,20 +134,29 @@ impl CpuEngine {
         dustsph_device::grid::for_neighbours(&self.grid.geom, &idx.lookup(), x, x[i], f);
     }
 
+    /// The phase as the shared neighbour walk sees it.
+    fn sorted<'a>(&'a self, idx: &'a CellIndex, x: &'a [[f64; 3]]) -> Sorted<'a, f64> {
+        Sorted {
+            geom: &self.grid.geom,
+            look: idx.lookup(),
+            x,
+        }
+    }
+
     /// SPH density by summation within one phase (self-contribution included).
     fn density(&self, idx: &CellIndex, ph: &Phase) -> Vec<f64> {
         let (h, dim) = (self.phys.h, self.phys.dim);
+        let s = self.sorted(idx, &ph.x);
+        let fixed = ph.fixed.as_deref().unwrap_or(&[]);
         (0..ph.len())
             .into_par_iter()
             .map(|i| {
-                if ph.is_fixed(i) {
-                    return ph.rho[i];
-                }
-                let mut rho = 0.0;
-                self.for_neighbours(idx, &ph.x, i, |j, _, r2| {
-                    rho += sph::density_term(ph.m[j], r2.sqrt(), h, dim);
-                });
-                rho
+                let rho_fixed = if kernels::is_fixed(fixed, i) {
+                    ph.rho[i]
+                } else {
+                    0.0
+                };
+                kernels::density_at(&s, &ph.m, fixed, rho_fixed, i, h, dim)
             })
             .collect()
     }
@@ -200,34 +209,20 @@ impl CpuEngine {
         let (h, dim) = (self.phys.h, self.phys.dim);
         let av = self.phys.av.as_ref();
         let energy = self.pipe.energy;
-        let gs = |i: usize| GasState {
-            x: g.ph.x[i],
-            v: g.ph.v[i],
-            m: g.ph.m[i],
-            rho: g.ph.rho[i],
-            p: g.p[i],
-            c: g.c[i],
+        let s = self.sorted(&self.gas_idx, &g.ph.x);
+        let view = GasView {
+            v: &g.ph.v,
+            m: &g.ph.m,
+            rho: &g.ph.rho,
+            p: &g.p,
+            c: &g.c,
+            fixed: g.ph.fixed.as_deref().unwrap_or(&[]),
         };
         let out: Vec<([f64; 3], f64, f64)> = (0..g.ph.len())
             .into_par_iter()
             .map(|i| {
-                if g.ph.is_fixed(i) {
-                    return ([0.0; 3], 0.0, 0.0);
-                }
-                let a = gs(i);
-                let mut acc = [0.0; 3];
-                let mut dedt = 0.0;
-                let mut vsig: f64 = a.c;
-                self.for_neighbours(&self.gas_idx, &g.ph.x, i, |j, dx, _| {
-                    if j == i {
-                        return;
-                    }
-                    let pr = sph::gas_pair(&a, &gs(j), dx, h, dim, av);
-                    acc = dustsph_device::add(acc, pr.acc);
-                    dedt += pr.dedt;
-                    vsig = vsig.max(pr.vsig);
-                });
-                (acc, dedt, vsig)
+                let r = kernels::forces_at(&s, &view, i, h, dim, av);
+                (r.acc, r.dedt, r.vsig)
             })
             .collect();
         let mut f = Forces {
@@ -302,27 +297,36 @@ impl CpuEngine {
         let mut rho_g = vec![0.0; if needs_gas_state { n } else { 0 }];
         let mut cs_g = vec![0.0; if needs_gas_state { n } else { 0 }];
         // Gas sums per gas cell (contiguous particle ranges), scattered to union cells.
-        let gsum: Vec<(f64, u32, [f64; 3], f64, f64)> = (0..self.gas_idx.n_cells())
+        let eos = self.phys.eos;
+        let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
+        let gsum: Vec<kernels::GasSums<f64>> = (0..self.gas_idx.n_cells())
             .into_par_iter()
             .map(|c| {
-                let (mut m, mut cnt, mut mom, mut rs, mut cs) = (0.0, 0u32, [0.0; 3], 0.0, 0.0);
-                for i in self.gas_idx.cell_range(c) {
-                    if g.ph.is_fixed(i) {
-                        continue;
-                    }
-                    let mi = g.ph.m[i];
-                    m += mi;
-                    cnt += 1;
-                    mom = dustsph_device::axpy(mom, mi, v_tilde[i]);
-                    if needs_gas_state {
-                        rs += g.ph.rho[i];
-                        cs += self.phys.eos.isothermal_speed(g.ph.rho[i], g.p[i]);
-                    }
-                }
-                (m, cnt, mom, rs, cs)
+                let r = self.gas_idx.cell_range(c);
+                kernels::gas_cell_sums(
+                    r.start,
+                    r.end,
+                    &g.ph.m,
+                    &g.ph.rho,
+                    &g.p,
+                    gfixed,
+                    &eos,
+                    needs_gas_state,
+                    |i| v_tilde[i],
+                )
             })
             .collect();
-        for (c, (m, cnt, mom, rs, cs)) in gsum.into_iter().enumerate() {
+        for (
+            c,
+            kernels::GasSums {
+                mass: m,
+                count: cnt,
+                mom,
+                rho: rs,
+                cs,
+            },
+        ) in gsum.into_iter().enumerate()
+        {
             let u = t.gas_map[c] as usize;
             t.gas_mass[u] = m;
             t.gas_count[u] = cnt;
@@ -335,25 +339,24 @@ impl CpuEngine {
         for (k, d) in state.dust.iter().enumerate() {
             let idx = &self.dust_idx[k];
             let needs_rho = self.phys.laws[k].needs_dust_density();
-            let dsum: Vec<(f64, u32, [f64; 3], f64)> = (0..idx.n_cells())
+            let dfixed = d.fixed.as_deref().unwrap_or(&[]);
+            let dsum: Vec<kernels::DustSums<f64>> = (0..idx.n_cells())
                 .into_par_iter()
                 .map(|c| {
-                    let (mut m, mut cnt, mut mom, mut rs) = (0.0, 0u32, [0.0; 3], 0.0);
-                    for j in idx.cell_range(c) {
-                        if d.is_fixed(j) {
-                            continue;
-                        }
-                        m += d.m[j];
-                        cnt += 1;
-                        mom = dustsph_device::axpy(mom, d.m[j], d.v[j]);
-                        if needs_rho {
-                            rs += d.rho[j];
-                        }
-                    }
-                    (m, cnt, mom, rs)
+                    let r = idx.cell_range(c);
+                    kernels::dust_cell_sums(r.start, r.end, &d.m, &d.v, &d.rho, dfixed, needs_rho)
                 })
                 .collect();
-            for (c, (m, cnt, mom, rs)) in dsum.into_iter().enumerate() {
+            for (
+                c,
+                kernels::DustSums {
+                    mass: m,
+                    count: cnt,
+                    mom,
+                    rho: rs,
+                },
+            ) in dsum.into_iter().enumerate()
+            {
                 let u = t.dust_map[k][c] as usize;
                 let s = u * nf + k;
                 t.dust_mass[s] = m;

@@ -432,6 +432,16 @@ impl Scene {
                 "must list at least one fraction ([[dust.fractions]])".into(),
             ));
         }
+        let max = dustsph_device::kernels::MAX_FRACTIONS;
+        if d.fractions.len() > max {
+            return Err((
+                "dust.fractions".into(),
+                format!(
+                    "{} fractions given; at most {max} are supported (the GPU cell kernel keeps them in registers)",
+                    d.fractions.len()
+                ),
+            ));
+        }
         if d.heating && self.gas.eos == EosKind::Isothermal {
             return Err((
                 "dust.heating".into(),

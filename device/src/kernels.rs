@@ -1,0 +1,337 @@
+//! Kernel bodies: what one GPU thread computes, as a safe function of an index and slices.
+//!
+//! The CPU backend calls these from rayon loops and the PTX entry points of [`crate::ptx`] call
+//! them from one thread each, so the two backends share not only the formulas but the loops
+//! around them (neighbour walk, summation order, cell couplings). Fixed particles (walls) are
+//! marked in a `fixed` slice; an empty slice means none is fixed.
+use crate::drag::{self, CellMeans, StoppingLaw};
+use crate::eos::Eos;
+use crate::grid::{for_neighbours, CellLookup, GridGeom};
+use crate::sph::{self, GasPair, GasState, Viscosity};
+use crate::{add, axpy, scale, update, Real, Vec3};
+
+/// Largest number of dust fractions a scene may have (the GPU cell kernel keeps per-fraction
+/// sums in registers / local memory).
+pub const MAX_FRACTIONS: usize = 32;
+
+#[inline(always)]
+pub fn is_fixed(fixed: &[bool], i: usize) -> bool {
+    !fixed.is_empty() && fixed[i]
+}
+
+/// One phase sorted by cell key, as the neighbour walk sees it.
+#[derive(Clone, Copy)]
+pub struct Sorted<'a, R> {
+    pub geom: &'a GridGeom<R>,
+    pub look: CellLookup<'a>,
+    pub x: &'a [Vec3<R>],
+}
+
+/// SPH density of particle i by summation over its own phase (self-contribution included);
+/// fixed particles keep `rho_fixed`.
+#[inline(always)]
+pub fn density_at<R: Real>(
+    s: &Sorted<'_, R>,
+    m: &[R],
+    fixed: &[bool],
+    rho_fixed: R,
+    i: usize,
+    h: R,
+    dim: u32,
+) -> R {
+    if is_fixed(fixed, i) {
+        return rho_fixed;
+    }
+    let mut rho = R::ZERO;
+    for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, _, r2| {
+        rho += sph::density_term(m[j], r2.sqrt(), h, dim);
+    });
+    rho
+}
+
+/// The gas fields the force loop reads.
+#[derive(Clone, Copy)]
+pub struct GasView<'a, R> {
+    pub v: &'a [Vec3<R>],
+    pub m: &'a [R],
+    pub rho: &'a [R],
+    pub p: &'a [R],
+    pub c: &'a [R],
+    pub fixed: &'a [bool],
+}
+
+impl<R: Real> GasView<'_, R> {
+    #[inline(always)]
+    fn state(&self, x: Vec3<R>, i: usize) -> GasState<R> {
+        GasState {
+            x,
+            v: self.v[i],
+            m: self.m[i],
+            rho: self.rho[i],
+            p: self.p[i],
+            c: self.c[i],
+        }
+    }
+}
+
+/// Non-drag acceleration A_i, de_i/dt and the largest signal speed of gas particle i (all zero
+/// for fixed particles).
+#[inline(always)]
+pub fn forces_at<R: Real>(
+    s: &Sorted<'_, R>,
+    g: &GasView<'_, R>,
+    i: usize,
+    h: R,
+    dim: u32,
+    av: Option<&Viscosity<R>>,
+) -> GasPair<R> {
+    let mut out = GasPair {
+        acc: [R::ZERO; 3],
+        dedt: R::ZERO,
+        vsig: R::ZERO,
+    };
+    if is_fixed(g.fixed, i) {
+        return out;
+    }
+    let a = g.state(s.x[i], i);
+    out.vsig = a.c;
+    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, _| {
+        if j == i {
+            return;
+        }
+        let pr = sph::gas_pair(&a, &g.state(s.x[j], j), dx, h, dim, av);
+        out.acc = add(out.acc, pr.acc);
+        out.dedt += pr.dedt;
+        out.vsig = out.vsig.max(pr.vsig);
+    });
+    out
+}
+
+/// Pressure and sound speed of a gas particle from its density (and energy).
+#[inline(always)]
+pub fn eos_at<R: Real>(eos: &Eos<R>, rho: R, e: R) -> (R, R) {
+    let p = eos.pressure(rho, e);
+    (p, eos.sound_speed(rho, p))
+}
+
+/// Gas sums over one cell's particle range [a, b).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GasSums<R> {
+    pub mass: R,
+    pub count: u32,
+    /// Σ m ṽ with ṽ = v + τA.
+    pub mom: Vec3<R>,
+    /// Σ ρ and Σ sqrt(p/ρ) (for laws that need the gas state).
+    pub rho: R,
+    pub cs: R,
+}
+
+/// Dust sums of one fraction over one cell's particle range.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DustSums<R> {
+    pub mass: R,
+    pub count: u32,
+    pub mom: Vec3<R>,
+    pub rho: R,
+}
+
+/// Gas sums over particles [a, b) of a sorted phase; `v_tilde(i)` gives ṽ_i.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn gas_cell_sums<R: Real>(
+    a: usize,
+    b: usize,
+    m: &[R],
+    rho: &[R],
+    p: &[R],
+    fixed: &[bool],
+    eos: &Eos<R>,
+    needs_state: bool,
+    v_tilde: impl Fn(usize) -> Vec3<R>,
+) -> GasSums<R> {
+    let mut s = GasSums {
+        mass: R::ZERO,
+        count: 0,
+        mom: [R::ZERO; 3],
+        rho: R::ZERO,
+        cs: R::ZERO,
+    };
+    for i in a..b {
+        if is_fixed(fixed, i) {
+            continue;
+        }
+        s.mass += m[i];
+        s.count += 1;
+        s.mom = axpy(s.mom, m[i], v_tilde(i));
+        if needs_state {
+            s.rho += rho[i];
+            s.cs += eos.isothermal_speed(rho[i], p[i]);
+        }
+    }
+    s
+}
+
+/// Dust sums over particles [a, b) of one fraction.
+#[inline(always)]
+pub fn dust_cell_sums<R: Real>(
+    a: usize,
+    b: usize,
+    m: &[R],
+    u: &[Vec3<R>],
+    rho: &[R],
+    fixed: &[bool],
+    needs_rho: bool,
+) -> DustSums<R> {
+    let mut s = DustSums {
+        mass: R::ZERO,
+        count: 0,
+        mom: [R::ZERO; 3],
+        rho: R::ZERO,
+    };
+    for j in a..b {
+        if is_fixed(fixed, j) {
+            continue;
+        }
+        s.mass += m[j];
+        s.count += 1;
+        s.mom = axpy(s.mom, m[j], u[j]);
+        if needs_rho {
+            s.rho += rho[j];
+        }
+    }
+    s
+}
+
+/// What the drag update of a cell hands to its particles: per fraction ε_k, β_k = τ/t_k*,
+/// u_k*^{n+1}, and the gas v*^{n+1}.
+#[derive(Clone, Copy, Debug)]
+pub struct CellCoupling<R> {
+    pub eps: [R; MAX_FRACTIONS],
+    pub beta: [R; MAX_FRACTIONS],
+    pub t_stop: [R; MAX_FRACTIONS],
+    pub u_new: [Vec3<R>; MAX_FRACTIONS],
+    pub v_new: Vec3<R>,
+}
+
+/// The IDIC cell step from a cell's sums (method.md §3.3–3.4): cell ε_k, stopping times t_k*
+/// from each fraction's law (+∞ when it does not couple: no gas or no dust in the cell), and the
+/// closed-form implicit solve. `gamma_root` turns the mean sqrt(p/ρ) into c_s*.
+#[inline(always)]
+pub fn cell_couple<R: Real>(
+    gas: &GasSums<R>,
+    dust: &[DustSums<R>],
+    laws: &[StoppingLaw<R>],
+    tau: R,
+    gamma_root: R,
+) -> CellCoupling<R> {
+    let nf = dust.len().min(laws.len()).min(MAX_FRACTIONS);
+    let inf = R::from_f64(f64::INFINITY);
+    let mut c = CellCoupling {
+        eps: [R::ZERO; MAX_FRACTIONS],
+        beta: [R::ZERO; MAX_FRACTIONS],
+        t_stop: [inf; MAX_FRACTIONS],
+        u_new: [[R::ZERO; 3]; MAX_FRACTIONS],
+        v_new: [R::ZERO; 3],
+    };
+    let mut u_tilde = [[R::ZERO; 3]; MAX_FRACTIONS];
+    let count = R::from_f64(gas.count as f64);
+    for k in 0..nf {
+        let d = &dust[k];
+        if d.mass > R::ZERO {
+            u_tilde[k] = scale(R::ONE / d.mass, d.mom);
+        }
+        if d.count == 0 || gas.count == 0 {
+            continue; // no drag without both phases in the cell
+        }
+        c.eps[k] = drag::cell_eps(d.mass, gas.mass);
+        let means = CellMeans {
+            rho_dust: d.rho / R::from_f64(d.count as f64),
+            rho_gas: gas.rho / count,
+            cs_gas: gamma_root * gas.cs / count,
+        };
+        if let Some(t) = laws[k].cell_time(&means) {
+            c.t_stop[k] = t;
+            c.beta[k] = drag::cell_beta(tau, Some(t));
+        }
+    }
+    let v_tilde = if gas.mass > R::ZERO {
+        scale(R::ONE / gas.mass, gas.mom)
+    } else {
+        [R::ZERO; 3]
+    };
+    c.v_new = drag::cell_solve(
+        v_tilde,
+        &u_tilde[..nf],
+        &c.eps[..nf],
+        &c.beta[..nf],
+        &mut c.u_new[..nf],
+    );
+    c
+}
+
+/// New position of a particle: drift with `w` (v^{n+1}, or v^n for the authors' update) and
+/// wrap on periodic axes; fixed particles stay.
+#[inline(always)]
+pub fn drift_at<R: Real>(
+    geom: &GridGeom<R>,
+    x: Vec3<R>,
+    w: Vec3<R>,
+    tau: R,
+    fixed: bool,
+) -> Vec3<R> {
+    if fixed {
+        x
+    } else {
+        geom.wrap(update::drift(x, w, tau))
+    }
+}
+
+/// Order-preserving map of a float to an unsigned integer (for atomic min/max of bounds and
+/// time-step limits on the GPU): a < b ⇔ key(a) < key(b) for all non-NaN values.
+#[inline(always)]
+pub fn ordered_bits(x: f64) -> u64 {
+    let b = x.to_bits();
+    if b >> 63 == 1 {
+        !b
+    } else {
+        b | (1 << 63)
+    }
+}
+
+/// Inverse of [`ordered_bits`].
+#[inline(always)]
+pub fn from_ordered_bits(k: u64) -> f64 {
+    if k >> 63 == 1 {
+        f64::from_bits(k & !(1 << 63))
+    } else {
+        f64::from_bits(!k)
+    }
+}
+
+/// Sort `perm[a..b]` ascending in place (insertion sort: cells hold tens of particles). The
+/// GPU counting sort scatters a cell's particles in arbitrary order; sorting each cell's
+/// segment by old index makes the result the CPU's (key, index) order, bit for bit.
+#[inline(always)]
+pub fn sort_segment(perm: &mut [u32]) {
+    for i in 1..perm.len() {
+        let v = perm[i];
+        let mut j = i;
+        while j > 0 && perm[j - 1] > v {
+            perm[j] = perm[j - 1];
+            j -= 1;
+        }
+        perm[j] = v;
+    }
+}
+
+/// Exclusive prefix sum of `chunk` in place, starting from `offset`; returns the running total.
+/// The GPU scan runs this per chunk after one thread has scanned the chunk totals.
+#[inline(always)]
+pub fn scan_exclusive(chunk: &mut [u32], mut offset: u32) -> u32 {
+    for v in chunk.iter_mut() {
+        let c = *v;
+        *v = offset;
+        offset += c;
+    }
+    offset
+}
