@@ -9,7 +9,11 @@
 //! Functions are generic over [`Real`] so the GPU precision (f32 or f64) can be chosen by
 //! measurement; the CPU path always uses `f64`.
 #![no_std]
-#![forbid(unsafe_code)]
+// Raw-pointer code is confined to `threads` (kernel entry bodies) and `ptx` (GPU entry points).
+#![deny(unsafe_code)]
+#![cfg_attr(target_arch = "nvptx64", feature(abi_ptx, stdarch_nvptx, core_intrinsics))]
+// sqrt.rn.f64 comes from the sqrt intrinsic on the GPU.
+#![cfg_attr(target_arch = "nvptx64", allow(internal_features))]
 
 pub mod cell;
 pub mod drag;
@@ -19,7 +23,11 @@ pub mod kernel;
 pub mod kernels;
 pub mod real;
 pub mod sph;
+pub mod threads;
 pub mod update;
+
+#[cfg(target_arch = "nvptx64")]
+pub mod ptx;
 
 pub use real::Real;
 

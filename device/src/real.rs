@@ -53,6 +53,11 @@ impl Real for f64 {
     }
     #[inline(always)]
     fn sqrt(self) -> Self {
+        // On the GPU, the hardware's correctly rounded sqrt.rn.f64; libm's table-driven sqrt
+        // would need a global table the PTX cannot link. Both are IEEE correctly rounded.
+        #[cfg(target_arch = "nvptx64")]
+        return core::intrinsics::sqrtf64(self);
+        #[cfg(not(target_arch = "nvptx64"))]
         libm::sqrt(self)
     }
     #[inline(always)]
@@ -86,6 +91,9 @@ impl Real for f32 {
     }
     #[inline(always)]
     fn sqrt(self) -> Self {
+        #[cfg(target_arch = "nvptx64")]
+        return core::intrinsics::sqrtf32(self);
+        #[cfg(not(target_arch = "nvptx64"))]
         libm::sqrtf(self)
     }
     #[inline(always)]

@@ -1,0 +1,51 @@
+//! GPU entry points: one `extern "ptx-kernel"` per kernel of [`crate::threads`], each computing
+//! its global thread index and calling the shared thread function. Compiled only for `nvptx64`.
+#![allow(unsafe_code)]
+
+use crate::threads::*;
+use core::arch::nvptx::{_block_dim_x, _block_idx_x, _thread_idx_x};
+
+type V3 = [f64; 3];
+
+#[inline(always)]
+fn tid() -> usize {
+    // SAFETY: special-register reads, valid in any kernel.
+    unsafe { _block_idx_x() as usize * _block_dim_x() as usize + _thread_idx_x() as usize }
+}
+
+macro_rules! kernels {
+    ($($name:ident => $body:expr, $args:ty;)*) => {
+        $(
+            #[no_mangle]
+            pub unsafe extern "ptx-kernel" fn $name(a: $args) {
+                $body(tid(), &a)
+            }
+        )*
+    };
+}
+
+kernels! {
+    dustsph_bounds => bounds, BoundsArgs;
+    dustsph_keys => keys, KeysArgs;
+    dustsph_scan_sums => scan_sums, ScanArgs;
+    dustsph_scan_totals => scan_totals, ScanArgs;
+    dustsph_scan_chunks => scan_chunks, ScanArgs;
+    dustsph_scatter => scatter, ScatterArgs;
+    dustsph_sort_segments => sort_segments, SegmentArgs;
+    dustsph_gather_v3 => gather::<V3>, GatherArgs<V3>;
+    dustsph_gather_f64 => gather::<f64>, GatherArgs<f64>;
+    dustsph_gather_u64 => gather::<u64>, GatherArgs<u64>;
+    dustsph_gather_u8 => gather::<u8>, GatherArgs<u8>;
+    dustsph_density => density, DensityArgs;
+    dustsph_eos => eos, EosArgs;
+    dustsph_forces => forces, ForcesArgs;
+    dustsph_union_flags => union_flags, UnionArgs;
+    dustsph_union_keys => union_keys, UnionKeysArgs;
+    dustsph_cell_step => cell_step, CellArgs;
+    dustsph_gas_kick => gas_kick, KickArgs;
+    dustsph_dust_kick => dust_kick, KickArgs;
+    dustsph_heat => heat, HeatArgs;
+    dustsph_drift => drift, DriftArgs;
+    dustsph_energy => energy, EnergyArgs;
+    dustsph_check => check, CheckArgs;
+}

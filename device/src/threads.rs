@@ -1,0 +1,779 @@
+//! The GPU step, one function per kernel, written as "what thread `t` does" over raw buffers.
+//!
+//! Each kernel takes one `#[repr(C)]` argument struct of pointers and parameters. On the GPU the
+//! `extern "ptx-kernel"` entry points of [`crate::ptx`] compute the global thread index and call
+//! these functions; on the host, the emulated backend calls the very same functions for every
+//! thread index, so the kernel code itself — not a model of it — runs in CI. The bodies they call
+//! ([`crate::kernels`]) are the ones the rayon CPU path uses.
+//!
+//! Layout: a phase buffer holds one or more groups (gas: one; dust: one per fraction, stored one
+//! after another). Particles are sorted by a combined key `group · (T + 1) + cell key` (T cells in
+//! the grid box), so one counting sort orders every fraction at once and the dense start table
+//! of the combined keys is every group's table back to back, in absolute particle indices.
+//!
+//! Safety (for every function here): the pointers must be valid for the lengths the argument
+//! struct states, writes of different threads go to different elements except through the
+//! atomics used here, and `t` indexes one thread of a launch.
+#![allow(unsafe_code, clippy::missing_safety_doc)]
+
+use crate::drag::StoppingLaw;
+use crate::eos::Eos;
+use crate::grid::{CellLookup, GridGeom};
+use crate::kernels::{self, GasView, Sorted, MAX_FRACTIONS};
+use crate::sph::Viscosity;
+use crate::{dot, drag, update, Real, Vec3};
+use core::slice;
+use core::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+
+type V3 = Vec3<f64>;
+
+/// A stopping-time law as plain data: `kind` 0 = constant t (value t), 1 = constant K (value K),
+/// 2 = Epstein (value s·ρ_s).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LawParam {
+    pub kind: u32,
+    pub value: f64,
+}
+
+impl LawParam {
+    pub fn from_law(l: &StoppingLaw<f64>) -> LawParam {
+        match *l {
+            StoppingLaw::ConstantTime { t_stop } => LawParam {
+                kind: 0,
+                value: t_stop,
+            },
+            StoppingLaw::ConstantK { k } => LawParam { kind: 1, value: k },
+            StoppingLaw::Epstein { s_rho } => LawParam {
+                kind: 2,
+                value: s_rho,
+            },
+        }
+    }
+
+    #[inline(always)]
+    pub fn law(&self) -> StoppingLaw<f64> {
+        match self.kind {
+            0 => StoppingLaw::ConstantTime { t_stop: self.value },
+            1 => StoppingLaw::ConstantK { k: self.value },
+            _ => StoppingLaw::Epstein { s_rho: self.value },
+        }
+    }
+}
+
+/// The physics and grid of one step, by value in every kernel that needs it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct StepParams {
+    pub geom: GridGeom<f64>,
+    /// Cells in the grid box (T); combined keys run over groups · (T + 1).
+    pub total: u64,
+    pub h: f64,
+    pub tau: f64,
+    pub dim: u32,
+    /// 0 isothermal (value c_s), 1 adiabatic (value γ).
+    pub eos_kind: u32,
+    pub eos_value: f64,
+    /// 1 when artificial viscosity is on.
+    pub av: u32,
+    pub alpha: f64,
+    pub beta: f64,
+    pub nu2_factor: f64,
+    pub nf: u32,
+    pub needs_gas_state: u32,
+    pub laws: [LawParam; MAX_FRACTIONS],
+}
+
+impl StepParams {
+    #[inline(always)]
+    pub fn eos(&self) -> Eos<f64> {
+        if self.eos_kind == 0 {
+            Eos::Isothermal { cs: self.eos_value }
+        } else {
+            Eos::Adiabatic {
+                gamma: self.eos_value,
+            }
+        }
+    }
+
+    #[inline(always)]
+    pub fn viscosity(&self) -> Option<Viscosity<f64>> {
+        (self.av != 0).then_some(Viscosity {
+            alpha: self.alpha,
+            beta: self.beta,
+            nu2_factor: self.nu2_factor,
+        })
+    }
+
+    #[inline(always)]
+    fn stride(&self) -> usize {
+        self.total as usize + 1
+    }
+}
+
+/// One phase buffer on the device (or in host memory, for the emulated backend).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct PhaseBufs {
+    pub x: *mut V3,
+    pub v: *mut V3,
+    pub m: *mut f64,
+    pub rho: *mut f64,
+    /// 0/1 per particle; null when no particle is fixed.
+    pub fixed: *mut u8,
+    /// Combined sort key per particle.
+    pub keys: *mut u64,
+    /// Dense start table over the combined keys: groups · (T + 1) + 1 entries.
+    pub dense: *mut u32,
+    pub n: u32,
+    pub groups: u32,
+    /// Group g holds particles off[g]..off[g + 1].
+    pub off: [u32; MAX_FRACTIONS + 1],
+}
+
+#[inline(always)]
+unsafe fn sl<'a, T>(p: *const T, n: usize) -> &'a [T] {
+    if p.is_null() || n == 0 {
+        &[]
+    } else {
+        slice::from_raw_parts(p, n)
+    }
+}
+
+#[inline(always)]
+unsafe fn sl_mut<'a, T>(p: *mut T, n: usize) -> &'a mut [T] {
+    if p.is_null() || n == 0 {
+        &mut []
+    } else {
+        slice::from_raw_parts_mut(p, n)
+    }
+}
+
+impl PhaseBufs {
+    #[inline(always)]
+    fn len(&self) -> usize {
+        self.n as usize
+    }
+    #[inline(always)]
+    unsafe fn x(&self) -> &[V3] {
+        sl(self.x, self.len())
+    }
+    #[inline(always)]
+    unsafe fn v(&self) -> &[V3] {
+        sl(self.v, self.len())
+    }
+    #[inline(always)]
+    unsafe fn m(&self) -> &[f64] {
+        sl(self.m, self.len())
+    }
+    #[inline(always)]
+    unsafe fn rho(&self) -> &[f64] {
+        sl(self.rho, self.len())
+    }
+    #[inline(always)]
+    unsafe fn fixed(&self) -> &[bool] {
+        // 0/1 bytes are valid bools.
+        sl(self.fixed as *const bool, self.len())
+    }
+    #[inline(always)]
+    unsafe fn dense(&self, p: &StepParams) -> &[u32] {
+        sl(self.dense, self.groups as usize * p.stride() + 1)
+    }
+    /// Group of particle i (≤ 32 groups: a linear scan).
+    #[inline(always)]
+    fn group_of(&self, i: usize) -> usize {
+        let mut g = 0;
+        while g + 1 < self.groups as usize && i >= self.off[g + 1] as usize {
+            g += 1;
+        }
+        g
+    }
+    /// The neighbour-walk view of group g.
+    #[inline(always)]
+    unsafe fn sorted<'a>(&'a self, p: &'a StepParams, g: usize) -> Sorted<'a, f64> {
+        let s = p.stride();
+        Sorted {
+            geom: &p.geom,
+            look: CellLookup {
+                keys: &[],
+                start: &[],
+                dense: &self.dense(p)[g * s..(g + 1) * s],
+            },
+            x: self.x(),
+        }
+    }
+    /// Particle range of group g in the cell with (grid) key k.
+    #[inline(always)]
+    unsafe fn cell_range(&self, p: &StepParams, g: usize, k: u64) -> (usize, usize) {
+        let d = self.dense(p);
+        let i = g * p.stride() + k as usize;
+        (d[i] as usize, d[i + 1] as usize)
+    }
+}
+
+/// Atomic add on a u32 in memory (the counting sort's per-cell counters).
+#[inline(always)]
+unsafe fn atomic_add_u32(p: *mut u32, v: u32) -> u32 {
+    AtomicU32::from_ptr(p).fetch_add(v, Ordering::Relaxed)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Grid rebuild: bounds, keys, counting sort, gathers.
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct BoundsArgs {
+    pub x: *const V3,
+    pub n: u32,
+    /// Particles per thread.
+    pub chunk: u32,
+    /// [min x, min y, min z, max x, max y, max z] as [`kernels::ordered_bits`]; initialise to
+    /// (u64::MAX ×3, 0 ×3).
+    pub out: *mut u64,
+}
+
+pub unsafe fn bounds(t: usize, a: &BoundsArgs) {
+    let x = sl(a.x, a.n as usize);
+    let lo = t * a.chunk as usize;
+    if lo >= x.len() {
+        return;
+    }
+    let hi = (lo + a.chunk as usize).min(x.len());
+    let mut mn = [u64::MAX; 3];
+    let mut mx = [0u64; 3];
+    for p in &x[lo..hi] {
+        for k in 0..3 {
+            // A NaN maps above +∞ (positive NaN) or below −∞ (negative NaN); the host's
+            // finiteness check of the decoded bounds then reports it.
+            let b = kernels::ordered_bits(p[k]);
+            mn[k] = mn[k].min(b);
+            mx[k] = mx[k].max(b);
+        }
+    }
+    for k in 0..3 {
+        AtomicU64::from_ptr(a.out.add(k)).fetch_min(mn[k], Ordering::Relaxed);
+        AtomicU64::from_ptr(a.out.add(3 + k)).fetch_max(mx[k], Ordering::Relaxed);
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct KeysArgs {
+    pub ph: PhaseBufs,
+    pub p: StepParams,
+    /// groups · (T + 1) + 1 counters, zeroed.
+    pub counts: *mut u32,
+}
+
+pub unsafe fn keys(t: usize, a: &KeysArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let key = (ph.group_of(t) * a.p.stride()) as u64 + a.p.geom.key(ph.x()[t]);
+    *ph.keys.add(t) = key;
+    atomic_add_u32(a.counts.add(key as usize), 1);
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct ScanArgs {
+    pub data: *mut u32,
+    pub len: u32,
+    pub chunk: u32,
+    /// One entry per chunk (+1 for the total).
+    pub sums: *mut u32,
+}
+
+impl ScanArgs {
+    pub fn chunks(&self) -> usize {
+        (self.len as usize).div_ceil(self.chunk as usize)
+    }
+    #[inline(always)]
+    unsafe fn chunk_of(&self, t: usize) -> Option<&mut [u32]> {
+        let lo = t * self.chunk as usize;
+        if lo >= self.len as usize {
+            return None;
+        }
+        let hi = (lo + self.chunk as usize).min(self.len as usize);
+        Some(&mut sl_mut(self.data, self.len as usize)[lo..hi])
+    }
+}
+
+/// Scan pass 1: thread t sums chunk t.
+pub unsafe fn scan_sums(t: usize, a: &ScanArgs) {
+    if let Some(c) = a.chunk_of(t) {
+        *a.sums.add(t) = c.iter().sum();
+    }
+}
+
+/// Scan pass 2 (one thread): exclusive scan of the chunk sums; sums[chunks] = total.
+pub unsafe fn scan_totals(t: usize, a: &ScanArgs) {
+    if t == 0 {
+        let n = a.chunks();
+        let s = sl_mut(a.sums, n + 1);
+        s[n] = kernels::scan_exclusive(&mut s[..n], 0);
+    }
+}
+
+/// Scan pass 3: thread t turns chunk t into its exclusive prefix sums.
+pub unsafe fn scan_chunks(t: usize, a: &ScanArgs) {
+    if let Some(c) = a.chunk_of(t) {
+        kernels::scan_exclusive(c, *a.sums.add(t));
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct ScatterArgs {
+    pub keys: *const u64,
+    pub n: u32,
+    pub dense: *const u32,
+    /// One zeroed counter per combined key.
+    pub cursor: *mut u32,
+    /// New → old particle index.
+    pub perm: *mut u32,
+}
+
+pub unsafe fn scatter(t: usize, a: &ScatterArgs) {
+    if t >= a.n as usize {
+        return;
+    }
+    let k = *a.keys.add(t) as usize;
+    let pos = *a.dense.add(k) + atomic_add_u32(a.cursor.add(k), 1);
+    *a.perm.add(pos as usize) = t as u32;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct SegmentArgs {
+    pub dense: *const u32,
+    /// Number of combined keys.
+    pub nkeys: u32,
+    pub perm: *mut u32,
+}
+
+/// Thread t sorts the segment of combined key t by old index: the CPU's (key, index) order.
+pub unsafe fn sort_segments(t: usize, a: &SegmentArgs) {
+    if t >= a.nkeys as usize {
+        return;
+    }
+    let (lo, hi) = (*a.dense.add(t) as usize, *a.dense.add(t + 1) as usize);
+    if hi > lo + 1 {
+        kernels::sort_segment(sl_mut(a.perm.add(lo), hi - lo));
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct GatherArgs<T> {
+    pub src: *const T,
+    pub dst: *mut T,
+    pub perm: *const u32,
+    pub n: u32,
+}
+
+/// dst[t] = src[perm[t]] (one kernel per element type).
+pub unsafe fn gather<T: Copy>(t: usize, a: &GatherArgs<T>) {
+    if t < a.n as usize {
+        *a.dst.add(t) = *a.src.add(*a.perm.add(t) as usize);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// SPH: density, EOS, forces.
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct DensityArgs {
+    pub ph: PhaseBufs,
+    pub p: StepParams,
+}
+
+/// Density of particle t by summation over its own group (fixed particles keep theirs).
+pub unsafe fn density(t: usize, a: &DensityArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let g = ph.group_of(t);
+    let s = ph.sorted(&a.p, g);
+    let fixed = ph.fixed();
+    let r = kernels::density_at(&s, ph.m(), fixed, *ph.rho.add(t), t, a.p.h, a.p.dim);
+    *ph.rho.add(t) = r;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct EosArgs {
+    pub rho: *const f64,
+    /// Null for isothermal gas.
+    pub e: *const f64,
+    pub pres: *mut f64,
+    pub c: *mut f64,
+    pub n: u32,
+    pub p: StepParams,
+}
+
+pub unsafe fn eos(t: usize, a: &EosArgs) {
+    if t >= a.n as usize {
+        return;
+    }
+    let e = if a.e.is_null() { 0.0 } else { *a.e.add(t) };
+    let (p, c) = kernels::eos_at(&a.p.eos(), *a.rho.add(t), e);
+    *a.pres.add(t) = p;
+    *a.c.add(t) = c;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct ForcesArgs {
+    pub gas: PhaseBufs,
+    pub pres: *const f64,
+    pub c: *const f64,
+    pub acc: *mut V3,
+    /// Null when there is no energy equation.
+    pub dedt: *mut f64,
+    /// [max signal speed, max |A|] as [`kernels::ordered_bits`], zeroed.
+    pub limits: *mut u64,
+    pub p: StepParams,
+}
+
+pub unsafe fn forces(t: usize, a: &ForcesArgs) {
+    let g = &a.gas;
+    if t >= g.len() {
+        return;
+    }
+    let n = g.len();
+    let view = GasView {
+        v: g.v(),
+        m: g.m(),
+        rho: g.rho(),
+        p: sl(a.pres, n),
+        c: sl(a.c, n),
+        fixed: g.fixed(),
+    };
+    let av = a.p.viscosity();
+    let r = kernels::forces_at(&g.sorted(&a.p, 0), &view, t, a.p.h, a.p.dim, av.as_ref());
+    *a.acc.add(t) = r.acc;
+    if !a.dedt.is_null() {
+        *a.dedt.add(t) = r.dedt;
+    }
+    let am = dot(r.acc, r.acc).sqrt();
+    AtomicU64::from_ptr(a.limits).fetch_max(kernels::ordered_bits(r.vsig), Ordering::Relaxed);
+    AtomicU64::from_ptr(a.limits.add(1)).fetch_max(kernels::ordered_bits(am), Ordering::Relaxed);
+}
+
+// ---------------------------------------------------------------------------------------------
+// IDIC: union of occupied cells, the cell step, particle velocities, drag heat.
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct UnionArgs {
+    pub gas: PhaseBufs,
+    pub dust: PhaseBufs,
+    /// T + 1 flags: 1 where any phase occupies cell t (the last stays 0); scanned afterwards
+    /// into the union index of each cell.
+    pub flags: *mut u32,
+    pub p: StepParams,
+}
+
+#[inline(always)]
+unsafe fn occupied(ph: &PhaseBufs, p: &StepParams, g: usize, k: u64) -> bool {
+    let (a, b) = ph.cell_range(p, g, k);
+    b > a
+}
+
+pub unsafe fn union_flags(t: usize, a: &UnionArgs) {
+    if t > a.p.total as usize {
+        return;
+    }
+    let k = t as u64;
+    let mut occ = false;
+    if t < a.p.total as usize {
+        occ = a.gas.n > 0 && occupied(&a.gas, &a.p, 0, k);
+        for g in 0..a.dust.groups as usize {
+            occ |= a.dust.n > 0 && occupied(&a.dust, &a.p, g, k);
+        }
+    }
+    *a.flags.add(t) = occ as u32;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct UnionKeysArgs {
+    /// Union index of each cell (the scanned flags), T + 1 entries; uidx[T] = union count.
+    pub uidx: *const u32,
+    pub total: u64,
+    pub ukey: *mut u64,
+}
+
+pub unsafe fn union_keys(t: usize, a: &UnionKeysArgs) {
+    if t < a.total as usize && *a.uidx.add(t + 1) > *a.uidx.add(t) {
+        *a.ukey.add(*a.uidx.add(t) as usize) = t as u64;
+    }
+}
+
+/// Per union cell: gas mass, v*^{n+1}, and per fraction ε, β, t*, u*^{n+1} (at u · nf + k).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CellBufs {
+    pub uidx: *const u32,
+    pub ukey: *const u64,
+    pub gas_mass: *mut f64,
+    pub v_new: *mut V3,
+    pub eps: *mut f64,
+    pub beta: *mut f64,
+    pub t_stop: *mut f64,
+    pub u_new: *mut V3,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CellArgs {
+    pub gas: PhaseBufs,
+    pub dust: PhaseBufs,
+    pub pres: *const f64,
+    pub acc: *const V3,
+    pub cells: CellBufs,
+    pub p: StepParams,
+}
+
+/// The IDIC cell step of union cell t: sums (in particle order, as on the CPU), ε, t*, β and
+/// the implicit solve.
+pub unsafe fn cell_step(t: usize, a: &CellArgs) {
+    let p = &a.p;
+    let nu = *a.cells.uidx.add(p.total as usize) as usize;
+    if t >= nu {
+        return;
+    }
+    let k = *a.cells.ukey.add(t);
+    let (g, d) = (&a.gas, &a.dust);
+    let eos = p.eos();
+    let tau = p.tau;
+    let acc = sl(a.acc, g.len());
+    let (v, lo_hi) = (g.v(), g.cell_range(p, 0, k));
+    let gs = kernels::gas_cell_sums(
+        lo_hi.0,
+        lo_hi.1,
+        g.m(),
+        g.rho(),
+        sl(a.pres, g.len()),
+        g.fixed(),
+        &eos,
+        p.needs_gas_state != 0,
+        |i| crate::axpy(v[i], tau, acc[i]),
+    );
+    let nf = p.nf as usize;
+    let mut ds = [kernels::DustSums::default(); MAX_FRACTIONS];
+    let mut laws = [StoppingLaw::ConstantTime { t_stop: 0.0 }; MAX_FRACTIONS];
+    for f in 0..nf {
+        let (lo, hi) = d.cell_range(p, f, k);
+        laws[f] = p.laws[f].law();
+        ds[f] = kernels::dust_cell_sums(
+            lo,
+            hi,
+            d.m(),
+            d.v(),
+            d.rho(),
+            d.fixed(),
+            laws[f].needs_dust_density(),
+        );
+    }
+    let c = kernels::cell_couple(&gs, &ds[..nf], &laws[..nf], tau, eos.gamma_root());
+    let cb = &a.cells;
+    *cb.gas_mass.add(t) = gs.mass;
+    *cb.v_new.add(t) = c.v_new;
+    for f in 0..nf {
+        let s = t * nf + f;
+        *cb.eps.add(s) = c.eps[f];
+        *cb.beta.add(s) = c.beta[f];
+        *cb.t_stop.add(s) = c.t_stop[f];
+        *cb.u_new.add(s) = c.u_new[f];
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct KickArgs {
+    pub ph: PhaseBufs,
+    /// Gas: A^n (ṽ = v + τA); null for dust (ũ = u).
+    pub acc: *const V3,
+    /// 1 when the IDIC update applies (dust in the scene); 0: v^{n+1} = ṽ.
+    pub drag: u32,
+    pub cells: CellBufs,
+    /// Kinetic energy lost per particle (drag heating); null when not needed.
+    pub loss: *mut f64,
+    pub p: StepParams,
+}
+
+#[inline(always)]
+unsafe fn cell_of(ph: &PhaseBufs, p: &StepParams, cells: &CellBufs, i: usize) -> usize {
+    let key = *ph.keys.add(i) as usize % p.stride();
+    *cells.uidx.add(key) as usize
+}
+
+/// Gas velocity update (method.md §3.3) of particle t.
+pub unsafe fn gas_kick(t: usize, a: &KickArgs) {
+    let g = &a.ph;
+    if t >= g.len() {
+        return;
+    }
+    let v = *g.v.add(t);
+    if kernels::is_fixed(g.fixed(), t) {
+        return;
+    }
+    let vt = crate::axpy(v, a.p.tau, *a.acc.add(t));
+    let vn = if a.drag != 0 {
+        let nf = a.p.nf as usize;
+        let c = cell_of(g, &a.p, &a.cells, t) * nf;
+        drag::gas_update(
+            vt,
+            sl(a.cells.eps.add(c), nf),
+            sl(a.cells.beta.add(c), nf),
+            sl(a.cells.u_new.add(c), nf),
+        )
+    } else {
+        vt
+    };
+    *g.v.add(t) = vn;
+    if !a.loss.is_null() {
+        *a.loss.add(t) = drag::kinetic_loss(*g.m.add(t), vt, vn);
+    }
+}
+
+/// Dust velocity update of particle t (its fraction from its group).
+pub unsafe fn dust_kick(t: usize, a: &KickArgs) {
+    let d = &a.ph;
+    if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
+        return;
+    }
+    let nf = a.p.nf as usize;
+    let c = cell_of(d, &a.p, &a.cells, t);
+    let s = c * nf + d.group_of(t);
+    let u = *d.v.add(t);
+    let un = drag::dust_update(u, *a.cells.beta.add(s), *a.cells.v_new.add(c));
+    *d.v.add(t) = un;
+    if !a.loss.is_null() {
+        *a.loss.add(t) = drag::kinetic_loss(*d.m.add(t), u, un);
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct HeatArgs {
+    pub gas: PhaseBufs,
+    pub dust: PhaseBufs,
+    pub loss_gas: *const f64,
+    pub loss_dust: *const f64,
+    pub cells: CellBufs,
+    /// Drag heat per unit gas mass of each union cell.
+    pub heat: *mut f64,
+    pub p: StepParams,
+}
+
+/// Drag heat of union cell t: the kinetic energy its particles lost, per unit gas mass. Summed
+/// gas first, then fraction by fraction, in particle order: the CPU's order.
+pub unsafe fn heat(t: usize, a: &HeatArgs) {
+    let p = &a.p;
+    if t >= *a.cells.uidx.add(p.total as usize) as usize {
+        return;
+    }
+    let k = *a.cells.ukey.add(t);
+    let mut q = 0.0;
+    let (lo, hi) = a.gas.cell_range(p, 0, k);
+    let gf = a.gas.fixed();
+    for i in lo..hi {
+        if !kernels::is_fixed(gf, i) {
+            q += *a.loss_gas.add(i);
+        }
+    }
+    let df = a.dust.fixed();
+    for f in 0..p.nf as usize {
+        let (lo, hi) = a.dust.cell_range(p, f, k);
+        for j in lo..hi {
+            if !kernels::is_fixed(df, j) {
+                q += *a.loss_dust.add(j);
+            }
+        }
+    }
+    let mg = *a.cells.gas_mass.add(t);
+    *a.heat.add(t) = if mg > 0.0 { q / mg } else { 0.0 };
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct DriftArgs {
+    pub ph: PhaseBufs,
+    pub p: StepParams,
+}
+
+/// x ← x + τ v (wrapped); fixed particles stay.
+pub unsafe fn drift(t: usize, a: &DriftArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let fixed = kernels::is_fixed(ph.fixed(), t);
+    let x = ph.x.add(t);
+    *x = kernels::drift_at(&a.p.geom, *x, *ph.v.add(t), a.p.tau, fixed);
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct EnergyArgs {
+    pub gas: PhaseBufs,
+    pub e: *mut f64,
+    pub dedt: *const f64,
+    /// Drag heat per unit gas mass per union cell; null without heating.
+    pub heat: *const f64,
+    pub cells: CellBufs,
+    pub p: StepParams,
+}
+
+pub unsafe fn energy(t: usize, a: &EnergyArgs) {
+    let g = &a.gas;
+    if t >= g.len() || kernels::is_fixed(g.fixed(), t) {
+        return;
+    }
+    let q = if a.heat.is_null() {
+        0.0
+    } else {
+        *a.heat.add(cell_of(g, &a.p, &a.cells, t))
+    };
+    let e = a.e.add(t);
+    *e = update::energy(*e, *a.dedt.add(t), a.p.tau) + q;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CheckArgs {
+    pub ph: PhaseBufs,
+    /// Internal energy (gas), or null.
+    pub e: *const f64,
+    pub check_rho: u32,
+    /// Smallest index of a bad particle; initialise to u32::MAX.
+    pub bad: *mut u32,
+}
+
+/// Flags a particle with a non-finite position or velocity, a non-positive density, or a
+/// negative or non-finite energy (the CPU path's check).
+pub unsafe fn check(t: usize, a: &CheckArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let (x, v) = (*ph.x.add(t), *ph.v.add(t));
+    let mut ok = x.iter().chain(v.iter()).all(|c| c.is_finite());
+    if a.check_rho != 0 {
+        let r = *ph.rho.add(t);
+        ok &= r.is_finite() && r > 0.0;
+    }
+    if !a.e.is_null() {
+        let e = *a.e.add(t);
+        ok &= e.is_finite() && e >= 0.0;
+    }
+    if !ok {
+        AtomicU32::from_ptr(a.bad).fetch_min(t as u32, Ordering::Relaxed);
+    }
+}
