@@ -27,7 +27,10 @@ fn main() {
     println!("cargo:rerun-if-env-changed=DUSTSPH_NO_PTX");
     let out = PathBuf::from(std::env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
     let (ptx, note) = if std::env::var_os("DUSTSPH_NO_PTX").is_some() {
-        (String::new(), "not built: DUSTSPH_NO_PTX was set".to_string())
+        (
+            String::new(),
+            "not built: DUSTSPH_NO_PTX was set".to_string(),
+        )
     } else {
         match build_ptx(&out) {
             Ok(p) => (p, format!("built for {PTX_ARCH} by rustc's NVPTX backend")),

@@ -11,7 +11,10 @@
 #![no_std]
 // Raw-pointer code is confined to `threads` (kernel entry bodies) and `ptx` (GPU entry points).
 #![deny(unsafe_code)]
-#![cfg_attr(target_arch = "nvptx64", feature(abi_ptx, stdarch_nvptx, core_intrinsics))]
+#![cfg_attr(
+    target_arch = "nvptx64",
+    feature(abi_ptx, stdarch_nvptx, core_intrinsics)
+)]
 // sqrt.rn.f64 comes from the sqrt intrinsic on the GPU.
 #![cfg_attr(target_arch = "nvptx64", allow(internal_features))]
 

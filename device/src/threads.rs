@@ -290,13 +290,14 @@ impl ScanArgs {
         (self.len as usize).div_ceil(self.chunk as usize)
     }
     #[inline(always)]
-    unsafe fn chunk_of(&self, t: usize) -> Option<&mut [u32]> {
+    unsafe fn chunk_of<'a>(&self, t: usize) -> Option<&'a mut [u32]> {
         let lo = t * self.chunk as usize;
         if lo >= self.len as usize {
             return None;
         }
         let hi = (lo + self.chunk as usize).min(self.len as usize);
-        Some(&mut sl_mut(self.data, self.len as usize)[lo..hi])
+        // Only this thread's chunk is borrowed: threads never alias one another's slices.
+        Some(sl_mut(self.data.add(lo), hi - lo))
     }
 }
 
@@ -459,7 +460,7 @@ pub unsafe fn forces(t: usize, a: &ForcesArgs) {
     if !a.dedt.is_null() {
         *a.dedt.add(t) = r.dedt;
     }
-    let am = dot(r.acc, r.acc).sqrt();
+    let am = Real::sqrt(dot(r.acc, r.acc));
     AtomicU64::from_ptr(a.limits).fetch_max(kernels::ordered_bits(r.vsig), Ordering::Relaxed);
     AtomicU64::from_ptr(a.limits.add(1)).fetch_max(kernels::ordered_bits(am), Ordering::Relaxed);
 }

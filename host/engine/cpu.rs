@@ -242,21 +242,9 @@ impl CpuEngine {
         f
     }
 
-    /// Time-step limits from the forces: (CFL with factor 1, force limit with factor 1).
-    /// dt = cfl · min(both); the drag never limits the step.
+    /// Time-step limits from the forces (see [`super::dt_limits`]).
     pub fn dt_limits(&self, f: &Forces) -> (f64, f64) {
-        let h = self.phys.h;
-        let dt_cfl = if f.vsig_max > 0.0 {
-            h / f.vsig_max
-        } else {
-            f64::INFINITY
-        };
-        let dt_force = if f.acc_max > 0.0 {
-            (h / f.acc_max).sqrt()
-        } else {
-            f64::INFINITY
-        };
-        (dt_cfl, dt_force)
+        super::dt_limits(self.phys.h, f)
     }
 
     /// Per-cell sums and cell stopping times at the current layer. `v_tilde` is the gas
@@ -583,30 +571,36 @@ impl CpuEngine {
         Ok(f)
     }
 
-    /// Stop on NaN/Inf or a non-positive density, naming step, phase, particle and field.
     fn check(&self, state: &State) -> Result<(), StepError> {
-        let bad = |phase: &str,
-                   ph: &Phase,
-                   check_rho: bool,
-                   extra: Option<(&str, &[f64])>|
-         -> Option<String> {
-            let rho_ok = |i: usize| !check_rho || (ph.rho[i].is_finite() && ph.rho[i] > 0.0);
-            let i = (0..ph.len()).into_par_iter().find_first(|&i| {
-                !(ph.x[i].iter().all(|v| v.is_finite())
-                    && ph.v[i].iter().all(|v| v.is_finite())
-                    && rho_ok(i)
-                    && extra.is_none_or(|(_, e)| e[i].is_finite() && e[i] >= 0.0))
-            })?;
-            let field = if !ph.x[i].iter().all(|v| v.is_finite()) {
-                "position"
-            } else if !ph.v[i].iter().all(|v| v.is_finite()) {
-                "velocity"
-            } else if !rho_ok(i) {
-                "density"
-            } else {
-                extra.map_or("?", |e| e.0)
-            };
-            Some(format!(
+        check_state(state, self.dust_density_fresh)
+    }
+}
+
+/// Stop on NaN/Inf or a non-positive density, naming step, phase, particle and field (dust
+/// densities are checked when `dust_density_fresh`).
+pub fn check_state(state: &State, dust_density_fresh: bool) -> Result<(), StepError> {
+    let bad = |phase: &str,
+               ph: &Phase,
+               check_rho: bool,
+               extra: Option<(&str, &[f64])>|
+     -> Option<String> {
+        let rho_ok = |i: usize| !check_rho || (ph.rho[i].is_finite() && ph.rho[i] > 0.0);
+        let i = (0..ph.len()).into_par_iter().find_first(|&i| {
+            !(ph.x[i].iter().all(|v| v.is_finite())
+                && ph.v[i].iter().all(|v| v.is_finite())
+                && rho_ok(i)
+                && extra.is_none_or(|(_, e)| e[i].is_finite() && e[i] >= 0.0))
+        })?;
+        let field = if !ph.x[i].iter().all(|v| v.is_finite()) {
+            "position"
+        } else if !ph.v[i].iter().all(|v| v.is_finite()) {
+            "velocity"
+        } else if !rho_ok(i) {
+            "density"
+        } else {
+            extra.map_or("?", |e| e.0)
+        };
+        Some(format!(
                 "step {}, t = {:.6e}: {phase} particle id {} has a bad {field} (x = {:?}, v = {:?}, rho = {:?})",
                 state.step,
                 state.t,
@@ -615,28 +609,22 @@ impl CpuEngine {
                 ph.v[i],
                 ph.rho.get(i)
             ))
-        };
-        let g = &state.gas;
-        if let Some(m) = bad(
-            "gas",
-            &g.ph,
-            true,
-            g.e.as_deref().map(|e| ("internal energy", e)),
-        ) {
+    };
+    let g = &state.gas;
+    if let Some(m) = bad(
+        "gas",
+        &g.ph,
+        true,
+        g.e.as_deref().map(|e| ("internal energy", e)),
+    ) {
+        return Err(StepError::Blowup(m));
+    }
+    for (k, d) in state.dust.iter().enumerate() {
+        if let Some(m) = bad(&format!("dust fraction {k}"), d, dust_density_fresh, None) {
             return Err(StepError::Blowup(m));
         }
-        for (k, d) in state.dust.iter().enumerate() {
-            if let Some(m) = bad(
-                &format!("dust fraction {k}"),
-                d,
-                self.dust_density_fresh,
-                None,
-            ) {
-                return Err(StepError::Blowup(m));
-            }
-        }
-        Ok(())
     }
+    Ok(())
 }
 
 /// The kernel support in units of h (re-exported for set-ups).

@@ -3,6 +3,7 @@
 //! A scene switches stages on or off (no dust → no IDIC pass; isothermal → no energy
 //! equation; no viscosity unless asked); [`Pipeline::stages`] lists what a run actually does.
 pub mod cpu;
+pub mod gpu;
 pub mod timers;
 
 use crate::grid::Domain;
@@ -79,6 +80,22 @@ impl Physics {
     pub fn support(&self) -> f64 {
         dustsph_device::kernel::SUPPORT * self.h
     }
+}
+
+/// Time-step limits from the forces: (CFL with factor 1, force limit with factor 1).
+/// dt = cfl · min(both); the drag never limits the step.
+pub fn dt_limits(h: f64, f: &cpu::Forces) -> (f64, f64) {
+    let dt_cfl = if f.vsig_max > 0.0 {
+        h / f.vsig_max
+    } else {
+        f64::INFINITY
+    };
+    let dt_force = if f.acc_max > 0.0 {
+        (h / f.acc_max).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    (dt_cfl, dt_force)
 }
 
 /// Which stages a step runs; derived from [`Physics`], never set by hand.

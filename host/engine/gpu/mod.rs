@@ -1,0 +1,761 @@
+//! The GPU backend: the whole step on the device, particle data resident for the run.
+//!
+//! One step, as kernels (method.md §3.6, same order as the CPU path): forces at layer n (with a
+//! max-reduction for the time step) → IDIC union of occupied cells, cell step, gas and dust
+//! velocities, drag heat → drift and energy → grid rebuild (bounds reduction, keys, counting sort
+//! by cell, per-cell order restored, gathers) → density and EOS → check. The host reads back
+//! only a few numbers per step (the two time-step limits, the six bounds of the grid, one
+//! failure flag); particle arrays come back only for snapshots, checkpoints and the summary.
+//!
+//! The engine is generic over [`Launcher`]: [`Cuda`] runs the embedded PTX, [`Emulated`] runs
+//! the same kernel code on the CPU, which is how CI checks it against the CPU engine.
+pub mod launch;
+
+use super::cpu::{Forces, StepError};
+use super::timers::Timers;
+use super::{Physics, Pipeline};
+use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
+use crate::particles::{Phase, State};
+use crate::scene::PositionUpdate;
+use dustsph_device::eos::Eos;
+use dustsph_device::kernels::{from_ordered_bits, MAX_FRACTIONS};
+use dustsph_device::threads::{self as th, LawParam, PhaseBufs, StepParams};
+pub use launch::{probe, Cuda, Emulated, GpuError, Launcher};
+use std::marker::PhantomData;
+
+/// The kernels, as PTX built from `device/` by build.rs (empty when that build was skipped).
+pub const PTX: &str = include_str!(concat!(env!("OUT_DIR"), "/dustsph.ptx"));
+/// How the PTX was (or was not) built.
+pub const PTX_NOTE: &str = env!("DUSTSPH_PTX_NOTE");
+/// Threads per chunk of the device scan (each thread scans one chunk serially).
+const SCAN_CHUNK: usize = 512;
+
+type V3 = [f64; 3];
+
+/// A typed device buffer of `len` elements.
+pub struct Buf<L: Launcher, T> {
+    mem: L::Mem,
+    len: usize,
+    _t: PhantomData<T>,
+}
+
+fn bytes_of<T: Copy>(s: &[T]) -> &[u8] {
+    // SAFETY: T is one of f64, u64, u32, u8, [f64; 3]: plain data without padding.
+    unsafe { std::slice::from_raw_parts(s.as_ptr() as *const u8, std::mem::size_of_val(s)) }
+}
+
+fn bytes_of_mut<T: Copy>(s: &mut [T]) -> &mut [u8] {
+    // SAFETY: as in `bytes_of`; every bit pattern is a valid value of these types.
+    unsafe { std::slice::from_raw_parts_mut(s.as_mut_ptr() as *mut u8, std::mem::size_of_val(s)) }
+}
+
+struct Dev<L: Launcher>(L);
+
+impl<L: Launcher> Dev<L> {
+    fn buf<T: Copy>(&self, len: usize) -> Result<Buf<L, T>, GpuError> {
+        Ok(Buf {
+            mem: self.0.alloc(len * std::mem::size_of::<T>())?,
+            len,
+            _t: PhantomData,
+        })
+    }
+    fn from<T: Copy>(&self, data: &[T]) -> Result<Buf<L, T>, GpuError> {
+        let mut b = self.buf(data.len())?;
+        self.put(&mut b, data)?;
+        Ok(b)
+    }
+    fn put<T: Copy>(&self, b: &mut Buf<L, T>, data: &[T]) -> Result<(), GpuError> {
+        assert!(data.len() <= b.len, "upload larger than the buffer");
+        self.0.upload(&mut b.mem, bytes_of(data))
+    }
+    fn get<T: Copy + Default>(&self, b: &Buf<L, T>, n: usize) -> Result<Vec<T>, GpuError> {
+        assert!(n <= b.len, "download larger than the buffer");
+        let mut v = vec![T::default(); n];
+        self.0.download(&b.mem, bytes_of_mut(&mut v))?;
+        Ok(v)
+    }
+    fn ptr<T>(&self, b: &Buf<L, T>) -> *mut T {
+        self.0.addr(&b.mem) as *mut T
+    }
+    fn opt<T>(&self, b: &Option<Buf<L, T>>) -> *mut T {
+        b.as_ref().map_or(std::ptr::null_mut(), |b| self.ptr(b))
+    }
+    /// Grow `b` to at least `len` elements (contents are not kept) and zero its first `len`.
+    fn zeroed<T: Copy + Default>(&self, b: &mut Buf<L, T>, len: usize) -> Result<(), GpuError> {
+        if b.len < len {
+            *b = self.buf(len + len / 2)?;
+        } else {
+            self.put(b, &vec![T::default(); len])?;
+        }
+        Ok(())
+    }
+    fn run<A: Copy>(
+        &self,
+        name: &'static str,
+        n: usize,
+        a: &A,
+        f: unsafe fn(usize, &A),
+    ) -> Result<(), GpuError> {
+        self.0.launch(name, n, a, f)
+    }
+
+    /// Exclusive prefix sum of `data[..len]` in place (three launches).
+    fn scan(&self, data: &Buf<L, u32>, len: usize, sums: &mut Buf<L, u32>) -> Result<(), GpuError> {
+        let chunks = len.div_ceil(SCAN_CHUNK);
+        if sums.len < chunks + 1 {
+            *sums = self.buf(chunks + 1 + chunks / 2)?;
+        }
+        let a = th::ScanArgs {
+            data: self.ptr(data),
+            len: len as u32,
+            chunk: SCAN_CHUNK as u32,
+            sums: self.ptr(sums),
+        };
+        self.run("dustsph_scan_sums", chunks, &a, th::scan_sums)?;
+        self.run("dustsph_scan_totals", 1, &a, th::scan_totals)?;
+        self.run("dustsph_scan_chunks", chunks, &a, th::scan_chunks)
+    }
+}
+
+/// One phase buffer set: gas (one group) or all dust fractions back to back.
+struct DevPhase<L: Launcher> {
+    n: usize,
+    groups: usize,
+    off: [u32; MAX_FRACTIONS + 1],
+    x: Buf<L, V3>,
+    v: Buf<L, V3>,
+    m: Buf<L, f64>,
+    rho: Buf<L, f64>,
+    fixed: Option<Buf<L, u8>>,
+    id: Buf<L, u64>,
+    keys: Buf<L, u64>,
+    /// Counts, then (scanned) the dense start table over combined keys.
+    dense: Buf<L, u32>,
+    cursor: Buf<L, u32>,
+    perm: Buf<L, u32>,
+    s_v3: Buf<L, V3>,
+    s_f64: Buf<L, f64>,
+    s_u64: Buf<L, u64>,
+    s_u8: Option<Buf<L, u8>>,
+    /// Kinetic energy lost in the drag update (drag heating only).
+    loss: Option<Buf<L, f64>>,
+}
+
+impl<L: Launcher> DevPhase<L> {
+    fn new(d: &Dev<L>, phases: &[&Phase], heating: bool) -> Result<DevPhase<L>, GpuError> {
+        let cat = |f: &dyn Fn(&Phase) -> Vec<f64>| phases.iter().flat_map(|p| f(p)).collect();
+        let x: Vec<V3> = phases.iter().flat_map(|p| p.x.iter().copied()).collect();
+        let v: Vec<V3> = phases.iter().flat_map(|p| p.v.iter().copied()).collect();
+        let m: Vec<f64> = cat(&|p| p.m.clone());
+        let rho: Vec<f64> = cat(&|p| {
+            if p.rho.len() == p.len() {
+                p.rho.clone()
+            } else {
+                vec![0.0; p.len()]
+            }
+        });
+        let id: Vec<u64> = phases.iter().flat_map(|p| p.id.iter().copied()).collect();
+        let any_fixed = phases.iter().any(|p| p.fixed.is_some());
+        let fixed: Option<Vec<u8>> = any_fixed.then(|| {
+            phases
+                .iter()
+                .flat_map(|p| (0..p.len()).map(|i| p.is_fixed(i) as u8))
+                .collect()
+        });
+        let mut off = [0u32; MAX_FRACTIONS + 1];
+        for (g, p) in phases.iter().enumerate() {
+            off[g + 1] = off[g] + p.len() as u32;
+        }
+        let end = off[phases.len()];
+        for o in off.iter_mut().skip(phases.len() + 1) {
+            *o = end;
+        }
+        let n = x.len();
+        Ok(DevPhase {
+            n,
+            groups: phases.len().max(1),
+            off,
+            x: d.from(&x)?,
+            v: d.from(&v)?,
+            m: d.from(&m)?,
+            rho: d.from(&rho)?,
+            fixed: fixed.as_deref().map(|f| d.from(f)).transpose()?,
+            id: d.from(&id)?,
+            keys: d.buf(n)?,
+            dense: d.buf(1)?,
+            cursor: d.buf(1)?,
+            perm: d.buf(n)?,
+            s_v3: d.buf(n)?,
+            s_f64: d.buf(n)?,
+            s_u64: d.buf(n)?,
+            s_u8: if any_fixed { Some(d.buf(n)?) } else { None },
+            loss: if heating { Some(d.buf(n)?) } else { None },
+        })
+    }
+
+    fn bufs(&self, d: &Dev<L>) -> PhaseBufs {
+        PhaseBufs {
+            x: d.ptr(&self.x),
+            v: d.ptr(&self.v),
+            m: d.ptr(&self.m),
+            rho: d.ptr(&self.rho),
+            fixed: d.opt(&self.fixed),
+            keys: d.ptr(&self.keys),
+            dense: d.ptr(&self.dense),
+            n: self.n as u32,
+            groups: self.groups as u32,
+            off: self.off,
+        }
+    }
+
+    /// Sort by combined cell key (counting sort, then each cell's particles back in index
+    /// order) and permute every per-particle array; `extra` are further f64 fields to carry.
+    fn sort(
+        &mut self,
+        d: &Dev<L>,
+        p: &StepParams,
+        sums: &mut Buf<L, u32>,
+        extra: &mut [&mut Buf<L, f64>],
+    ) -> Result<(), GpuError> {
+        let nkeys = self.groups * (p.total as usize + 1);
+        d.zeroed(&mut self.dense, nkeys + 1)?;
+        let ka = th::KeysArgs {
+            ph: self.bufs(d),
+            p: *p,
+            counts: d.ptr(&self.dense),
+        };
+        d.run("dustsph_keys", self.n, &ka, th::keys)?;
+        d.scan(&self.dense, nkeys + 1, sums)?;
+        d.zeroed(&mut self.cursor, nkeys)?;
+        let sa = th::ScatterArgs {
+            keys: d.ptr(&self.keys),
+            n: self.n as u32,
+            dense: d.ptr(&self.dense),
+            cursor: d.ptr(&self.cursor),
+            perm: d.ptr(&self.perm),
+        };
+        d.run("dustsph_scatter", self.n, &sa, th::scatter)?;
+        let seg = th::SegmentArgs {
+            dense: d.ptr(&self.dense),
+            nkeys: nkeys as u32,
+            perm: d.ptr(&self.perm),
+        };
+        d.run("dustsph_sort_segments", nkeys, &seg, th::sort_segments)?;
+        let perm = d.ptr(&self.perm);
+        let n = self.n;
+        macro_rules! carry {
+            ($field:expr, $scratch:expr, $name:literal) => {{
+                let a = th::GatherArgs {
+                    src: d.ptr(&$field),
+                    dst: d.ptr(&$scratch),
+                    perm,
+                    n: n as u32,
+                };
+                d.run($name, n, &a, th::gather)?;
+                std::mem::swap(&mut $field, &mut $scratch);
+            }};
+        }
+        carry!(self.x, self.s_v3, "dustsph_gather_v3");
+        carry!(self.v, self.s_v3, "dustsph_gather_v3");
+        carry!(self.m, self.s_f64, "dustsph_gather_f64");
+        carry!(self.rho, self.s_f64, "dustsph_gather_f64");
+        carry!(self.id, self.s_u64, "dustsph_gather_u64");
+        carry!(self.keys, self.s_u64, "dustsph_gather_u64");
+        if let (Some(f), Some(s)) = (&mut self.fixed, &mut self.s_u8) {
+            carry!(*f, *s, "dustsph_gather_u8");
+        }
+        for e in extra.iter_mut() {
+            carry!(**e, self.s_f64, "dustsph_gather_f64");
+        }
+        Ok(())
+    }
+
+    /// Download into host phases (split by group).
+    fn download(&self, d: &Dev<L>, phases: &mut [&mut Phase]) -> Result<(), GpuError> {
+        let x = d.get(&self.x, self.n)?;
+        let v = d.get(&self.v, self.n)?;
+        let m = d.get(&self.m, self.n)?;
+        let rho = d.get(&self.rho, self.n)?;
+        let id = d.get(&self.id, self.n)?;
+        let fixed = self.fixed.as_ref().map(|f| d.get(f, self.n)).transpose()?;
+        for (g, ph) in phases.iter_mut().enumerate() {
+            let r = self.off[g] as usize..self.off[g + 1] as usize;
+            ph.x = x[r.clone()].to_vec();
+            ph.v = v[r.clone()].to_vec();
+            ph.m = m[r.clone()].to_vec();
+            ph.rho = rho[r.clone()].to_vec();
+            ph.id = id[r.clone()].to_vec();
+            if ph.fixed.is_some() {
+                ph.fixed = fixed
+                    .as_ref()
+                    .map(|f| f[r.clone()].iter().map(|&b| b != 0).collect());
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Per union cell results of the IDIC cell step.
+struct DevCells<L: Launcher> {
+    uidx: Buf<L, u32>,
+    ukey: Buf<L, u64>,
+    gas_mass: Buf<L, f64>,
+    v_new: Buf<L, V3>,
+    eps: Buf<L, f64>,
+    beta: Buf<L, f64>,
+    t_stop: Buf<L, f64>,
+    u_new: Buf<L, V3>,
+    heat: Buf<L, f64>,
+}
+
+impl<L: Launcher> DevCells<L> {
+    fn bufs(&self, d: &Dev<L>) -> th::CellBufs {
+        th::CellBufs {
+            uidx: d.ptr(&self.uidx),
+            ukey: d.ptr(&self.ukey),
+            gas_mass: d.ptr(&self.gas_mass),
+            v_new: d.ptr(&self.v_new),
+            eps: d.ptr(&self.eps),
+            beta: d.ptr(&self.beta),
+            t_stop: d.ptr(&self.t_stop),
+            u_new: d.ptr(&self.u_new),
+        }
+    }
+}
+
+pub struct GpuEngine<L: Launcher> {
+    pub phys: Physics,
+    pub pipe: Pipeline,
+    pub timers: Timers,
+    d: Dev<L>,
+    base: StepParams,
+    grid: Grid,
+    gas: DevPhase<L>,
+    dust: DevPhase<L>,
+    pres: Buf<L, f64>,
+    cs: Buf<L, f64>,
+    e: Option<Buf<L, f64>>,
+    acc: Buf<L, V3>,
+    zero_acc: Buf<L, V3>,
+    dedt: Option<Buf<L, f64>>,
+    cells: DevCells<L>,
+    sums: Buf<L, u32>,
+    limits: Buf<L, u64>,
+    bounds: Buf<L, u64>,
+    bad: Buf<L, u32>,
+    dust_density_fresh: bool,
+}
+
+impl From<GpuError> for StepError {
+    fn from(e: GpuError) -> Self {
+        StepError::Blowup(format!("GPU: {e}"))
+    }
+}
+
+impl<L: Launcher> GpuEngine<L> {
+    /// Upload the state, sort it, and compute densities and pressures at the initial layer.
+    /// The host `state` is then sorted the same way (as the CPU engine leaves it).
+    pub fn new(phys: Physics, state: &mut State, launcher: L) -> Result<GpuEngine<L>, StepError> {
+        let pipe = Pipeline::from_physics(&phys);
+        let nf = state.dust.len();
+        if nf > MAX_FRACTIONS {
+            return Err(StepError::Blowup(format!(
+                "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
+            )));
+        }
+        let d = Dev(launcher);
+        let (eos_kind, eos_value) = match phys.eos {
+            Eos::Isothermal { cs } => (0, cs),
+            Eos::Adiabatic { gamma } => (1, gamma),
+        };
+        let mut laws = [LawParam::default(); MAX_FRACTIONS];
+        for (l, p) in laws.iter_mut().zip(&phys.laws) {
+            *l = LawParam::from_law(p);
+        }
+        let grid = Grid::build(&phys.domain, phys.cell_size, phys.support(), &[])?;
+        let base = StepParams {
+            geom: grid.geom,
+            total: 0,
+            h: phys.h,
+            tau: 0.0,
+            dim: phys.dim,
+            eos_kind,
+            eos_value,
+            av: phys.av.is_some() as u32,
+            alpha: phys.av.map_or(0.0, |a| a.alpha),
+            beta: phys.av.map_or(0.0, |a| a.beta),
+            nu2_factor: phys.av.map_or(0.0, |a| a.nu2_factor),
+            nf: nf as u32,
+            needs_gas_state: phys.laws.iter().any(|l| l.needs_gas_state()) as u32,
+            laws,
+        };
+        let heating = pipe.heating;
+        let gas = DevPhase::new(&d, &[&state.gas.ph], heating)?;
+        let dust_refs: Vec<&Phase> = state.dust.iter().collect();
+        let dust = DevPhase::new(&d, &dust_refs, heating)?;
+        let ng = gas.n;
+        let cap = (gas.n + dust.n).max(1);
+        let g = &state.gas;
+        let mut eng = GpuEngine {
+            pres: d.from(&fill(&g.p, ng))?,
+            cs: d.from(&fill(&g.c, ng))?,
+            e: g.e.as_deref().map(|e| d.from(e)).transpose()?,
+            acc: d.buf(ng)?,
+            zero_acc: d.buf(ng)?,
+            dedt: if pipe.energy { Some(d.buf(ng)?) } else { None },
+            cells: DevCells {
+                uidx: d.buf(1)?,
+                ukey: d.buf(cap)?,
+                gas_mass: d.buf(cap)?,
+                v_new: d.buf(cap)?,
+                eps: d.buf(cap * nf.max(1))?,
+                beta: d.buf(cap * nf.max(1))?,
+                t_stop: d.buf(cap * nf.max(1))?,
+                u_new: d.buf(cap * nf.max(1))?,
+                heat: d.buf(cap)?,
+            },
+            sums: d.buf(1)?,
+            limits: d.buf(2)?,
+            bounds: d.buf(6)?,
+            bad: d.buf(1)?,
+            phys,
+            pipe,
+            timers: Timers::default(),
+            d,
+            base,
+            grid,
+            gas,
+            dust,
+            dust_density_fresh: false,
+        };
+        eng.regrid()?;
+        eng.gas_density_eos()?;
+        eng.dust_density()?;
+        eng.sync(state)?;
+        eng.check(state)?;
+        Ok(eng)
+    }
+
+    pub fn describe(&self) -> String {
+        self.d.0.describe()
+    }
+
+    fn params(&self, tau: f64) -> StepParams {
+        StepParams {
+            geom: self.grid.geom,
+            total: self.grid.total_cells(),
+            tau,
+            ..self.base
+        }
+    }
+
+    /// Rebuild the grid over the current positions and sort every phase by cell.
+    fn regrid(&mut self) -> Result<(), StepError> {
+        let d = &self.d;
+        let mut b = EMPTY_BOUNDS;
+        for ph in [&self.gas, &self.dust] {
+            if ph.n == 0 {
+                continue;
+            }
+            d.put(&mut self.bounds, &[u64::MAX, u64::MAX, u64::MAX, 0, 0, 0])?;
+            let chunk = 64usize;
+            let a = th::BoundsArgs {
+                x: d.ptr(&ph.x),
+                n: ph.n as u32,
+                chunk: chunk as u32,
+                out: d.ptr(&self.bounds),
+            };
+            d.run("dustsph_bounds", ph.n.div_ceil(chunk), &a, th::bounds)?;
+            let o = d.get(&self.bounds, 6)?;
+            let dec = |k: usize| from_ordered_bits(o[k]);
+            b = merge_bounds(b, ([dec(0), dec(1), dec(2)], [dec(3), dec(4), dec(5)]));
+        }
+        self.grid = Grid::from_bounds(
+            &self.phys.domain,
+            self.phys.cell_size,
+            self.phys.support(),
+            b,
+        )?;
+        if !crate::grid::dense_table_fits(self.grid.total_cells(), self.gas.n + self.dust.n) {
+            return Err(StepError::Grid(crate::grid::GridError(format!(
+                "the particles span {} cells, too many for the GPU's dense cell table \
+                 ({} particles); the CPU path (--device cpu) handles such spread-out clouds",
+                self.grid.total_cells(),
+                self.gas.n + self.dust.n
+            ))));
+        }
+        let p = self.params(0.0);
+        let mut extra: Vec<&mut Buf<L, f64>> = vec![&mut self.pres, &mut self.cs];
+        if let Some(e) = &mut self.e {
+            extra.push(e);
+        }
+        self.gas.sort(&self.d, &p, &mut self.sums, &mut extra)?;
+        self.dust.sort(&self.d, &p, &mut self.sums, &mut [])?;
+        Ok(())
+    }
+
+    fn density(&self, ph: &DevPhase<L>) -> Result<(), GpuError> {
+        let a = th::DensityArgs {
+            ph: ph.bufs(&self.d),
+            p: self.params(0.0),
+        };
+        self.d.run("dustsph_density", ph.n, &a, th::density)
+    }
+
+    fn gas_density_eos(&mut self) -> Result<(), GpuError> {
+        self.density(&self.gas)?;
+        let d = &self.d;
+        let a = th::EosArgs {
+            rho: d.ptr(&self.gas.rho),
+            e: d.opt(&self.e),
+            pres: d.ptr(&self.pres),
+            c: d.ptr(&self.cs),
+            n: self.gas.n as u32,
+            p: self.params(0.0),
+        };
+        d.run("dustsph_eos", self.gas.n, &a, th::eos)
+    }
+
+    fn dust_density(&mut self) -> Result<(), GpuError> {
+        if !self.dust_density_fresh {
+            self.density(&self.dust)?;
+            self.dust_density_fresh = true;
+        }
+        Ok(())
+    }
+
+    /// Non-drag gas accelerations (kept on the device) and the time-step maxima.
+    pub fn forces(&mut self) -> Result<Forces, StepError> {
+        let d = &self.d;
+        d.put(&mut self.limits, &[0, 0])?;
+        let a = th::ForcesArgs {
+            gas: self.gas.bufs(d),
+            pres: d.ptr(&self.pres),
+            c: d.ptr(&self.cs),
+            acc: d.ptr(&self.acc),
+            dedt: d.opt(&self.dedt),
+            limits: d.ptr(&self.limits),
+            p: self.params(0.0),
+        };
+        self.timers.time("gas forces", || {
+            d.run("dustsph_forces", self.gas.n, &a, th::forces)
+        })?;
+        let l = d.get(&self.limits, 2)?;
+        let dec = |b: u64| if b == 0 { 0.0 } else { from_ordered_bits(b) };
+        Ok(Forces {
+            acc: Vec::new(),
+            dedt: None,
+            vsig_max: dec(l[0]),
+            acc_max: dec(l[1]),
+        })
+    }
+
+    /// Union of occupied cells and the IDIC cell step at step size τ (velocities ṽ = v + τA).
+    fn cell_step(&mut self, tau: f64, acc_zero: bool) -> Result<(), GpuError> {
+        let d = &self.d;
+        let p = self.params(tau);
+        let t = p.total as usize;
+        d.zeroed(&mut self.cells.uidx, t + 1)?;
+        let ua = th::UnionArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            flags: d.ptr(&self.cells.uidx),
+            p,
+        };
+        d.run("dustsph_union_flags", t + 1, &ua, th::union_flags)?;
+        d.scan(&self.cells.uidx, t + 1, &mut self.sums)?;
+        let ka = th::UnionKeysArgs {
+            uidx: d.ptr(&self.cells.uidx),
+            total: p.total,
+            ukey: d.ptr(&self.cells.ukey),
+        };
+        d.run("dustsph_union_keys", t, &ka, th::union_keys)?;
+        let ca = th::CellArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            pres: d.ptr(&self.pres),
+            acc: d.ptr(if acc_zero { &self.zero_acc } else { &self.acc }),
+            cells: self.cells.bufs(d),
+            p,
+        };
+        // The union count stays on the device: launch one thread per possible cell.
+        d.run("dustsph_cell_step", self.cells.ukey.len, &ca, th::cell_step)
+    }
+
+    fn drift(&self, ph: &DevPhase<L>, tau: f64) -> Result<(), GpuError> {
+        let a = th::DriftArgs {
+            ph: ph.bufs(&self.d),
+            p: self.params(tau),
+        };
+        self.d.run("dustsph_drift", ph.n, &a, th::drift)
+    }
+
+    /// Advance one step of size τ from layer n (forces already computed at layer n).
+    pub fn advance(&mut self, state: &mut State, tau: f64) -> Result<(), StepError> {
+        let old = self.phys.position_update == PositionUpdate::Old;
+        let mut timers = std::mem::take(&mut self.timers);
+        if old {
+            timers.time("positions + energy", || -> Result<(), GpuError> {
+                self.drift(&self.gas, tau)?;
+                self.drift(&self.dust, tau)
+            })?;
+        }
+        let drag = self.pipe.drag;
+        if drag {
+            timers.time("idic", || self.cell_step(tau, false))?;
+        }
+        let d = &self.d;
+        let p = self.params(tau);
+        timers.time("idic", || -> Result<(), GpuError> {
+            let ga = th::KickArgs {
+                ph: self.gas.bufs(d),
+                acc: d.ptr(&self.acc),
+                drag: drag as u32,
+                cells: self.cells.bufs(d),
+                loss: d.opt(&self.gas.loss),
+                p,
+            };
+            d.run("dustsph_gas_kick", self.gas.n, &ga, th::gas_kick)?;
+            if drag {
+                let da = th::KickArgs {
+                    ph: self.dust.bufs(d),
+                    acc: std::ptr::null(),
+                    loss: d.opt(&self.dust.loss),
+                    ..ga
+                };
+                d.run("dustsph_dust_kick", self.dust.n, &da, th::dust_kick)?;
+                if self.pipe.heating {
+                    let ha = th::HeatArgs {
+                        gas: self.gas.bufs(d),
+                        dust: self.dust.bufs(d),
+                        loss_gas: d.opt(&self.gas.loss),
+                        loss_dust: d.opt(&self.dust.loss),
+                        cells: self.cells.bufs(d),
+                        heat: d.ptr(&self.cells.heat),
+                        p,
+                    };
+                    d.run("dustsph_heat", self.cells.ukey.len, &ha, th::heat)?;
+                }
+            }
+            Ok(())
+        })?;
+        timers.time("positions + energy", || -> Result<(), GpuError> {
+            if !old {
+                self.drift(&self.gas, tau)?;
+                self.drift(&self.dust, tau)?;
+            }
+            if let (Some(e), Some(dedt)) = (&self.e, &self.dedt) {
+                let a = th::EnergyArgs {
+                    gas: self.gas.bufs(d),
+                    e: d.ptr(e),
+                    dedt: d.ptr(dedt),
+                    heat: if self.pipe.heating && drag {
+                        d.ptr(&self.cells.heat)
+                    } else {
+                        std::ptr::null_mut()
+                    },
+                    cells: self.cells.bufs(d),
+                    p,
+                };
+                d.run("dustsph_energy", self.gas.n, &a, th::energy)?;
+            }
+            Ok(())
+        })?;
+        timers.time("grid rebuild + sort", || self.regrid())?;
+        timers.time("gas density + EOS", || self.gas_density_eos())?;
+        self.dust_density_fresh = false;
+        if self.pipe.dust_density_each_step {
+            timers.time("dust density", || self.dust_density())?;
+        }
+        self.timers = timers;
+        state.t += tau;
+        state.step += 1;
+        self.check(state)
+    }
+
+    /// Copy the particle state back to the host (snapshots, checkpoints, the summary).
+    pub fn sync(&self, state: &mut State) -> Result<(), GpuError> {
+        let d = &self.d;
+        self.gas.download(d, &mut [&mut state.gas.ph])?;
+        let ng = self.gas.n;
+        state.gas.p = d.get(&self.pres, ng)?;
+        state.gas.c = d.get(&self.cs, ng)?;
+        if let Some(e) = &self.e {
+            state.gas.e = Some(d.get(e, ng)?);
+        }
+        let mut dust: Vec<&mut Phase> = state.dust.iter_mut().collect();
+        self.dust.download(d, &mut dust)
+    }
+
+    /// Dust densities for output (kept fresh every step only when the drag law needs them).
+    pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), GpuError> {
+        self.dust_density()?;
+        self.sync(state)
+    }
+
+    /// Stopping time of every dust particle (its cell's t_k*; +∞ where uncoupled).
+    pub fn dust_stopping_times(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, GpuError> {
+        if state.dust.is_empty() {
+            return Ok(Vec::new());
+        }
+        self.refresh_dust_density(state)?;
+        self.cell_step(0.0, true)?;
+        let d = &self.d;
+        let total = self.grid.total_cells() as usize;
+        let uidx = d.get(&self.cells.uidx, total + 1)?;
+        let nf = self.dust.groups;
+        let ts = d.get(&self.cells.t_stop, uidx[total] as usize * nf)?;
+        let keys = d.get(&self.dust.keys, self.dust.n)?;
+        Ok((0..nf)
+            .map(|g| {
+                (self.dust.off[g] as usize..self.dust.off[g + 1] as usize)
+                    .map(|j| ts[uidx[keys[j] as usize % (total + 1)] as usize * nf + g])
+                    .collect()
+            })
+            .collect())
+    }
+
+    /// Stop on NaN/Inf or a non-positive density, naming step, phase, particle and field:
+    /// the device flags the first bad particle; the host then reads the state back and
+    /// words the message exactly as the CPU path does.
+    fn check(&mut self, state: &mut State) -> Result<(), StepError> {
+        let mut any = false;
+        for (gas, rho) in [(true, true), (false, self.dust_density_fresh)] {
+            let d = &self.d;
+            let ph = if gas { &self.gas } else { &self.dust };
+            if ph.n == 0 {
+                continue;
+            }
+            d.put(&mut self.bad, &[u32::MAX])?;
+            let a = th::CheckArgs {
+                ph: ph.bufs(d),
+                e: if gas {
+                    d.opt(&self.e)
+                } else {
+                    std::ptr::null_mut()
+                },
+                check_rho: rho as u32,
+                bad: d.ptr(&self.bad),
+            };
+            d.run("dustsph_check", ph.n, &a, th::check)?;
+            any |= d.get(&self.bad, 1)?[0] != u32::MAX;
+        }
+        if any {
+            self.sync(state)?;
+            super::cpu::check_state(state, self.dust_density_fresh)?;
+            return Err(StepError::Blowup(format!(
+                "step {}: the GPU flagged a particle with a bad value",
+                state.step
+            )));
+        }
+        Ok(())
+    }
+}
+
+fn fill(v: &[f64], n: usize) -> Vec<f64> {
+    if v.len() == n {
+        v.to_vec()
+    } else {
+        vec![0.0; n]
+    }
+}
