@@ -1,5 +1,6 @@
 //! `dustsph` command line.
 use clap::{Parser, Subcommand};
+use dustsph::engine::backend::DeviceChoice;
 use dustsph::run::{RunError, RunOptions, Runner, Stop, Summary};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -38,6 +39,17 @@ enum Cmd {
         /// No progress output
         #[arg(long, short)]
         quiet: bool,
+        /// Where to step: a CUDA GPU if usable (auto), the CPU, a GPU (cuda), or the GPU
+        /// kernels emulated on the CPU (emulate; slow, for checking)
+        #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+        device: DeviceChoice,
+    },
+    /// The GPU path: how its kernels were built, whether a device is usable; optionally write
+    /// the embedded PTX (for `ptxas`).
+    Gpu {
+        /// Write the embedded PTX to this file
+        #[arg(long, value_name = "FILE")]
+        write_ptx: Option<PathBuf>,
     },
     /// CPU speed: a uniform 3D box at ≈60 neighbours and the 3D ball, on 1 and 2 threads.
     Bench {
@@ -66,6 +78,8 @@ enum Cmd {
         checkpoint_every: Option<u64>,
         #[arg(long, short)]
         quiet: bool,
+        #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+        device: DeviceChoice,
     },
 }
 
@@ -140,6 +154,7 @@ fn main() -> ExitCode {
             force,
             checkpoint_every,
             quiet,
+            device,
         } => {
             let loaded = match dustsph::scene::load(&scene, &set) {
                 Ok(l) => l,
@@ -156,6 +171,7 @@ fn main() -> ExitCode {
                 out,
                 force,
                 verbose: !quiet,
+                device,
             };
             drive(Runner::start(&loaded, &opts), checkpoint_every)
         }
@@ -271,11 +287,37 @@ fn main() -> ExitCode {
             dir,
             checkpoint_every,
             quiet,
+            device,
         } => {
             if !quiet {
                 eprintln!("dustsph: resuming {}", dir.display());
             }
-            drive(Runner::resume(&dir, !quiet), checkpoint_every)
+            drive(Runner::resume(&dir, !quiet, device), checkpoint_every)
+        }
+        Cmd::Gpu { write_ptx } => {
+            use dustsph::engine::gpu;
+            println!(
+                "kernels: {} ({} bytes of PTX, {} entry points)",
+                gpu::PTX_NOTE,
+                gpu::PTX.len(),
+                gpu::PTX.matches(".entry ").count()
+            );
+            match gpu::probe() {
+                Ok(name) => println!("device: {name}"),
+                Err(why) => println!("device: none ({why})"),
+            }
+            if let Some(f) = write_ptx {
+                if gpu::PTX.is_empty() {
+                    eprintln!("error: this binary has no PTX to write ({})", gpu::PTX_NOTE);
+                    return ExitCode::from(1);
+                }
+                if let Err(e) = std::fs::write(&f, gpu::PTX) {
+                    eprintln!("error: {}: {e}", f.display());
+                    return ExitCode::from(1);
+                }
+                println!("wrote {}", f.display());
+            }
+            ExitCode::SUCCESS
         }
     }
 }

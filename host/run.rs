@@ -1,6 +1,6 @@
 //! The driver: scene → set-up → step loop → snapshots and summary.
 use crate::analysis::{self, ExactErrors};
-use crate::engine::cpu::CpuEngine;
+use crate::engine::backend::{self, Backend, DeviceChoice};
 use crate::engine::Physics;
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::particles::State;
@@ -16,6 +16,8 @@ pub struct RunOptions {
     pub force: bool,
     /// Print a line per snapshot.
     pub verbose: bool,
+    /// Where to step (`--device`).
+    pub device: DeviceChoice,
 }
 
 #[derive(Debug)]
@@ -126,13 +128,14 @@ fn output_times(loaded: &LoadedScene) -> Vec<f64> {
 fn write_snapshot(
     path: &Path,
     loaded: &LoadedScene,
-    eng: &mut CpuEngine,
+    eng: &mut Backend,
     state: &mut State,
     box_size: f64,
 ) -> Result<(), RunError> {
-    eng.refresh_dust_density(state);
-    let t_stop = eng.dust_stopping_times(state);
-    let h = eng.phys.h;
+    let step_err = |e: crate::engine::cpu::StepError| RunError::Step(e.to_string());
+    eng.refresh_dust_density(state).map_err(step_err)?;
+    let t_stop = eng.dust_stopping_times(state).map_err(step_err)?;
+    let h = eng.phys().h;
     let g = &state.gas;
     // The snapshot contract has InternalEnergy for every gas; isothermal gas solves no energy
     // equation, so it gets p/ρ (= c_s²), made here for output only.
@@ -229,7 +232,7 @@ pub enum Stop {
 pub struct Runner {
     loaded: LoadedScene,
     out: PathBuf,
-    eng: CpuEngine,
+    eng: Backend,
     pub state: State,
     box_size: f64,
     times: Vec<f64>,
@@ -241,7 +244,7 @@ pub struct Runner {
 impl Runner {
     /// Validate, set up, and write the t = 0 snapshot.
     pub fn start(loaded: &LoadedScene, opts: &RunOptions) -> Result<Runner, RunError> {
-        let (mut eng, mut state, box_size) = Self::engine(loaded, None)?;
+        let (mut eng, mut state, box_size) = Self::engine(loaded, None, opts.device, opts.verbose)?;
         // All input is valid: only now touch the output directory.
         let out = io::prepare_output_dir(&opts.out, opts.force)
             .map_err(|e| RunError::Io(e.to_string()))?;
@@ -286,7 +289,7 @@ impl Runner {
             wall0: Instant::now(),
             verbose: opts.verbose,
             eng: {
-                eng.timers = Default::default();
+                *eng.timers_mut() = Default::default();
                 eng
             },
             state: {
@@ -300,7 +303,7 @@ impl Runner {
     }
 
     /// Continue a run from `DIR/checkpoint.h5`.
-    pub fn resume(dir: &Path, verbose: bool) -> Result<Runner, RunError> {
+    pub fn resume(dir: &Path, verbose: bool, device: DeviceChoice) -> Result<Runner, RunError> {
         let ck = dir.join(io::checkpoint::CHECKPOINT_NAME);
         let (state, meta) =
             io::checkpoint::read_checkpoint(&ck).map_err(|e| RunError::Io(e.to_string()))?;
@@ -318,7 +321,7 @@ impl Runner {
         };
         let prog: Progress =
             serde_json::from_str(&meta.progress_json).map_err(|e| bad(e.to_string()))?;
-        let (eng, state, box_size) = Self::engine(&loaded, Some(state))?;
+        let (eng, state, box_size) = Self::engine(&loaded, Some(state), device, verbose)?;
         Ok(Runner {
             times: output_times(&loaded),
             loaded,
@@ -338,14 +341,20 @@ impl Runner {
     fn engine(
         loaded: &LoadedScene,
         state: Option<State>,
-    ) -> Result<(CpuEngine, State, f64), RunError> {
+        device: DeviceChoice,
+        verbose: bool,
+    ) -> Result<(Backend, State, f64), RunError> {
         let file = loaded.path.display().to_string();
         let su =
             setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
         let mut state = state.unwrap_or(su.state);
         let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
         // The initial grid and densities come from the scene alone: a failure here is bad input.
-        let eng = CpuEngine::new(phys, &mut state).map_err(|e| {
+        let (device, note) = backend::select(device).map_err(RunError::Input)?;
+        if let (Some(n), true) = (note, verbose) {
+            eprintln!("dustsph: {n}");
+        }
+        let eng = Backend::new(device, phys, &mut state).map_err(|e| {
             RunError::Input(format!(
                 "{file}: the initial state cannot be set up (check idic.cell, sph.h/hfact, sph.n): {e}"
             ))
@@ -412,7 +421,7 @@ impl Runner {
             crate::scene::EosKind::Adiabatic => sc.gas.p?,
             crate::scene::EosKind::Isothermal => sc.gas.cs? * sc.gas.cs? * rho,
         };
-        let cs = self.eng.phys.eos.sound_speed(rho, p);
+        let cs = self.eng.phys().eos.sound_speed(rho, p);
         let eps: f64 = sc
             .dust
             .as_ref()
@@ -424,12 +433,24 @@ impl Runner {
             eps * rho,
             p,
             cs,
-            self.eng.phys.h,
+            self.eng.phys().h,
         )
     }
 
+    fn is_ball(&self) -> bool {
+        self.loaded.scene.scene.problem == crate::scene::Problem::Dustyball
+    }
+
+    /// Host state up to date with the backend.
+    fn sync(&mut self) -> Result<(), RunError> {
+        self.eng
+            .sync(&mut self.state)
+            .map_err(|e| RunError::Step(e.to_string()))
+    }
+
     /// Write `DIR/checkpoint.h5` (atomically).
-    pub fn checkpoint(&self) -> Result<(), RunError> {
+    pub fn checkpoint(&mut self) -> Result<(), RunError> {
+        self.sync()?;
         let mut prog = self.prog.clone();
         prog.wall_before += self.wall0.elapsed().as_secs_f64();
         let meta = io::checkpoint::CheckpointMeta {
@@ -457,7 +478,7 @@ impl Runner {
     ) -> Result<Stop, RunError> {
         let fixed_dt = self.loaded.scene.time.dt;
         let cfl = self.loaded.scene.time.cfl;
-        let h = self.eng.phys.h;
+        let h = self.eng.phys().h;
         let t_end = self.loaded.scene.time.t_end;
         let bar = progress_bar(self.verbose);
         let mut taken = 0u64;
@@ -471,13 +492,11 @@ impl Runner {
                 bar.finish_and_clear();
                 return Ok(Stop::Interrupted);
             }
-            let forces = {
-                let mut timers = std::mem::take(&mut self.eng.timers);
-                let f = timers.time("gas forces", || self.eng.forces(&self.state));
-                self.eng.timers = timers;
-                f
-            };
-            let (dt_cfl, dt_force) = self.eng.dt_limits(&forces);
+            let forces = self
+                .eng
+                .forces(&self.state)
+                .map_err(|e| RunError::Step(e.to_string()))?;
+            let (dt_cfl, dt_force) = crate::engine::dt_limits(h, &forces);
             let mut dt = match (fixed_dt, cfl) {
                 (Some(dt), _) => dt,
                 (None, Some(c)) => c * dt_cfl.min(dt_force),
@@ -503,10 +522,18 @@ impl Runner {
                     RunError::Step(format!("{e}; the snapshots written so far are kept"))
                 })?;
             taken += 1;
+            if self.is_ball() {
+                // The Lagrange–Jacobi check needs every step's state on the host.
+                self.sync()?;
+            }
             self.record_ball_step();
-            self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());
+            if self.eng.host_state_live() {
+                self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());
+            }
             if landing {
                 self.state.t = t_out;
+                self.sync()?;
+                self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());
                 bar.suspend(|| self.write_output())?;
             }
             bar.set_position((self.state.t / t_end * 1e4) as u64);
@@ -523,7 +550,8 @@ impl Runner {
     }
 
     /// The summary (also written to `DIR/summary.json`).
-    pub fn finish(self) -> Result<(Summary, State), RunError> {
+    pub fn finish(mut self) -> Result<(Summary, State), RunError> {
+        self.sync()?;
         let Runner {
             loaded,
             out,
@@ -585,13 +613,13 @@ impl Runner {
             scene_file: loaded.path.display().to_string(),
             overrides: loaded.overrides.clone(),
             dimension: scene.dim(),
-            backend: format!("cpu (rayon, {} threads)", rayon::current_num_threads()),
+            backend: eng.describe(),
             precision: "f64",
             particles: prog.counts.clone(),
-            h: eng.phys.h,
-            idic_cell: eng.phys.cell_size,
-            position_update: format!("{:?}", eng.phys.position_update).to_lowercase(),
-            pipeline: eng.pipe.stages(),
+            h: eng.phys().h,
+            idic_cell: eng.phys().cell_size,
+            position_update: format!("{:?}", eng.phys().position_update).to_lowercase(),
+            pipeline: eng.pipe().stages(),
             steps: state.step,
             t_final: state.t,
             dt_min: prog.dt_min,
@@ -618,7 +646,7 @@ impl Runner {
             },
             errors: prog.errors,
             snapshots: prog.snapshots,
-            stage_seconds: eng.timers.entries().to_vec(),
+            stage_seconds: eng.timers().entries().to_vec(),
             ball,
         };
         io::write_json_atomic(&out.join("summary.json"), &summary)

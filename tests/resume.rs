@@ -45,6 +45,7 @@ fn resume_is_bit_exact(scene: &str, sets: &[&str], n: u64) {
         out: tmp.path().join(d),
         force: false,
         verbose: false,
+        device: dustsph::engine::backend::DeviceChoice::Cpu,
     };
     let mut whole = Runner::start(&loaded, &opts("whole")).unwrap();
     whole.advance(Some(2 * n), None, None).unwrap();
@@ -52,7 +53,12 @@ fn resume_is_bit_exact(scene: &str, sets: &[&str], n: u64) {
     first.advance(Some(n), None, None).unwrap();
     first.checkpoint().unwrap();
     drop(first);
-    let mut second = Runner::resume(&tmp.path().join("split"), false).unwrap();
+    let mut second = Runner::resume(
+        &tmp.path().join("split"),
+        false,
+        dustsph::engine::backend::DeviceChoice::Cpu,
+    )
+    .unwrap();
     second.advance(Some(n), None, None).unwrap();
     assert_eq!(whole.state.step, 2 * n);
     assert_identical(&whole.state, &second.state);

@@ -124,6 +124,7 @@ fn set_up_errors_name_the_key_and_write_nothing() {
         out: out.clone(),
         force: false,
         verbose: false,
+        device: dustsph::engine::backend::DeviceChoice::Cpu,
     };
     let e = dustsph::run::run(&loaded, &opts).unwrap_err();
     assert!(matches!(e, dustsph::run::RunError::Input(_)), "{e}");

@@ -2,6 +2,7 @@
 //!
 //! A scene switches stages on or off (no dust → no IDIC pass; isothermal → no energy
 //! equation; no viscosity unless asked); [`Pipeline::stages`] lists what a run actually does.
+pub mod backend;
 pub mod cpu;
 pub mod gpu;
 pub mod timers;
