@@ -59,13 +59,6 @@ fn build_ptx(out: &Path) -> Result<String, String> {
     let manifest = Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap()).join("device");
     let target_dir = out.join("ptx-build");
     let deps = target_dir.join("nvptx64-nvidia-cuda/release/deps");
-    if let Ok(rd) = std::fs::read_dir(&deps) {
-        for e in rd.flatten() {
-            if e.path().extension().is_some_and(|x| x == "s") {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
-    }
     let mut cmd = Command::new(cargo_proxy());
     // The outer cargo's settings must not leak into the nightly device build.
     for v in [
@@ -120,15 +113,19 @@ fn build_ptx(out: &Path) -> Result<String, String> {
              `rustup component add rust-src --toolchain nightly`)"
         ));
     }
+    // The newest dustsph_device PTX: a build that found the crate fresh re-emits nothing and
+    // leaves the last output in place.
     let s = std::fs::read_dir(&deps)
         .map_err(|e| format!("no PTX output in {}: {e}", deps.display()))?
         .flatten()
-        .map(|e| e.path())
-        .find(|p| {
+        .filter(|e| {
+            let p = e.path();
             p.extension().is_some_and(|x| x == "s")
                 && p.file_name()
                     .is_some_and(|n| n.to_string_lossy().starts_with("dustsph_device"))
         })
+        .max_by_key(|e| e.metadata().and_then(|m| m.modified()).ok())
+        .map(|e| e.path())
         .ok_or("the nightly build wrote no dustsph_device PTX")?;
     let ptx = std::fs::read_to_string(&s).map_err(|e| format!("{}: {e}", s.display()))?;
     if ptx.contains(".extern") {

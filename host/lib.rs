@@ -9,6 +9,7 @@ pub mod engine;
 pub mod exact;
 pub mod grid;
 pub mod io;
+pub mod parity;
 pub mod particles;
 pub mod plot;
 pub mod post;

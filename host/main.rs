@@ -51,6 +51,13 @@ enum Cmd {
         #[arg(long, value_name = "FILE")]
         write_ptx: Option<PathBuf>,
     },
+    /// Run each scene kind for a few steps on the CPU and on a device, and compare every array
+    /// after every step (bit for bit expected).
+    Parity {
+        /// The device to check against the CPU (cuda; or emulate, the GPU kernels on the CPU)
+        #[arg(long, value_enum, default_value_t = DeviceChoice::Cuda)]
+        device: DeviceChoice,
+    },
     /// CPU speed: a uniform 3D box at ≈60 neighbours and the 3D ball, on 1 and 2 threads.
     Bench {
         /// Steps to time per case
@@ -293,6 +300,45 @@ fn main() -> ExitCode {
                 eprintln!("dustsph: resuming {}", dir.display());
             }
             drive(Runner::resume(&dir, !quiet, device), checkpoint_every)
+        }
+        Cmd::Parity { device } => {
+            let mut all_ok = true;
+            for (label, file, sets, steps) in dustsph::parity::CASES {
+                let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+                let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
+                    Ok(l) => l,
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        return ExitCode::from(2);
+                    }
+                };
+                match dustsph::parity::compare(&loaded, *steps, device) {
+                    Ok(p) => {
+                        let worst = p.fields.iter().filter(|f| !f.bitwise).count();
+                        println!(
+                            "{label:<44} {steps:>3} steps on {}: {} of {} fields bit-identical, max relative difference {:.3e}",
+                            p.device,
+                            p.fields.len() - worst,
+                            p.fields.len(),
+                            p.max_relative()
+                        );
+                        for f in p.fields.iter().filter(|f| !f.bitwise) {
+                            println!("    {:<28} {:.3e}", f.field, f.max_relative);
+                        }
+                        all_ok &= p.max_relative() <= 1e-10;
+                    }
+                    Err(e) => {
+                        eprintln!("error: {label}: {e}");
+                        return ExitCode::from(1);
+                    }
+                }
+            }
+            if all_ok {
+                ExitCode::SUCCESS
+            } else {
+                eprintln!("parity: some array differs by more than 1e-10 (relative)");
+                ExitCode::from(1)
+            }
         }
         Cmd::Gpu { write_ptx } => {
             use dustsph::engine::gpu;

@@ -1,119 +1,136 @@
-//! The GPU step, run on the CPU through the emulated launcher (the very kernel code the PTX
-//! entry points call), against the rayon CPU engine: every array of every phase, step by step.
+//! The GPU path without a GPU.
 //!
-//! Both backends call the same bodies in the same summation order, so the comparison is exact
-//! (bit for bit) — the f64 parity bound the GPU path must meet with its deterministic sums.
-mod common;
+//! 1. The GPU step, run on the CPU through the emulated launcher (the very kernel code the PTX
+//!    entry points call), against the rayon CPU engine: every array of every phase after every
+//!    step, on every scene kind. Both backends call the same bodies in the same summation order
+//!    (the GPU's cell sums are segmented over cell-sorted particles, not atomic), so the
+//!    comparison is exact, bit for bit — the f64 bound the real GPU must also meet.
+//! 2. The PTX entry points take exactly the argument bytes the host passes: the parameter size
+//!    of every `.entry` equals the size of its host-side argument struct.
+use dustsph::engine::backend::DeviceChoice;
+use dustsph::engine::gpu::{self, launch::KERNELS};
+use dustsph::parity::{compare, CASES};
+use dustsph_device::threads as th;
+use std::path::PathBuf;
 
-use dustsph::engine::cpu::CpuEngine;
-use dustsph::engine::gpu::{Emulated, GpuEngine};
-use dustsph::engine::{dt_limits, Physics};
-use dustsph::particles::{Phase, State};
-use dustsph::scene::Scene;
-use dustsph::setup;
-
-fn physics(scene: &Scene) -> (Physics, State) {
-    let su = setup::build(scene).unwrap();
-    (Physics::from_scene(scene, su.h, su.domain), su.state)
-}
-
-fn same_phase(what: &str, a: &Phase, b: &Phase, check_rho: bool) {
-    assert_eq!(a.id, b.id, "{what}: particle order");
-    assert_eq!(a.x, b.x, "{what}: positions");
-    assert_eq!(a.v, b.v, "{what}: velocities");
-    assert_eq!(a.m, b.m, "{what}: masses");
-    if check_rho {
-        assert_eq!(a.rho, b.rho, "{what}: densities");
-    }
-    assert_eq!(a.fixed, b.fixed, "{what}: fixed flags");
-}
-
-fn same_state(step: u64, a: &State, b: &State, dust_rho: bool) {
-    same_phase(&format!("step {step} gas"), &a.gas.ph, &b.gas.ph, true);
-    assert_eq!(a.gas.p, b.gas.p, "step {step}: gas pressure");
-    assert_eq!(a.gas.c, b.gas.c, "step {step}: gas sound speed");
-    assert_eq!(a.gas.e, b.gas.e, "step {step}: gas energy");
-    for (k, (da, db)) in a.dust.iter().zip(&b.dust).enumerate() {
-        same_phase(&format!("step {step} dust {k}"), da, db, dust_rho);
-    }
-}
-
-/// `steps` steps of a scene on both backends with the CPU's time step; states compared
-/// after set-up and after every step, stopping times at the end.
-fn parity(name: &str, sets: &[&str], steps: u64) {
+fn case(i: usize) {
+    let (label, file, sets, steps) = CASES[i];
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-    let loaded = dustsph::scene::load(&common::config(name), &sets).unwrap();
-    let scene = &loaded.scene;
-    let (phys, mut s_cpu) = physics(scene);
-    let mut s_gpu = s_cpu.clone();
-    let mut cpu = CpuEngine::new(phys.clone(), &mut s_cpu).unwrap();
-    let mut gpu = GpuEngine::new(phys.clone(), &mut s_gpu, Emulated).unwrap();
-    let dust_rho = cpu.pipe.dust_density_each_step;
-    same_state(0, &s_cpu, &s_gpu, dust_rho);
-    for step in 1..=steps {
-        let fc = cpu.forces(&s_cpu);
-        let fg = gpu.forces().unwrap();
-        assert_eq!(
-            fc.vsig_max, fg.vsig_max,
-            "{name} step {step}: max signal speed"
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
+    let loaded = dustsph::scene::load(&path, &sets).unwrap();
+    let p = compare(&loaded, steps, DeviceChoice::Emulate).unwrap();
+    assert_eq!(p.steps, steps);
+    for f in &p.fields {
+        assert!(
+            f.bitwise,
+            "{label}: {} differs (max relative {:.3e})",
+            f.field, f.max_relative
         );
-        assert_eq!(fc.acc_max, fg.acc_max, "{name} step {step}: max |A|");
-        let (cfl, force) = dt_limits(phys.h, &fc);
-        let dt = scene
-            .time
-            .dt
-            .unwrap_or_else(|| scene.time.cfl.unwrap() * cfl.min(force));
-        cpu.advance(&mut s_cpu, &fc, dt).unwrap();
-        gpu.advance(&mut s_gpu, dt).unwrap();
-        gpu.sync(&mut s_gpu).unwrap();
-        assert_eq!(s_cpu.t, s_gpu.t);
-        same_state(step, &s_cpu, &s_gpu, dust_rho);
     }
-    let tc = cpu.dust_stopping_times(&mut s_cpu);
-    let tg = gpu.dust_stopping_times(&mut s_gpu).unwrap();
-    assert_eq!(tc, tg, "{name}: dust stopping times");
-    for (k, (a, b)) in s_cpu.dust.iter().zip(&s_gpu.dust).enumerate() {
-        assert_eq!(a.rho, b.rho, "{name}: dust {k} output densities");
-    }
+    assert!(p.fields.len() > 10, "{label}: too few fields compared");
 }
 
 #[test]
 fn dustybox_gpu_kernels_match_cpu_bit_for_bit() {
-    parity("dustybox", &[], 20);
+    case(0);
 }
 
 #[test]
 fn dustywave_gpu_kernels_match_cpu_bit_for_bit() {
-    parity("dustywave", &["sph.n=64"], 20);
+    case(1);
 }
 
 #[test]
-fn adiabatic_constant_k_wave_gpu_kernels_match_cpu() {
-    // Energy equation, dust density every step (constant K), old position update.
-    parity(
-        "dustywave",
-        &[
-            "sph.n=64",
-            "gas.eos=adiabatic",
-            "gas.cs=",
-            "gas.gamma=1.4",
-            "gas.p=1.0",
-            "dust.law=constant_k",
-            "dust.fractions=[{eps=1.0, k=5.0}, {eps=0.5, k=50.0}]",
-            "time.position_update=old",
-        ],
-        15,
-    );
+fn adiabatic_constant_k_wave_gpu_kernels_match_cpu_bit_for_bit() {
+    case(2);
 }
 
 #[test]
 fn dustyshock_gpu_kernels_match_cpu_bit_for_bit() {
-    // Walls (fixed particles), artificial viscosity, drag heating.
-    parity("dustyshock", &["sph.n=200"], 20);
+    case(3);
 }
 
 #[test]
 fn small_ball_gpu_kernels_match_cpu_bit_for_bit() {
-    // 3D, open boundaries (the grid follows the particles), Epstein drag.
-    parity("dusty_ball", &["sph.n=6", "sph.h=0.3"], 8);
+    case(4);
+}
+
+/// Byte size of the single parameter of each entry point in the PTX.
+fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
+    let mut out = Vec::new();
+    let mut lines = ptx.lines();
+    while let Some(l) = lines.next() {
+        if let Some(rest) = l.trim().strip_prefix(".visible .entry ") {
+            let name = rest.trim_end_matches('(').to_string();
+            let param = lines.next().unwrap_or("");
+            let size = param
+                .rsplit('[')
+                .next()
+                .and_then(|s| {
+                    s.trim_end_matches(|c: char| !c.is_ascii_digit())
+                        .parse()
+                        .ok()
+                })
+                .unwrap_or(0);
+            out.push((name, size));
+        }
+    }
+    out
+}
+
+#[test]
+fn ptx_entry_points_take_the_host_argument_structs() {
+    if gpu::PTX.is_empty() {
+        assert!(
+            std::env::var_os("DUSTSPH_REQUIRE_PTX").is_none(),
+            "no PTX in this build ({}), and DUSTSPH_REQUIRE_PTX is set",
+            gpu::PTX_NOTE
+        );
+        eprintln!("skipped: no PTX in this build ({})", gpu::PTX_NOTE);
+        return;
+    }
+    use std::mem::size_of;
+    let want: &[(&str, usize)] = &[
+        ("dustsph_bounds", size_of::<th::BoundsArgs>()),
+        ("dustsph_keys", size_of::<th::KeysArgs>()),
+        ("dustsph_scan_sums", size_of::<th::ScanArgs>()),
+        ("dustsph_scan_totals", size_of::<th::ScanArgs>()),
+        ("dustsph_scan_chunks", size_of::<th::ScanArgs>()),
+        ("dustsph_scatter", size_of::<th::ScatterArgs>()),
+        ("dustsph_sort_segments", size_of::<th::SegmentArgs>()),
+        ("dustsph_gather_v3", size_of::<th::GatherArgs<[f64; 3]>>()),
+        ("dustsph_gather_f64", size_of::<th::GatherArgs<f64>>()),
+        ("dustsph_gather_u64", size_of::<th::GatherArgs<u64>>()),
+        ("dustsph_gather_u8", size_of::<th::GatherArgs<u8>>()),
+        ("dustsph_density", size_of::<th::DensityArgs>()),
+        ("dustsph_eos", size_of::<th::EosArgs>()),
+        ("dustsph_forces", size_of::<th::ForcesArgs>()),
+        ("dustsph_union_flags", size_of::<th::UnionArgs>()),
+        ("dustsph_union_keys", size_of::<th::UnionKeysArgs>()),
+        ("dustsph_cell_step", size_of::<th::CellArgs>()),
+        ("dustsph_gas_kick", size_of::<th::KickArgs>()),
+        ("dustsph_dust_kick", size_of::<th::KickArgs>()),
+        ("dustsph_heat", size_of::<th::HeatArgs>()),
+        ("dustsph_drift", size_of::<th::DriftArgs>()),
+        ("dustsph_energy", size_of::<th::EnergyArgs>()),
+        ("dustsph_check", size_of::<th::CheckArgs>()),
+    ];
+    let got = entry_param_sizes(gpu::PTX);
+    assert_eq!(got.len(), KERNELS.len(), "entry points in the PTX: {got:?}");
+    for (name, size) in want {
+        assert!(
+            KERNELS.contains(name),
+            "{name} is not in the launcher's list"
+        );
+        let g = got.iter().find(|(n, _)| n == name);
+        assert_eq!(
+            g.map(|g| g.1),
+            Some(*size),
+            "{name}: PTX parameter bytes vs host struct"
+        );
+    }
+    assert!(
+        !gpu::PTX.contains(".extern"),
+        "unresolved externs in the PTX"
+    );
 }

@@ -228,12 +228,18 @@ impl Launcher for Cuda {
     }
 
     fn upload(&self, m: &mut CudaSlice<u8>, bytes: &[u8]) -> Result<(), GpuError> {
+        if bytes.is_empty() {
+            return Ok(());
+        }
         let mut view = m.slice_mut(0..bytes.len());
         self.stream.memcpy_htod(bytes, &mut view)?;
         Ok(())
     }
 
     fn download(&self, m: &CudaSlice<u8>, out: &mut [u8]) -> Result<(), GpuError> {
+        if out.is_empty() {
+            return Ok(());
+        }
         let view = m.slice(0..out.len());
         self.stream.memcpy_dtoh(&view, out)?;
         self.stream.synchronize()?;
