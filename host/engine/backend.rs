@@ -18,6 +18,8 @@ pub enum DeviceChoice {
     Emulate,
 }
 
+// The CPU engine is held inline: it is the common case and lives for the whole run.
+#[allow(clippy::large_enum_variant)]
 pub enum Backend {
     Cpu(CpuEngine),
     Cuda(Box<GpuEngine<Cuda>>),
