@@ -1,6 +1,8 @@
-//! CPU speed: particle-steps/s and neighbour interactions/s of the step, without output.
+//! Speed: particle-steps/s and neighbour interactions/s of the step, without output, on the
+//! CPU or on a device.
+use crate::engine::backend::{self, Backend, DeviceChoice};
 use crate::engine::cpu::CpuEngine;
-use crate::engine::Physics;
+use crate::engine::{dt_limits, Physics};
 use crate::scene::Scene;
 use crate::setup;
 use std::time::Instant;
@@ -14,6 +16,10 @@ pub struct BenchResult {
     pub mean_neighbours: f64,
     pub steps: u64,
     pub seconds: f64,
+    /// Where it ran.
+    pub device: String,
+    /// Device memory the engine allocated, per particle (GPU only).
+    pub bytes_per_particle: Option<f64>,
 }
 
 impl BenchResult {
@@ -27,8 +33,16 @@ impl BenchResult {
     }
 }
 
-/// Time `steps` steps of `scene` on `threads` threads (set-up and the first grid excluded).
-pub fn bench(case: &str, scene: &Scene, steps: u64, threads: usize) -> Result<BenchResult, String> {
+/// Time `steps` steps of `scene` on `threads` CPU threads, or on `device` (set-up and the
+/// first grid excluded; the GPU synchronises every step when it reads back the time-step
+/// limits, so the wall time covers all device work).
+pub fn bench(
+    case: &str,
+    scene: &Scene,
+    steps: u64,
+    threads: usize,
+    device: DeviceChoice,
+) -> Result<BenchResult, String> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -37,18 +51,27 @@ pub fn bench(case: &str, scene: &Scene, steps: u64, threads: usize) -> Result<Be
         let su = setup::build(scene).map_err(|e| e.to_string())?;
         let mut state = su.state;
         let phys = Physics::from_scene(scene, su.h, su.domain);
-        let mut eng = CpuEngine::new(phys, &mut state).map_err(|e| e.to_string())?;
-        let nb = eng.mean_gas_neighbours(&state);
+        let nb = {
+            let mut s = state.clone();
+            let cpu = CpuEngine::new(phys.clone(), &mut s).map_err(|e| e.to_string())?;
+            cpu.mean_gas_neighbours(&s)
+        };
+        let (device, _) = backend::select(device)?;
+        let used0 = backend::device_memory_used(device);
+        let mut eng = Backend::new(device, phys.clone(), &mut state).map_err(|e| e.to_string())?;
+        let used1 = backend::device_memory_used(device);
+        let n = state.gas.ph.len() + state.dust.iter().map(|d| d.len()).sum::<usize>();
         let t0 = Instant::now();
         for _ in 0..steps {
-            let f = eng.forces(&state);
-            let (dt_cfl, dt_force) = eng.dt_limits(&f);
+            let f = eng.forces(&state).map_err(|e| e.to_string())?;
+            let (dt_cfl, dt_force) = dt_limits(phys.h, &f);
             let dt = scene
                 .time
                 .dt
                 .unwrap_or_else(|| scene.time.cfl.unwrap_or(0.3) * dt_cfl.min(dt_force));
             eng.advance(&mut state, &f, dt).map_err(|e| e.to_string())?;
         }
+        let seconds = t0.elapsed().as_secs_f64();
         Ok(BenchResult {
             case: case.to_string(),
             threads,
@@ -56,7 +79,12 @@ pub fn bench(case: &str, scene: &Scene, steps: u64, threads: usize) -> Result<Be
             dust: state.dust.iter().map(|d| d.len()).sum(),
             mean_neighbours: nb,
             steps,
-            seconds: t0.elapsed().as_secs_f64(),
+            seconds,
+            device: eng.describe(),
+            bytes_per_particle: match (used0, used1) {
+                (Some(a), Some(b)) => Some(b.saturating_sub(a) as f64 / n.max(1) as f64),
+                _ => None,
+            },
         })
     })
 }

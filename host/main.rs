@@ -69,6 +69,13 @@ enum Cmd {
         /// Also the full seed ball (2 × 248 439 particles, ≈2000 neighbours; minutes per step count)
         #[arg(long)]
         full: bool,
+        /// Particles per side of the uniform 3D box (per phase), e.g. 32,100,160,215 for
+        /// 3.3e4 … 1e7
+        #[arg(long, value_delimiter = ',', default_values_t = vec![32usize])]
+        box_n: Vec<usize>,
+        /// Where to run: cpu (default), cuda, or emulate
+        #[arg(long, value_enum, default_value_t = DeviceChoice::Cpu)]
+        device: DeviceChoice,
     },
     /// Radial profiles (CSV) and figures (PNG) of a snapshot, written next to it; for the ball
     /// also the errors against the 1D reference and the spherical-symmetry check.
@@ -186,35 +193,39 @@ fn main() -> ExitCode {
             steps,
             threads,
             full,
+            box_n,
+            device,
         } => {
-            let box60 = [
-                "scene.dim=3",
-                "sph.n=32",
-                "sph.hfact=1.215",
-                "dust.fractions=[{eps=0.5, t_stop=0.1}]",
-                "dustybox.u_dust=[1.0]",
-            ];
-            let mut cases: Vec<(&str, &str, Vec<&str>)> = vec![
-                (
-                    "box 3D, ~60 neighbours",
-                    "configs/dustybox.toml",
-                    box60.to_vec(),
-                ),
-                (
-                    "ball 3D, n=20, h=0.1",
-                    "configs/dusty_ball.toml",
-                    vec!["sph.n=20"],
-                ),
-            ];
+            let mut cases: Vec<(String, &str, Vec<String>)> = box_n
+                .iter()
+                .map(|n| {
+                    (
+                        format!("box 3D n={n}, ~60 nb"),
+                        "configs/dustybox.toml",
+                        vec![
+                            "scene.dim=3".to_string(),
+                            format!("sph.n={n}"),
+                            "sph.hfact=1.215".into(),
+                            "dust.fractions=[{eps=0.5, t_stop=0.1}]".into(),
+                            "dustybox.u_dust=[1.0]".into(),
+                        ],
+                    )
+                })
+                .collect();
+            cases.push((
+                "ball 3D, n=20, h=0.1".into(),
+                "configs/dusty_ball.toml",
+                vec!["sph.n=20".into()],
+            ));
             if full {
                 cases.push((
-                    "ball 3D seed (n=39, h=0.1)",
+                    "ball 3D seed (n=39, h=0.1)".into(),
                     "configs/dusty_ball.toml",
                     vec![],
                 ));
             }
             println!(
-                "{:<28} {:>7} {:>9} {:>9} {:>10} {:>6} {:>9} {:>14} {:>14}",
+                "{:<28} {:>7} {:>9} {:>9} {:>10} {:>6} {:>9} {:>14} {:>14} {:>9}",
                 "case",
                 "threads",
                 "gas",
@@ -223,10 +234,12 @@ fn main() -> ExitCode {
                 "steps",
                 "seconds",
                 "particle-st/s",
-                "interact./s"
+                "interact./s",
+                "B/part."
             );
+            let mut where_ = String::new();
             for (name, file, sets) in cases {
-                let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+                let name = name.as_str();
                 let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
                     Ok(l) => l,
                     Err(e) => {
@@ -235,19 +248,23 @@ fn main() -> ExitCode {
                     }
                 };
                 for &t in &threads {
-                    match dustsph::bench::bench(name, &loaded.scene, steps, t) {
-                        Ok(r) => println!(
-                            "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e}",
-                            r.case,
-                            r.threads,
-                            r.gas,
-                            r.dust,
-                            r.mean_neighbours,
-                            r.steps,
-                            r.seconds,
-                            r.particle_steps_per_s(),
-                            r.interactions_per_s()
-                        ),
+                    match dustsph::bench::bench(name, &loaded.scene, steps, t, device) {
+                        Ok(r) => {
+                            println!(
+                                "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e} {:>9}",
+                                r.case,
+                                r.threads,
+                                r.gas,
+                                r.dust,
+                                r.mean_neighbours,
+                                r.steps,
+                                r.seconds,
+                                r.particle_steps_per_s(),
+                                r.interactions_per_s(),
+                                r.bytes_per_particle.map_or("-".into(), |b| format!("{b:.0}"))
+                            );
+                            where_ = r.device;
+                        }
                         Err(e) => {
                             eprintln!("error: {name}: {e}");
                             return ExitCode::from(1);
@@ -255,6 +272,7 @@ fn main() -> ExitCode {
                     }
                 }
             }
+            println!("device: {where_}");
             ExitCode::SUCCESS
         }
         Cmd::Profile { snapshot, bins } => {

@@ -53,6 +53,14 @@ pub fn select(choice: DeviceChoice) -> Result<(DeviceChoice, Option<String>), St
     }
 }
 
+/// Device memory in use on CUDA device 0 (None for other backends or without a driver).
+pub fn device_memory_used(choice: DeviceChoice) -> Option<usize> {
+    if choice != DeviceChoice::Cuda {
+        return None;
+    }
+    Cuda::new(0, gpu::PTX).ok()?.memory_used().ok()
+}
+
 impl Backend {
     /// Build the engine for a resolved choice (`select` first); sorts `state` in place.
     pub fn new(
