@@ -67,3 +67,17 @@ pub fn grad_w_factor<R: Real>(r: R, h: R, dim: u32) -> R {
     }
     sigma::<R>(dim) / (pow_dim(h, dim) * h) * dshape(r / h) / r
 }
+
+/// ∂W/∂h at separation r: −σ_d/h^(d+1) · (d f(q) + q f'(q)), q = r/h (variable-h SPH).
+#[inline(always)]
+pub fn dw_dh<R: Real>(r: R, h: R, dim: u32) -> R {
+    let q = r / h;
+    -(sigma::<R>(dim) / (pow_dim(h, dim) * h))
+        * (R::from_f64(dim as f64) * shape(q) + q * dshape(q))
+}
+
+/// h^d (for the variable-h density ρ = m (hfact/h)^d).
+#[inline(always)]
+pub fn h_pow_dim<R: Real>(h: R, dim: u32) -> R {
+    pow_dim(h, dim)
+}

@@ -30,6 +30,21 @@ pub fn density_term<R: Real>(m_b: R, r: R, h: R, dim: u32) -> R {
     m_b * kernel::w(r, h, dim)
 }
 
+/// Contribution of a neighbour b at separation r_ab (|r_ab| = r) to the continuity-equation
+/// density rate of a: m_b (v_a − v_b)·∇_a W_ab (zero for b = a, where ∇W = 0).
+#[inline(always)]
+pub fn density_rate_term<R: Real>(
+    m_b: R,
+    v_a: Vec3<R>,
+    v_b: Vec3<R>,
+    dx: Vec3<R>,
+    r: R,
+    h: R,
+    dim: u32,
+) -> R {
+    m_b * dot(crate::sub(v_a, v_b), dx) * kernel::grad_w_factor(r, h, dim)
+}
+
 /// μ_ab = h (v_ab·r_ab)/(|r_ab|² + ν²).
 #[inline(always)]
 pub fn mu<R: Real>(vr: R, r2: R, h: R, nu2_factor: R) -> R {
@@ -97,6 +112,55 @@ pub fn gas_pair<R: Real>(
     GasPair {
         acc: [coef * dx[0], coef * dx[1], coef * dx[2]],
         dedt: b.m * (pa + R::from_f64(0.5) * pi) * vgrad,
+        vsig,
+    }
+}
+
+/// [`gas_pair`] with variable smoothing lengths h_a, h_b and grad-h terms Ω_a, Ω_b (Price
+/// 2012, eqs. 35–36): each side's pressure term uses its own kernel gradient; the artificial
+/// viscosity uses the mean gradient and the mean h.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn gas_pair_vh<R: Real>(
+    a: &GasState<R>,
+    b: &GasState<R>,
+    dx: Vec3<R>,
+    ha: R,
+    hb: R,
+    oa: R,
+    ob: R,
+    dim: u32,
+    av: Option<&Viscosity<R>>,
+) -> GasPair<R> {
+    let r2 = dot(dx, dx);
+    let r = r2.sqrt();
+    let fa = kernel::grad_w_factor(r, ha, dim);
+    let fb = kernel::grad_w_factor(r, hb, dim);
+    let dv = crate::sub(a.v, b.v);
+    let vr = dot(dv, dx);
+    let half = R::from_f64(0.5);
+    let (pi, vsig) = match av {
+        Some(av) => {
+            let hab = half * (ha + hb);
+            let cbar = half * (a.c + b.c);
+            let rhobar = half * (a.rho + b.rho);
+            let pi = viscosity_pi(av, vr, r2, hab, cbar, rhobar);
+            let m = if vr < R::ZERO {
+                mu(vr, r2, hab, av.nu2_factor).abs()
+            } else {
+                R::ZERO
+            };
+            (pi, a.c + R::from_f64(1.2) * (av.alpha * cbar + av.beta * m))
+        }
+        None => (R::ZERO, a.c),
+    };
+    let pa = a.p / (oa * a.rho * a.rho);
+    let pb = b.p / (ob * b.rho * b.rho);
+    let fbar = half * (fa + fb);
+    let coef = -b.m * (pa * fa + pb * fb + pi * fbar);
+    GasPair {
+        acc: [coef * dx[0], coef * dx[1], coef * dx[2]],
+        dedt: b.m * (pa * fa + half * pi * fbar) * vr,
         vsig,
     }
 }
