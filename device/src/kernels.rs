@@ -7,6 +7,7 @@
 use crate::drag::{self, CellMeans, StoppingLaw};
 use crate::eos::Eos;
 use crate::grid::{for_neighbours, CellLookup, GridGeom};
+use crate::kernel::KernelAt;
 use crate::sph::{self, GasPair, GasState, Viscosity};
 use crate::{add, axpy, scale, update, Real, Vec3};
 
@@ -42,9 +43,10 @@ pub fn density_at<R: Real>(
     if is_fixed(fixed, i) {
         return rho_fixed;
     }
+    let k = KernelAt::new(h, dim);
     let mut rho = R::ZERO;
     for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, _, r2| {
-        rho += sph::density_term(m[j], r2.sqrt(), h, dim);
+        rho += m[j] * k.w(r2.sqrt());
     });
     rho
 }
@@ -66,9 +68,10 @@ pub fn density_rate_at<R: Real>(
         return R::ZERO;
     }
     let vi = v[i];
+    let k = KernelAt::new(h, dim);
     let mut rate = R::ZERO;
     for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, dx, r2| {
-        rate += sph::density_rate_term(m[j], vi, v[j], dx, r2.sqrt(), h, dim);
+        rate += sph::density_rate_term(m[j], vi, v[j], dx, r2.sqrt(), &k);
     });
     rate
 }
@@ -120,11 +123,12 @@ pub fn solve_h_at<R: Real>(
     let mut h = h0;
     let mut it = 0;
     loop {
+        let k = KernelAt::new(h, dim);
         let (mut sum, mut dsum) = (R::ZERO, R::ZERO);
         for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, _, r2| {
             let r = r2.sqrt();
-            sum += sph::density_term(m[j], r, h, dim);
-            dsum += m[j] * crate::kernel::dw_dh(r, h, dim);
+            sum += m[j] * k.w(r);
+            dsum += m[j] * k.dw_dh(r);
         });
         it += 1;
         let rho_h = mhd / crate::kernel::h_pow_dim(h, dim);
@@ -194,12 +198,16 @@ pub fn forces_at<R: Real>(
         return out;
     }
     let a = g.state(s.x[i], i);
+    let k = KernelAt::new(h, dim);
+    let pa = a.p / (a.rho * a.rho);
     out.vsig = a.c;
-    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, _| {
+    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, r2| {
         if j == i {
             return;
         }
-        let pr = sph::gas_pair(&a, &g.state(s.x[j], j), dx, h, dim, av);
+        let b = g.state(s.x[j], j);
+        let pb = b.p / (b.rho * b.rho);
+        let pr = sph::gas_pair(&a, &b, pa, pb, dx, r2, &k, av);
         out.acc = add(out.acc, pr.acc);
         out.dedt += pr.dedt;
         out.vsig = out.vsig.max(pr.vsig);
@@ -207,18 +215,18 @@ pub fn forces_at<R: Real>(
     out
 }
 
-/// [`forces_at`] for variable smoothing lengths `h` with grad-h terms `omega` (Price 2012):
-/// A_i = −Σ_j m_j [p_i/(Ω_i ρ_i²) ∇W_ij(h_i) + p_j/(Ω_j ρ_j²) ∇W_ij(h_j) + Π_ij ∇̄W_ij],
-/// de_i/dt = p_i/(Ω_i ρ_i²) Σ_j m_j v_ij·∇W_ij(h_i) + ½ Σ_j m_j Π_ij v_ij·∇̄W_ij, with ∇̄W the
-/// mean of the two gradients. The grid's search radius must cover 2 max h.
+/// [`forces_at`] for variable smoothing lengths, with per-particle kernels `k` (at h_j) and
+/// pressure terms `pt` = p_j/(Ω_j ρ_j²) (grad-h, Price 2012):
+/// A_i = −Σ_j m_j [pt_i ∇W_ij(h_i) + pt_j ∇W_ij(h_j) + Π_ij ∇̄W_ij],
+/// de_i/dt = pt_i Σ_j m_j v_ij·∇W_ij(h_i) + ½ Σ_j m_j Π_ij v_ij·∇̄W_ij, with ∇̄W the mean of the
+/// two gradients. The grid's search radius must cover 2 max h.
 #[inline(always)]
 pub fn forces_vh_at<R: Real>(
     s: &Sorted<'_, R>,
     g: &GasView<'_, R>,
-    h: &[R],
-    omega: &[R],
+    k: &[KernelAt<R>],
+    pt: &[R],
     i: usize,
-    dim: u32,
     av: Option<&Viscosity<R>>,
 ) -> GasPair<R> {
     let mut out = GasPair {
@@ -230,16 +238,16 @@ pub fn forces_vh_at<R: Real>(
         return out;
     }
     let a = g.state(s.x[i], i);
-    let (ha, oa) = (h[i], omega[i]);
+    let (ka, pa) = (k[i], pt[i]);
     out.vsig = a.c;
     let s2 = R::from_f64(crate::kernel::SUPPORT * crate::kernel::SUPPORT);
     for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, r2| {
         // Only pairs within either support: the result must not depend on the search radius.
-        let hm = ha.max(h[j]);
+        let hm = ka.h.max(k[j].h);
         if j == i || r2 >= s2 * hm * hm {
             return;
         }
-        let pr = sph::gas_pair_vh(&a, &g.state(s.x[j], j), dx, ha, h[j], oa, omega[j], dim, av);
+        let pr = sph::gas_pair_vh(&a, &g.state(s.x[j], j), pa, pt[j], dx, r2, &ka, &k[j], av);
         out.acc = add(out.acc, pr.acc);
         out.dedt += pr.dedt;
         out.vsig = out.vsig.max(pr.vsig);

@@ -299,12 +299,24 @@ impl CpuEngine {
             c: &g.c,
             fixed: g.ph.fixed.as_deref().unwrap_or(&[]),
         };
-        let vh = g.h.as_deref().zip(g.omega.as_deref());
+        // Variable h: each particle's kernel constants and p/(Ω ρ²), once per step.
+        let vh: Option<(Vec<kernel::KernelAt<f64>>, Vec<f64>)> =
+            g.h.as_deref().zip(g.omega.as_deref()).map(|(hv, om)| {
+                let k = hv
+                    .par_iter()
+                    .map(|&h| kernel::KernelAt::new(h, dim))
+                    .collect();
+                let pt = (0..hv.len())
+                    .into_par_iter()
+                    .map(|i| g.p[i] / (om[i] * g.ph.rho[i] * g.ph.rho[i]))
+                    .collect();
+                (k, pt)
+            });
         let out: Vec<([f64; 3], f64, f64)> = (0..g.ph.len())
             .into_par_iter()
             .map(|i| {
-                let r = match vh {
-                    Some((hv, om)) => kernels::forces_vh_at(&s, &view, hv, om, i, dim, av),
+                let r = match &vh {
+                    Some((k, pt)) => kernels::forces_vh_at(&s, &view, k, pt, i, av),
                     None => kernels::forces_at(&s, &view, i, h, dim, av),
                 };
                 (r.acc, r.dedt, r.vsig)
