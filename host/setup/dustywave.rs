@@ -249,3 +249,51 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
         w.length,
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Minimum-image distances from particle i to every other.
+    fn distances(x: &[[f64; 3]], len: [f64; 3], i: usize) -> Vec<f64> {
+        x.iter()
+            .enumerate()
+            .filter(|&(j, _)| j != i)
+            .map(|(_, p)| {
+                (0..3)
+                    .map(|k| {
+                        let d = p[k] - x[i][k];
+                        let d = d - len[k] * (d / len[k]).round();
+                        d * d
+                    })
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn close_packed_lattices_are_periodic_fcc_and_hexagonal() {
+        // 3D: every particle has 12 nearest neighbours at Δ, across the periodic boundaries too;
+        // the box is nx Δ × ny Δ√3/2 × nz Δ√(2/3) and the volume per particle Δ³/√2.
+        let (nx, dx) = (16, 1.0 / 16.0);
+        let (x, len) = lattice(3, Lattice::Closepacked, nx, 1.0, 6);
+        assert_eq!(x.len(), nx * 6 * 6);
+        assert!((len[1] - 6.0 * dx * 0.75f64.sqrt()).abs() < 1e-15);
+        assert!((len[2] - 6.0 * dx * (2.0f64 / 3.0).sqrt()).abs() < 1e-15);
+        let vol = len[0] * len[1] * len[2] / x.len() as f64;
+        assert!((vol - dx.powi(3) / 2f64.sqrt()).abs() < 1e-15);
+        for i in [0, 17, 100, 311, x.len() - 1] {
+            let d = distances(&x, len, i);
+            let near = d.iter().filter(|&&r| (r - dx).abs() < 1e-12).count();
+            assert_eq!(near, 12, "particle {i}");
+            assert!(d.iter().all(|&r| r > dx - 1e-12));
+        }
+        // 2D: six neighbours at Δ.
+        let (x, len) = lattice(2, Lattice::Closepacked, nx, 1.0, 6);
+        for i in [0, 21, x.len() - 1] {
+            let d = distances(&x, len, i);
+            assert_eq!(d.iter().filter(|&&r| (r - dx).abs() < 1e-12).count(), 6);
+        }
+    }
+}
