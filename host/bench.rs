@@ -1,6 +1,6 @@
 //! CPU speed: particle-steps/s and neighbour interactions/s of the step, without output.
 use crate::engine::cpu::CpuEngine;
-use crate::engine::Physics;
+use crate::engine::{step_size, Physics};
 use crate::scene::Scene;
 use crate::setup;
 use std::time::Instant;
@@ -43,10 +43,7 @@ pub fn bench(case: &str, scene: &Scene, steps: u64, threads: usize) -> Result<Be
         for _ in 0..steps {
             let f = eng.forces(&state);
             let (dt_cfl, dt_force) = eng.dt_limits(&f);
-            let dt = scene
-                .time
-                .dt
-                .unwrap_or_else(|| scene.time.cfl.unwrap_or(0.3) * dt_cfl.min(dt_force));
+            let (dt, _) = step_size(&scene.time, dt_cfl, dt_force, eng.drag_dt_limit(&state));
             eng.advance(&mut state, &f, dt).map_err(|e| e.to_string())?;
         }
         Ok(BenchResult {
