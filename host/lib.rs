@@ -15,3 +15,4 @@ pub mod post;
 pub mod run;
 pub mod scene;
 pub mod setup;
+pub mod study;

@@ -59,6 +59,21 @@ enum Cmd {
         #[arg(long, default_value_t = 100)]
         bins: usize,
     },
+    /// Run a study (configs/studies/*.toml): a scene over a grid of parameters, in this process;
+    /// writes results.csv, results.md and error-against-run-time plots (PNG).
+    Study {
+        /// Study file (TOML), e.g. configs/studies/dustywave_n1.toml
+        study: PathBuf,
+        /// Output directory (default: output/studies/<study name>)
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write into a non-empty output directory (replaces only the study's own files)
+        #[arg(long)]
+        force: bool,
+        /// No line per point
+        #[arg(long, short)]
+        quiet: bool,
+    },
     /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
     Resume {
         dir: PathBuf,
@@ -258,6 +273,54 @@ fn main() -> ExitCode {
                             "symmetry (axes vs diagonals, r < {}): rho_g {:.3e}, |v| {:.3e} (relative L1)",
                             s.r_max, s.rho_g_relative_l1, s.speed_relative_l1
                         );
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::from(1)
+                }
+            }
+        }
+        Cmd::Study {
+            study,
+            out,
+            force,
+            quiet,
+        } => {
+            let st = match dustsph::study::load(&study) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            let out = out.unwrap_or_else(|| PathBuf::from("output/studies").join(&st.cfg.name));
+            let command = format!(
+                "dustsph study {} --out {} --force",
+                study.display(),
+                out.display()
+            );
+            if !quiet {
+                eprintln!(
+                    "dustsph: study {} ({} points) → {}",
+                    study.display(),
+                    st.points.len(),
+                    out.display()
+                );
+            }
+            match dustsph::study::run(&st, &out, force, quiet, &command) {
+                Ok((results, files)) => {
+                    for f in &files {
+                        println!("wrote {}", f.display());
+                    }
+                    let failed = results
+                        .iter()
+                        .filter(|r| matches!(r.status, dustsph::study::Status::Failed(_)))
+                        .count();
+                    if failed > 0 {
+                        eprintln!("error: {failed} point(s) failed (see results.md)");
+                        return ExitCode::from(1);
                     }
                     ExitCode::SUCCESS
                 }

@@ -4,7 +4,7 @@ use serde::Deserialize;
 type VResult = Result<(), (String, String)>;
 
 /// A number as a person would write it: plain in a friendly range, else in e-notation.
-pub(crate) fn num(v: f64) -> String {
+pub fn num(v: f64) -> String {
     if v == 0.0 || (1e-4..1e6).contains(&v.abs()) || !v.is_finite() {
         format!("{v}")
     } else {
