@@ -73,6 +73,9 @@ enum Cmd {
         /// No line per point
         #[arg(long, short)]
         quiet: bool,
+        /// Validate the study and list its points; run nothing, write nothing
+        #[arg(long)]
+        dry_run: bool,
     },
     /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
     Resume {
@@ -287,6 +290,7 @@ fn main() -> ExitCode {
             out,
             force,
             quiet,
+            dry_run,
         } => {
             let st = match dustsph::study::load(&study) {
                 Ok(s) => s,
@@ -295,6 +299,13 @@ fn main() -> ExitCode {
                     return ExitCode::from(2);
                 }
             };
+            if dry_run {
+                let all: Vec<usize> = (0..st.axes.len()).collect();
+                for (i, p) in st.points.iter().enumerate() {
+                    println!("{:>4}  {}", i + 1, st.describe(p, &all, false));
+                }
+                return ExitCode::SUCCESS;
+            }
             let out = out.unwrap_or_else(|| PathBuf::from("output/studies").join(&st.cfg.name));
             let command = format!(
                 "dustsph study {} --out {} --force",
