@@ -77,6 +77,20 @@ enum Cmd {
         #[arg(long)]
         dry_run: bool,
     },
+    /// The stiffness and extremes matrix (IDIC): every case must stay finite, conserve momentum
+    /// to 1e-12, keep densities positive and match the exact wave/box solutions. Prints a line
+    /// per case; exit code 1 if any fails.
+    Stiffness {
+        /// The full grid (default: the reduced CI grid)
+        #[arg(long)]
+        full: bool,
+        /// Write the Markdown table to this file (e.g. docs/stiffness.md)
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Replace an existing --out file
+        #[arg(long)]
+        force: bool,
+    },
     /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
     Resume {
         dir: PathBuf,
@@ -339,6 +353,48 @@ fn main() -> ExitCode {
                     eprintln!("error: {e}");
                     ExitCode::from(1)
                 }
+            }
+        }
+        Cmd::Stiffness { full, out, force } => {
+            if let Some(o) = &out {
+                if o.exists() && !force {
+                    eprintln!("error: {} exists; give --force to replace it", o.display());
+                    return ExitCode::from(2);
+                }
+            }
+            let reports = dustsph::stiffness::run(full, |r| {
+                eprintln!(
+                    "{:<6} {} — {}: {} steps (explicit would need {:.0}), momentum drift {:.1e}",
+                    if r.passed() { "pass" } else { "FAIL" },
+                    r.group,
+                    r.name,
+                    r.steps,
+                    r.explicit_steps,
+                    r.momentum_drift
+                );
+                for f in &r.failures {
+                    eprintln!("       {f}");
+                }
+            });
+            let failed = reports.iter().filter(|r| !r.passed()).count();
+            if let Some(o) = &out {
+                let command = format!(
+                    "dustsph stiffness{} --out {} --force",
+                    if full { " --full" } else { "" },
+                    o.display()
+                );
+                let md = dustsph::stiffness::markdown(&reports, full, &command);
+                if let Err(e) = dustsph::io::write_bytes_atomic(o, md.as_bytes()) {
+                    eprintln!("error: {e}");
+                    return ExitCode::from(1);
+                }
+                println!("wrote {}", o.display());
+            }
+            println!("{} of {} cases pass", reports.len() - failed, reports.len());
+            if failed > 0 {
+                ExitCode::from(1)
+            } else {
+                ExitCode::SUCCESS
             }
         }
         Cmd::Resume {

@@ -77,6 +77,10 @@ pub struct StudyCfg {
     pub targets: Vec<f64>,
     #[serde(default)]
     pub plot_against: Vec<String>,
+    /// Threads of the runs (default 1: on a shared machine one thread's CPU time is a stable
+    /// measure of cost, and the points are small).
+    #[serde(default = "one")]
+    pub threads: usize,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -219,12 +223,26 @@ pub struct PointResult {
     pub dt_max: f64,
     pub runs: usize,
     pub step_seconds: f64,
+    /// CPU seconds of the step loop (single-threaded studies; NaN otherwise).
+    pub step_cpu_seconds: f64,
     pub total_seconds: f64,
     pub metrics: Vec<f64>,
     /// |P(t_end) − P(0)| / max_t Σ m|v|.
     pub momentum_drift: f64,
     /// The reference of the errors (first entry of the exact-solution comparison).
     pub reference: String,
+}
+
+impl PointResult {
+    /// The cost plotted and ranked: CPU seconds of the step loop where measured, else its
+    /// wall seconds.
+    pub fn cost(&self) -> f64 {
+        if self.step_cpu_seconds.is_finite() {
+            self.step_cpu_seconds
+        } else {
+            self.step_seconds
+        }
+    }
 }
 
 /// A TOML value as a label: strings bare, numbers short.
@@ -278,6 +296,9 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
             Some("study.repeat_below".into()),
             "must be a finite number ≥ 0 (seconds)".into(),
         ));
+    }
+    if c.threads == 0 {
+        return Err(err(Some("study.threads".into()), "must be ≥ 1".into()));
     }
     if c.max_steps == 0 {
         return Err(err(Some("study.max_steps".into()), "must be ≥ 1".into()));
@@ -489,6 +510,8 @@ struct Once {
     drag_limited: u64,
     dt: (f64, f64),
     step_s: f64,
+    /// CPU seconds of the step loop on this thread (single-threaded runs on Linux).
+    step_cpu: f64,
     total_s: f64,
     errors: Option<ExactErrors>,
     momentum_drift: f64,
@@ -502,6 +525,7 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
         drag_limited: 0,
         dt: (f64::INFINITY, 0.0),
         step_s: 0.0,
+        step_cpu: f64::NAN,
         total_s: 0.0,
         errors: None,
         momentum_drift: f64::NAN,
@@ -525,6 +549,7 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
     let p0 = state.total_momentum();
     let mut pscale = state.momentum_scale();
     let ts = Instant::now();
+    let cpu0 = thread_cpu_seconds();
     while state.t < t_end {
         let forces = eng.forces(&state);
         let (dt_cfl, dt_force) = eng.dt_limits(&forces);
@@ -561,6 +586,9 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
         pscale = pscale.max(state.momentum_scale());
     }
     out.step_s = ts.elapsed().as_secs_f64();
+    if let (Some(a), Some(b)) = (cpu0, thread_cpu_seconds()) {
+        out.step_cpu = b - a;
+    }
     eng.refresh_dust_density(&mut state);
     out.errors = analysis::exact_errors(scene, &state, scene.time.dt)
         .into_iter()
@@ -570,6 +598,13 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
     out.momentum_drift = if pscale > 0.0 { dp / pscale } else { dp };
     out.total_s = t0.elapsed().as_secs_f64();
     out
+}
+
+/// CPU time of the calling thread (Linux: /proc/thread-self/schedstat, nanoseconds).
+fn thread_cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: f64 = s.split_whitespace().next()?.parse().ok()?;
+    Some(ns * 1e-9)
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -605,18 +640,29 @@ impl Study {
     /// than `repeat_below` seconds (times are medians; errors come from the first run, the
     /// runs being deterministic).
     pub fn run_point(&self, p: &Point) -> PointResult {
-        let first = run_once(&p.scene, self.cfg.max_steps);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(self.cfg.threads)
+            .build();
+        let once = || match &pool {
+            Ok(pool) => pool.install(|| run_once(&p.scene, self.cfg.max_steps)),
+            Err(_) => run_once(&p.scene, self.cfg.max_steps),
+        };
+        let single = self.cfg.threads == 1 && pool.is_ok();
+        let first = once();
         let mut step = vec![first.step_s];
+        let mut cpu = vec![first.step_cpu];
         let mut total = vec![first.total_s];
         if first.status == Status::Ok && first.step_s < self.cfg.repeat_below {
             for _ in 1..self.cfg.repeat {
-                let o = run_once(&p.scene, self.cfg.max_steps);
+                let o = once();
                 step.push(o.step_s);
+                cpu.push(o.step_cpu);
                 total.push(o.total_s);
             }
         }
         PointResult {
             runs: step.len(),
+            step_cpu_seconds: if single { median(cpu) } else { f64::NAN },
             step_seconds: median(step),
             total_seconds: median(total),
             metrics: self
@@ -679,6 +725,7 @@ impl Study {
                 "dt_max",
                 "runs",
                 "step_seconds",
+                "step_cpu_seconds",
                 "total_seconds",
             ]
             .map(String::from),
@@ -714,6 +761,11 @@ impl Study {
             }
             row.push(r.runs.to_string());
             row.push(format!("{:.6}", r.step_seconds));
+            row.push(if r.step_cpu_seconds.is_finite() {
+                format!("{:.6}", r.step_cpu_seconds)
+            } else {
+                String::new()
+            });
             row.push(format!("{:.6}", r.total_seconds));
             for m in &r.metrics {
                 row.push(if m.is_finite() {
@@ -756,12 +808,17 @@ impl Study {
                 .collect()
         };
         let p = dir.join("error_vs_time.png");
+        let cpu = results.iter().any(|r| r.step_cpu_seconds.is_finite());
         fig_loglog(
             &p,
             &format!("{title}: error against run time"),
-            "wall time of the step loop [s]",
+            if cpu {
+                "CPU time of the step loop, 1 thread [s]"
+            } else {
+                "wall time of the step loop [s]"
+            },
             &self.metrics[pm].name(),
-            &mk(&|i| results[i].step_seconds),
+            &mk(&|i| results[i].cost()),
         )?;
         files.push(p);
         for &a in &self.plot_against {
@@ -843,8 +900,8 @@ impl Study {
         );
         let _ = writeln!(
             s,
-            "- Backend: CPU (rayon, {} threads), f64. **step s** = wall time of the time-step loop; **total s** adds set-up, initial densities and the error evaluation. Times are the median of up to {} runs when the first step loop took < {} s (column *runs*).",
-            rayon::current_num_threads(),
+            "- Backend: CPU (rayon, {} thread(s)), f64. **step s** = wall time of the time-step loop; **cpu s** = CPU time of that loop on its one thread (single-threaded studies; this is the cost plotted and ranked, because wall time on a shared machine depends on the other load); **total s** (wall) adds set-up, initial densities and the error evaluation. Times are the median of up to {} runs when the first step loop took < {} s (column *runs*).",
+            c.threads,
             c.repeat,
             c.repeat_below
         );
@@ -867,7 +924,12 @@ impl Study {
         }
         // Table
         let mut head: Vec<String> = self.axes.iter().map(|a| format!("`{}`", a.key)).collect();
-        head.extend(["steps", "dt min", "dt max", "runs", "step s", "total s"].map(String::from));
+        head.extend(
+            [
+                "steps", "dt min", "dt max", "runs", "step s", "cpu s", "total s",
+            ]
+            .map(String::from),
+        );
         head.extend(self.metrics.iter().map(|m| m.name()));
         head.extend(["momentum drift", "status"].map(String::from));
         let _ = writeln!(s, "| {} |", head.join(" | "));
@@ -923,7 +985,7 @@ impl Study {
             let pm = self.plot_metric;
             let _ = writeln!(
                 s,
-                "\n## Cheapest run reaching a target `{}`\n\nFor each series, the run with the smallest step-loop time among those whose error is at or below the target (no interpolation).\n",
+                "\n## Cheapest run reaching a target `{}`\n\nFor each series, the run with the smallest step-loop cost (cpu s where measured, else step s) among those whose error is at or below the target (no interpolation).\n",
                 self.metrics[pm].name()
             );
             let mut head = vec!["series".to_string()];
@@ -944,7 +1006,7 @@ impl Study {
                     row.push(match best {
                         Some(&i) => format!(
                             "{:.3} s ({}{})",
-                            results[i].step_seconds,
+                            results[i].cost(),
                             self.describe(&self.points[i], &self.point_axes, true),
                             format_args!(", {} steps", results[i].steps)
                         ),
@@ -984,11 +1046,12 @@ pub fn run(
         if !quiet {
             let all: Vec<usize> = (0..study.axes.len()).collect();
             eprintln!(
-                "[{}/{n}] {}: {} steps, {:.3} s, {} = {:.3e}  {}",
+                "[{}/{n}] {}: {} steps, {:.3} s (cpu {:.3} s), {} = {:.3e}  {}",
                 i + 1,
                 study.describe(p, &all, true),
                 r.steps,
                 r.step_seconds,
+                r.step_cpu_seconds,
                 study.metrics[study.plot_metric].name(),
                 r.metrics[study.plot_metric],
                 r.status.text(study.cfg.max_steps)
