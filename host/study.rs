@@ -913,7 +913,10 @@ impl Study {
             "- Points whose first step shows they would need more than {} steps are not run (status *skipped*), and say how many they would need.",
             c.max_steps
         );
-        let _ = writeln!(s, "- Momentum drift = |P(t_end) − P(0)| / max_t Σ m|v|.\n");
+        let _ = writeln!(
+            s,
+            "- Momentum drift = |P(t_end) − P(0)| / max_t Σ m|v| (scenes with fixed wall particles exchange momentum with the walls: there it is not a conservation check).\n"
+        );
         for f in files {
             if f.extension().is_some_and(|e| e == "png") {
                 if let Some(n) = f.file_name() {
@@ -967,6 +970,11 @@ impl Study {
             row.push(r.runs.to_string());
             row.push(if ran {
                 format!("{:.3}", r.step_seconds)
+            } else {
+                "–".into()
+            });
+            row.push(if ran && r.step_cpu_seconds.is_finite() {
+                format!("{:.3}", r.step_cpu_seconds)
             } else {
                 "–".into()
             });

@@ -28,6 +28,34 @@ const PALETTE: [RGBColor; 10] = [
     RGBColor(188, 189, 34),
 ];
 
+/// Tick values for a log axis over `r`: 1, 2, 5 × 10^k inside it (only 1 × 10^k when that gives
+/// more than 14), and light lines at 1…9 × 10^k.
+fn log_key_points(r: &std::ops::Range<f64>) -> (Vec<f64>, Vec<f64>) {
+    let (lo, hi) = (r.start, r.end);
+    let mut bold = Vec::new();
+    let mut light = Vec::new();
+    let mut k = lo.log10().floor() as i32;
+    while 10f64.powi(k) <= hi {
+        for m in 1..=9 {
+            let v = f64::from(m) * 10f64.powi(k);
+            if v >= lo && v <= hi {
+                light.push(v);
+                if [1, 2, 5].contains(&m) {
+                    bold.push(v);
+                }
+            }
+        }
+        k += 1;
+    }
+    if bold.len() > 14 {
+        bold.retain(|v| {
+            let m = v / 10f64.powf(v.log10().floor());
+            (m - 1.0).abs() < 1e-9
+        });
+    }
+    (bold, light)
+}
+
 fn usable(p: &(f64, f64)) -> bool {
     p.0.is_finite() && p.1.is_finite() && p.0 > 0.0 && p.1 > 0.0
 }
@@ -80,7 +108,22 @@ pub fn fig_loglog(
             .margin(15)
             .x_label_area_size(50)
             .y_label_area_size(85)
-            .build_cartesian_2d(xs.clone().log_scale(), ys.clone().log_scale())?;
+            .build_cartesian_2d(
+                {
+                    let (b, l) = log_key_points(&xs);
+                    xs.clone()
+                        .log_scale()
+                        .with_key_points(b)
+                        .with_light_points(l)
+                },
+                {
+                    let (b, l) = log_key_points(&ys);
+                    ys.clone()
+                        .log_scale()
+                        .with_key_points(b)
+                        .with_light_points(l)
+                },
+            )?;
         chart
             .configure_mesh()
             .x_desc(x_desc)
