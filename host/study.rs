@@ -234,14 +234,11 @@ pub struct PointResult {
 }
 
 impl PointResult {
-    /// The cost plotted and ranked: CPU seconds of the step loop where measured, else its
-    /// wall seconds.
+    /// The cost plotted and ranked: the wall seconds of the step loop (single-threaded by
+    /// default; the CPU seconds beside them show whether other load inflated them — the CPU
+    /// clock here is too coarse, a few ms, to rank the shortest runs).
     pub fn cost(&self) -> f64 {
-        if self.step_cpu_seconds.is_finite() {
-            self.step_cpu_seconds
-        } else {
-            self.step_seconds
-        }
+        self.step_seconds
     }
 }
 
@@ -808,15 +805,15 @@ impl Study {
                 .collect()
         };
         let p = dir.join("error_vs_time.png");
-        let cpu = results.iter().any(|r| r.step_cpu_seconds.is_finite());
+        let x_desc = format!(
+            "wall time of the step loop, {} thread{} [s]",
+            self.cfg.threads,
+            if self.cfg.threads == 1 { "" } else { "s" }
+        );
         fig_loglog(
             &p,
             &format!("{title}: error against run time"),
-            if cpu {
-                "CPU time of the step loop, 1 thread [s]"
-            } else {
-                "wall time of the step loop [s]"
-            },
+            &x_desc,
             &self.metrics[pm].name(),
             &mk(&|i| results[i].cost()),
         )?;
@@ -900,7 +897,7 @@ impl Study {
         );
         let _ = writeln!(
             s,
-            "- Backend: CPU (rayon, {} thread(s)), f64. **step s** = wall time of the time-step loop; **cpu s** = CPU time of that loop on its one thread (single-threaded studies; this is the cost plotted and ranked, because wall time on a shared machine depends on the other load); **total s** (wall) adds set-up, initial densities and the error evaluation. Times are the median of up to {} runs when the first step loop took < {} s (column *runs*).",
+            "- Backend: CPU (rayon, {} thread(s)), f64. **step s** = wall time of the time-step loop, the cost plotted and ranked; **cpu s** = CPU time of that loop on its one thread (single-threaded studies; a cpu s well below step s means other load slowed the run; the CPU clock read here ticks in milliseconds, so it is rough for the shortest runs); **total s** (wall) adds set-up, initial densities and the error evaluation. Times are the median of up to {} runs when the first step loop took < {} s (column *runs*).",
             c.threads,
             c.repeat,
             c.repeat_below
@@ -993,7 +990,7 @@ impl Study {
             let pm = self.plot_metric;
             let _ = writeln!(
                 s,
-                "\n## Cheapest run reaching a target `{}`\n\nFor each series, the run with the smallest step-loop cost (cpu s where measured, else step s) among those whose error is at or below the target (no interpolation).\n",
+                "\n## Cheapest run reaching a target `{}`\n\nFor each series, the run with the smallest step-loop wall time (step s) among those whose error is at or below the target (no interpolation).\n",
                 self.metrics[pm].name()
             );
             let mut head = vec!["series".to_string()];
