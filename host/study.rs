@@ -117,6 +117,9 @@ impl std::error::Error for StudyError {}
 pub struct Metric {
     pub field: String,
     pub norm: Norm,
+    /// Which comparison of the scene (`FIELD.NORM@k`; 0, the first, by default): the ball has
+    /// 0 = inside r < R0 − 2h, 1 = the whole ball.
+    pub reference: usize,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -128,6 +131,10 @@ pub enum Norm {
 
 impl Metric {
     fn parse(s: &str) -> Option<Metric> {
+        let (s, reference) = match s.split_once('@') {
+            Some((m, k)) => (m, k.parse().ok()?),
+            None => (s, 0),
+        };
         let (field, norm) = s.rsplit_once('.')?;
         let norm = match norm {
             "l1" => Norm::L1,
@@ -138,6 +145,7 @@ impl Metric {
         (!field.is_empty()).then(|| Metric {
             field: field.to_string(),
             norm,
+            reference,
         })
     }
 
@@ -147,10 +155,19 @@ impl Metric {
             Norm::L2 => "l2",
             Norm::Linf => "linf",
         };
-        format!("{}.{n}", self.field)
+        if self.reference == 0 {
+            format!("{}.{n}", self.field)
+        } else {
+            format!("{}.{n}@{}", self.field, self.reference)
+        }
     }
 
-    /// The value in the first reference of `e` (NaN if the field is missing).
+    /// The value in its reference among `all` (NaN if missing).
+    fn of_all(&self, all: &[ExactErrors]) -> f64 {
+        all.get(self.reference).map_or(f64::NAN, |e| self.of(e))
+    }
+
+    /// The value in `e` (NaN if the field is missing).
     fn of(&self, e: &ExactErrors) -> f64 {
         let pick = |n: &analysis::norms::Norms| match self.norm {
             Norm::L1 => n.l1,
@@ -319,7 +336,7 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
         metrics.push(Metric::parse(m).ok_or_else(|| {
             err(
                 Some(format!("study.metrics.{i}")),
-                format!("`{m}` is not FIELD.NORM with NORM one of l1, l2, linf"),
+                format!("`{m}` is not FIELD.NORM[@k] with NORM one of l1, l2, linf"),
             )
         })?);
     }
@@ -452,7 +469,8 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
     // Metric fields must exist in the scene's exact-solution comparison (names from t = 0).
     let first = &points[0].scene;
     let su = setup::build(first).map_err(|e| err(Some("study.scene".into()), e.to_string()))?;
-    let names: Vec<String> = analysis::exact_errors(first, &su.state, None)
+    let refs = analysis::exact_errors(first, &su.state, None);
+    let names: Vec<String> = refs
         .first()
         .map(|e| e.fields.iter().map(|f| f.field.clone()).collect())
         .unwrap_or_default();
@@ -466,6 +484,22 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
         ));
     }
     for (i, m) in metrics.iter().enumerate() {
+        if m.reference >= refs.len() {
+            return Err(err(
+                Some(format!("study.metrics.{i}")),
+                format!(
+                    "@{}: this scene has {} comparison(s) (@0 … @{})",
+                    m.reference,
+                    refs.len(),
+                    refs.len() - 1
+                ),
+            ));
+        }
+        let names: Vec<String> = refs[m.reference]
+            .fields
+            .iter()
+            .map(|f| f.field.clone())
+            .collect();
         if m.field != "max" && !names.contains(&m.field) {
             return Err(err(
                 Some(format!("study.metrics.{i}")),
@@ -510,7 +544,7 @@ struct Once {
     /// CPU seconds of the step loop on this thread (single-threaded runs on Linux).
     step_cpu: f64,
     total_s: f64,
-    errors: Option<ExactErrors>,
+    errors: Vec<ExactErrors>,
     momentum_drift: f64,
 }
 
@@ -524,7 +558,7 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
         step_s: 0.0,
         step_cpu: f64::NAN,
         total_s: 0.0,
-        errors: None,
+        errors: Vec::new(),
         momentum_drift: f64::NAN,
     };
     let fail = |mut o: Once, m: String| {
@@ -587,9 +621,7 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
         out.step_cpu = b - a;
     }
     eng.refresh_dust_density(&mut state);
-    out.errors = analysis::exact_errors(scene, &state, scene.time.dt)
-        .into_iter()
-        .next();
+    out.errors = analysis::exact_errors(scene, &state, scene.time.dt);
     let p1 = state.total_momentum();
     let dp = ((0..3).map(|d| (p1[d] - p0[d]).powi(2)).sum::<f64>()).sqrt();
     out.momentum_drift = if pscale > 0.0 { dp / pscale } else { dp };
@@ -665,12 +697,15 @@ impl Study {
             metrics: self
                 .metrics
                 .iter()
-                .map(|m| first.errors.as_ref().map_or(f64::NAN, |e| m.of(e)))
+                .map(|m| m.of_all(&first.errors))
                 .collect(),
             reference: first
                 .errors
-                .as_ref()
-                .map_or(String::new(), |e| e.reference.clone()),
+                .iter()
+                .enumerate()
+                .map(|(k, e)| format!("@{k}: {}", e.reference))
+                .collect::<Vec<_>>()
+                .join("; "),
             status: first.status,
             steps: first.steps,
             drag_limited_steps: first.drag_limited,
@@ -903,7 +938,7 @@ impl Study {
             c.repeat_below
         );
         if let Some(r) = results.iter().find(|r| !r.reference.is_empty()) {
-            let _ = writeln!(s, "- Errors at t_end against: {}. `max.*` is the largest norm over all compared fields.", r.reference);
+            let _ = writeln!(s, "- Errors at t_end against (FIELD.NORM@k uses comparison k, @0 when not given): {}. `max.*` is the largest norm over all compared fields.", r.reference);
         }
         let _ = writeln!(
             s,

@@ -143,6 +143,10 @@ fn bad_study_files_exit_2_naming_file_and_key_and_write_nothing() {
             "study.metrics.0",
         ),
         (
+            base.replace("\"u_d3.linf\"", "\"u_d3.linf@2\""),
+            "study.metrics.1",
+        ),
+        (
             base.replace("series = [\"drag.method\"]", "series = [\"sph.n\"]"),
             "study.series.0",
         ),
