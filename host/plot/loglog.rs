@@ -29,7 +29,7 @@ const PALETTE: [RGBColor; 10] = [
 ];
 
 /// Tick values for a log axis over `r`: 1, 2, 5 × 10^k inside it (only 1 × 10^k when that gives
-/// more than 14), and light lines at 1…9 × 10^k.
+/// more than 14; every 1…9 × 10^k when it gives fewer than 3), light lines at 1…9 × 10^k.
 fn log_key_points(r: &std::ops::Range<f64>) -> (Vec<f64>, Vec<f64>) {
     let (lo, hi) = (r.start, r.end);
     let mut bold = Vec::new();
@@ -46,6 +46,10 @@ fn log_key_points(r: &std::ops::Range<f64>) -> (Vec<f64>, Vec<f64>) {
             }
         }
         k += 1;
+    }
+    if bold.len() < 3 {
+        // Less than a decade: label every 1…9 × 10^k.
+        bold = light.clone();
     }
     if bold.len() > 14 {
         bold.retain(|v| {
