@@ -363,6 +363,12 @@ impl<L: Launcher> GpuEngine<L> {
                 "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
             )));
         }
+        if pipe.explicit_drag {
+            return Err(StepError::Blowup(
+                "the explicit drag baseline (drag.method = \"explicit\") runs on the CPU only; use --device cpu"
+                    .into(),
+            ));
+        }
         let d = Dev(launcher);
         let (eos_kind, eos_value) = match phys.eos {
             Eos::Isothermal { cs } => (0, cs),
