@@ -2,7 +2,7 @@
 //! CPU or on a device.
 use crate::engine::backend::{self, Backend, DeviceChoice};
 use crate::engine::cpu::CpuEngine;
-use crate::engine::{dt_limits, Physics};
+use crate::engine::{dt_limits, step_size, Physics};
 use crate::scene::Scene;
 use crate::setup;
 use std::time::Instant;
@@ -65,10 +65,7 @@ pub fn bench(
         for _ in 0..steps {
             let f = eng.forces(&state).map_err(|e| e.to_string())?;
             let (dt_cfl, dt_force) = dt_limits(phys.h, &f);
-            let dt = scene
-                .time
-                .dt
-                .unwrap_or_else(|| scene.time.cfl.unwrap_or(0.3) * dt_cfl.min(dt_force));
+            let (dt, _) = step_size(&scene.time, dt_cfl, dt_force, eng.drag_dt_limit(&state));
             eng.advance(&mut state, &f, dt).map_err(|e| e.to_string())?;
         }
         let seconds = t0.elapsed().as_secs_f64();

@@ -16,3 +16,5 @@ pub mod post;
 pub mod run;
 pub mod scene;
 pub mod setup;
+pub mod stiffness;
+pub mod study;

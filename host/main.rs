@@ -85,6 +85,38 @@ enum Cmd {
         #[arg(long, default_value_t = 100)]
         bins: usize,
     },
+    /// Run a study (configs/studies/*.toml): a scene over a grid of parameters, in this process;
+    /// writes results.csv, results.md and error-against-run-time plots (PNG).
+    Study {
+        /// Study file (TOML), e.g. configs/studies/dustywave_n1.toml
+        study: PathBuf,
+        /// Output directory (default: output/studies/<study name>)
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write into a non-empty output directory (replaces only the study's own files)
+        #[arg(long)]
+        force: bool,
+        /// No line per point
+        #[arg(long, short)]
+        quiet: bool,
+        /// Validate the study and list its points; run nothing, write nothing
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// The stiffness and extremes matrix (IDIC): every case must stay finite, conserve momentum
+    /// to 1e-12, keep densities positive and match the exact wave/box solutions. Prints a line
+    /// per case; exit code 1 if any fails.
+    Stiffness {
+        /// The full grid (default: the reduced CI grid)
+        #[arg(long)]
+        full: bool,
+        /// Write the Markdown table to this file (e.g. docs/stiffness.md)
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Replace an existing --out file
+        #[arg(long)]
+        force: bool,
+    },
     /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
     Resume {
         dir: PathBuf,
@@ -308,6 +340,104 @@ fn main() -> ExitCode {
                     eprintln!("error: {e}");
                     ExitCode::from(1)
                 }
+            }
+        }
+        Cmd::Study {
+            study,
+            out,
+            force,
+            quiet,
+            dry_run,
+        } => {
+            let st = match dustsph::study::load(&study) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            if dry_run {
+                let all: Vec<usize> = (0..st.axes.len()).collect();
+                for (i, p) in st.points.iter().enumerate() {
+                    println!("{:>4}  {}", i + 1, st.describe(p, &all, false));
+                }
+                return ExitCode::SUCCESS;
+            }
+            let out = out.unwrap_or_else(|| PathBuf::from("output/studies").join(&st.cfg.name));
+            let command = format!(
+                "dustsph study {} --out {} --force",
+                study.display(),
+                out.display()
+            );
+            if !quiet {
+                eprintln!(
+                    "dustsph: study {} ({} points) → {}",
+                    study.display(),
+                    st.points.len(),
+                    out.display()
+                );
+            }
+            match dustsph::study::run(&st, &out, force, quiet, &command) {
+                Ok((results, files)) => {
+                    for f in &files {
+                        println!("wrote {}", f.display());
+                    }
+                    let failed = results
+                        .iter()
+                        .filter(|r| matches!(r.status, dustsph::study::Status::Failed(_)))
+                        .count();
+                    if failed > 0 {
+                        eprintln!("error: {failed} point(s) failed (see results.md)");
+                        return ExitCode::from(1);
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::from(1)
+                }
+            }
+        }
+        Cmd::Stiffness { full, out, force } => {
+            if let Some(o) = &out {
+                if o.exists() && !force {
+                    eprintln!("error: {} exists; give --force to replace it", o.display());
+                    return ExitCode::from(2);
+                }
+            }
+            let reports = dustsph::stiffness::run(full, |r| {
+                eprintln!(
+                    "{:<6} {} — {}: {} steps (explicit would need {:.0}), momentum drift {:.1e}",
+                    if r.passed() { "pass" } else { "FAIL" },
+                    r.group,
+                    r.name,
+                    r.steps,
+                    r.explicit_steps,
+                    r.momentum_drift
+                );
+                for f in &r.failures {
+                    eprintln!("       {f}");
+                }
+            });
+            let failed = reports.iter().filter(|r| !r.passed()).count();
+            if let Some(o) = &out {
+                let command = format!(
+                    "dustsph stiffness{} --out {} --force",
+                    if full { " --full" } else { "" },
+                    o.display()
+                );
+                let md = dustsph::stiffness::markdown(&reports, full, &command);
+                if let Err(e) = dustsph::io::write_bytes_atomic(o, md.as_bytes()) {
+                    eprintln!("error: {e}");
+                    return ExitCode::from(1);
+                }
+                println!("wrote {}", o.display());
+            }
+            println!("{} of {} cases pass", reports.len() - failed, reports.len());
+            if failed > 0 {
+                ExitCode::from(1)
+            } else {
+                ExitCode::SUCCESS
             }
         }
         Cmd::Resume {

@@ -1,7 +1,7 @@
 //! The driver: scene → set-up → step loop → snapshots and summary.
 use crate::analysis::{self, ExactErrors};
 use crate::engine::backend::{self, Backend, DeviceChoice};
-use crate::engine::Physics;
+use crate::engine::{step_size, Physics};
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::particles::State;
 use crate::scene::LoadedScene;
@@ -91,6 +91,10 @@ pub struct Summary {
     pub h: f64,
     pub idic_cell: f64,
     pub position_update: String,
+    /// `idic`, or `explicit` (the baseline: τ ≤ 0.9 t_s).
+    pub drag_method: &'static str,
+    /// Steps whose size the explicit drag's limit set (always 0 with IDIC).
+    pub drag_limited_steps: u64,
     pub pipeline: Vec<&'static str>,
     pub steps: u64,
     pub t_final: f64,
@@ -201,6 +205,9 @@ struct Progress {
     core: Vec<analysis::ball::CoreCheck>,
     /// Time of each snapshot (for the XDMF time series).
     snapshot_times: Vec<f64>,
+    /// Steps whose size the explicit drag's limit set.
+    #[serde(default)]
+    drag_limited_steps: u64,
 }
 
 /// Exact checks of the ball into vacuum (method.md §6.1).
@@ -279,6 +286,7 @@ impl Runner {
             lagrange_jacobi: Vec::new(),
             core: Vec::new(),
             snapshot_times: Vec::new(),
+            drag_limited_steps: 0,
         };
         let mut r = Runner {
             times: output_times(loaded),
@@ -476,8 +484,6 @@ impl Runner {
         checkpoint_every: Option<u64>,
         stop: Option<&std::sync::atomic::AtomicBool>,
     ) -> Result<Stop, RunError> {
-        let fixed_dt = self.loaded.scene.time.dt;
-        let cfl = self.loaded.scene.time.cfl;
         let h = self.eng.phys().h;
         let t_end = self.loaded.scene.time.t_end;
         let bar = progress_bar(self.verbose);
@@ -497,11 +503,18 @@ impl Runner {
                 .forces(&self.state)
                 .map_err(|e| RunError::Step(e.to_string()))?;
             let (dt_cfl, dt_force) = crate::engine::dt_limits(h, &forces);
-            let mut dt = match (fixed_dt, cfl) {
-                (Some(dt), _) => dt,
-                (None, Some(c)) => c * dt_cfl.min(dt_force),
-                _ => unreachable!("validated"),
+            let dt_drag = if self.eng.pipe().explicit_drag {
+                let t0 = std::time::Instant::now();
+                let d = self.eng.drag_dt_limit(&self.state);
+                self.eng
+                    .timers_mut()
+                    .add("drag time-step limit", t0.elapsed().as_secs_f64());
+                d
+            } else {
+                f64::INFINITY
             };
+            let (mut dt, by_drag) = step_size(&self.loaded.scene.time, dt_cfl, dt_force, dt_drag);
+            self.prog.drag_limited_steps += u64::from(by_drag);
             if !(dt.is_finite() && dt > 0.0) {
                 return Err(RunError::Step(format!(
                     "step {}: time step is {dt} (no signal speed or force to set it); give time.dt",
@@ -620,6 +633,8 @@ impl Runner {
             idic_cell: eng.phys().cell_size,
             position_update: format!("{:?}", eng.phys().position_update).to_lowercase(),
             pipeline: eng.pipe().stages(),
+            drag_method: eng.phys().drag.name(),
+            drag_limited_steps: prog.drag_limited_steps,
             steps: state.step,
             t_final: state.t,
             dt_min: prog.dt_min,

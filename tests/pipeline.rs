@@ -5,7 +5,7 @@ use dustsph::engine::cpu::CpuEngine;
 use dustsph::engine::{Physics, Pipeline};
 use dustsph::grid::Domain;
 use dustsph::particles::{Gas, Phase, State};
-use dustsph::scene::{DensityMethod, PositionUpdate};
+use dustsph::scene::{DensityMethod, DragMethod, PositionUpdate};
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
 
@@ -98,6 +98,7 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
         av: None,
         laws: vec![StoppingLaw::Epstein { s_rho: 1e-3 }],
         heating: false,
+        drag: DragMethod::Idic,
         cell_size: 0.5 * h,
         domain: Domain {
             dim: 1,
@@ -181,6 +182,7 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
         av: None,
         laws: vec![StoppingLaw::ConstantTime { t_stop: 1e-9 }],
         heating: false,
+        drag: DragMethod::Idic,
         cell_size: 0.5 * h,
         domain: Domain {
             dim: 1,

@@ -167,7 +167,9 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
                 reference: "exact (matrix) solution of the linear drag ODE; densities relative to ρ0, velocities relative to max|u0 − v0|".into(),
                 fields: all_phase_errors(state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
             });
-            if let Some(dt) = dt_fixed {
+            // The oracle is IDIC's own discrete solution; the explicit baseline has none here.
+            let idic = scene.drag.method == crate::scene::DragMethod::Idic;
+            if let Some(dt) = dt_fixed.filter(|_| idic) {
                 let n = (t / dt).round() as usize;
                 if ((n as f64) * dt - t).abs() <= 1e-9 * t.max(dt) {
                     let (vg, ud) = bx.implicit_euler(v0, &u0, dt, n);

@@ -147,6 +147,15 @@ impl Backend {
         }
     }
 
+    /// The explicit drag baseline's step limit (+∞ for IDIC, which never limits the step; the
+    /// baseline runs on the CPU only).
+    pub fn drag_dt_limit(&mut self, state: &State) -> f64 {
+        match self {
+            Backend::Cpu(e) => e.drag_dt_limit(state),
+            _ => f64::INFINITY,
+        }
+    }
+
     /// Bring the host state up to date with the device (a no-op on the CPU).
     pub fn sync(&mut self, state: &mut State) -> Result<(), StepError> {
         match self {

@@ -54,6 +54,9 @@ pub struct CpuEngine {
     pub timers: Timers,
     /// Whether dust densities are up to date (they are refreshed lazily when not needed by drag).
     dust_density_fresh: bool,
+    /// Explicit drag: the cell table of the current layer built for the time-step limit,
+    /// reused by the drag pass (only its gas momentum sums depend on τ and are redone).
+    limit_table: Option<CellTable>,
 }
 
 #[derive(Debug)]
@@ -92,6 +95,7 @@ impl CpuEngine {
             dust_idx: Vec::new(),
             timers: Timers::default(),
             dust_density_fresh: false,
+            limit_table: None,
         };
         eng.regrid(state)?;
         eng.gas_density_eos(state, None)?;
@@ -481,12 +485,88 @@ impl CpuEngine {
             .collect()
     }
 
-    /// IDIC drag: new gas and dust velocities from ṽ = v^n + τA^n (method.md §3.3).
-    /// Returns the drag heat per unit gas mass of every gas particle when heating is on.
-    fn idic(&self, state: &mut State, v_tilde: &[[f64; 3]], tau: f64) -> Option<Vec<f64>> {
-        let t = self.cell_table(state, v_tilde);
+    /// Explicit drag only: the largest step the drag allows at the current layer,
+    /// [`drag::EXPLICIT_SAFETY`]/Λ with Λ the fastest drag rate of any cell
+    /// ([`drag::explicit_rate`]); +∞ with IDIC (the drag never limits its step) or no coupling.
+    /// The table is kept for the drag pass of the step that follows.
+    pub fn drag_dt_limit(&mut self, state: &State) -> f64 {
+        if !self.pipe.explicit_drag {
+            return f64::INFINITY;
+        }
+        // ε_k and t_k* do not depend on the velocities handed to the cell sums.
+        let t = self.cell_table(state, &state.gas.ph.v);
         let nf = t.nf;
+        let rate = (0..t.n_cells)
+            .into_par_iter()
+            .map_init(
+                || vec![0.0; nf],
+                |inv_t, c| {
+                    for (k, r) in inv_t.iter_mut().enumerate() {
+                        let ts = t.t_stop[c * nf + k];
+                        *r = if ts.is_finite() { 1.0 / ts } else { 0.0 };
+                    }
+                    drag::explicit_rate(&t.eps[c * nf..(c + 1) * nf], inv_t)
+                },
+            )
+            .reduce(|| 0.0, f64::max);
+        self.limit_table = Some(t);
+        if rate > 0.0 {
+            drag::EXPLICIT_SAFETY / rate
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// Redo the gas momentum sums Σ m ṽ of a cell table of this layer for another ṽ.
+    fn redo_gas_momentum(&self, state: &State, v_tilde: &[[f64; 3]], t: &mut CellTable) {
+        let g = &state.gas.ph;
+        let sums: Vec<[f64; 3]> = (0..self.gas_idx.n_cells())
+            .into_par_iter()
+            .map(|c| {
+                let mut mom = [0.0; 3];
+                for i in self.gas_idx.cell_range(c) {
+                    if !g.is_fixed(i) {
+                        mom = dustsph_device::axpy(mom, g.m[i], v_tilde[i]);
+                    }
+                }
+                mom
+            })
+            .collect();
+        for (c, mom) in sums.into_iter().enumerate() {
+            t.gas_mom[t.gas_map[c] as usize] = mom;
+        }
+    }
+
+    /// The drag pass: new gas and dust velocities from ṽ = v^n + τA^n. IDIC (method.md §3.3)
+    /// solves each cell implicitly; the explicit baseline applies the same particle equations
+    /// with the drag at the known velocities (`drag::explicit_*_update`), from the same cell
+    /// sums. Returns the drag heat per unit gas mass of every gas particle when heating is on.
+    /// `table`: this layer's cell table if one was built already (explicit drag's limit).
+    fn idic(
+        &self,
+        state: &mut State,
+        v_tilde: &[[f64; 3]],
+        tau: f64,
+        table: Option<CellTable>,
+    ) -> Option<Vec<f64>> {
+        let t = match table {
+            Some(mut t) => {
+                self.redo_gas_momentum(state, v_tilde, &mut t);
+                t
+            }
+            None => self.cell_table(state, v_tilde),
+        };
+        let nf = t.nf;
+        let explicit = self.pipe.explicit_drag;
+        type GasUpd = fn([f64; 3], &[f64], &[f64], &[[f64; 3]]) -> [f64; 3];
+        type DustUpd = fn([f64; 3], f64, [f64; 3]) -> [f64; 3];
+        let (gas_update, dust_update): (GasUpd, DustUpd) = if explicit {
+            (drag::explicit_gas_update, drag::explicit_dust_update)
+        } else {
+            (drag::gas_update, drag::dust_update)
+        };
         // Cell solve: independent per cell, written into flat arrays (cell c, fraction k at c*nf+k).
+        // IDIC: v*^{n+1}, u_k*^{n+1}; explicit: the known means ṽ*, ũ_k*.
         let mut v_cell = vec![[0.0; 3]; t.n_cells];
         let mut u_cell = vec![[0.0; 3]; t.n_cells * nf];
         let mut beta_cell = vec![0.0; t.n_cells * nf];
@@ -513,7 +593,12 @@ impl CpuEngine {
                         let ts = t.t_stop[s];
                         beta[k] = drag::cell_beta(tau, ts.is_finite().then_some(ts));
                     }
-                    *vnew = drag::cell_solve(vt, ut, &t.eps[c * nf..(c + 1) * nf], beta, unew);
+                    *vnew = if explicit {
+                        unew.copy_from_slice(ut);
+                        vt
+                    } else {
+                        drag::cell_solve(vt, ut, &t.eps[c * nf..(c + 1) * nf], beta, unew)
+                    };
                 },
             );
         let gas_map = &t.gas_map;
@@ -528,7 +613,7 @@ impl CpuEngine {
                 }
                 let c = gas_map[gas_cell[i] as usize] as usize;
                 let r = c * nf..(c + 1) * nf;
-                drag::gas_update(
+                gas_update(
                     v_tilde[i],
                     &t.eps[r.clone()],
                     &beta_cell[r.clone()],
@@ -561,7 +646,7 @@ impl CpuEngine {
                         return d.v[j];
                     }
                     let c = map[idx.cell_of[j] as usize] as usize;
-                    drag::dust_update(d.v[j], beta_cell[c * nf + k], v_cell[c])
+                    dust_update(d.v[j], beta_cell[c * nf + k], v_cell[c])
                 })
                 .collect();
             if self.pipe.heating {
@@ -602,7 +687,13 @@ impl CpuEngine {
             .collect();
         let heat = if self.pipe.drag {
             let mut timers = std::mem::take(&mut self.timers);
-            let h = timers.time("idic", || self.idic(state, &v_tilde, tau));
+            let name = if self.pipe.explicit_drag {
+                "explicit drag"
+            } else {
+                "idic"
+            };
+            let table = self.limit_table.take();
+            let h = timers.time(name, || self.idic(state, &v_tilde, tau, table));
             self.timers = timers;
             h
         } else {

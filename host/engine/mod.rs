@@ -8,7 +8,7 @@ pub mod gpu;
 pub mod timers;
 
 use crate::grid::Domain;
-use crate::scene::{DensityMethod, EosKind, LawKind, PositionUpdate, Scene};
+use crate::scene::{DensityMethod, DragMethod, EosKind, LawKind, PositionUpdate, Scene, TimeCfg};
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
 use dustsph_device::sph::Viscosity;
@@ -24,6 +24,8 @@ pub struct Physics {
     /// One stopping-time law per dust fraction.
     pub laws: Vec<StoppingLaw<f64>>,
     pub heating: bool,
+    /// IDIC, or the explicit baseline (same cells, forward Euler, τ ≤ 0.9 t_s).
+    pub drag: DragMethod,
     /// Nominal IDIC cell size Δc (periodic axes round it so cells tile the period).
     pub cell_size: f64,
     pub domain: Domain,
@@ -77,6 +79,7 @@ impl Physics {
             av,
             laws,
             heating,
+            drag: scene.drag.method,
             cell_size: scene.idic.cell * h,
             domain,
             position_update: scene.time.position_update,
@@ -106,10 +109,28 @@ pub fn dt_limits(h: f64, f: &cpu::Forces) -> (f64, f64) {
     (dt_cfl, dt_force)
 }
 
+/// The step size τ: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit), and in
+/// either case no more than the drag limit `dt_drag` (finite only for the explicit drag).
+/// Returns (τ, whether the drag limit set it).
+pub fn step_size(time: &TimeCfg, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f64, bool) {
+    let base = match (time.dt, time.cfl) {
+        (Some(dt), _) => dt,
+        (None, Some(c)) => c * dt_cfl.min(dt_force),
+        (None, None) => f64::NAN,
+    };
+    if dt_drag < base {
+        (dt_drag, true)
+    } else {
+        (base, false)
+    }
+}
+
 /// Which stages a step runs; derived from [`Physics`], never set by hand.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Pipeline {
     pub drag: bool,
+    /// The drag is the explicit baseline (adds a drag time-step limit).
+    pub explicit_drag: bool,
     pub energy: bool,
     pub viscosity: bool,
     pub heating: bool,
@@ -125,6 +146,7 @@ impl Pipeline {
     pub fn from_physics(p: &Physics) -> Pipeline {
         Pipeline {
             drag: !p.laws.is_empty(),
+            explicit_drag: !p.laws.is_empty() && p.drag == DragMethod::Explicit,
             energy: matches!(p.eos, Eos::Adiabatic { .. }),
             viscosity: p.av.is_some(),
             heating: p.heating,
@@ -144,15 +166,19 @@ impl Pipeline {
         if self.energy {
             s.push("gas energy rate");
         }
-        if self.drag {
+        if self.explicit_drag {
+            s.push("explicit drag time-step limit (τ ≤ 0.9 t_s)");
+            s.push("explicit drag cell sums");
+            s.push("explicit drag particle velocities (forward Euler; gas, then dust)");
+        } else if self.drag {
             s.push("IDIC cell sums");
             s.push("IDIC cell solve");
             s.push("IDIC particle velocities (gas, then dust)");
-            if self.heating {
-                s.push("drag heating");
-            }
         } else {
             s.push("gas velocities (explicit)");
+        }
+        if self.drag && self.heating {
+            s.push("drag heating");
         }
         s.push("positions");
         if self.energy {

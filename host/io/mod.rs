@@ -14,7 +14,9 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-pub use output_dir::{prepare_output_dir, snapshot_name, write_json_atomic};
+pub use output_dir::{
+    owned_or_temporary, prepare_dir, prepare_output_dir, snapshot_name, write_json_atomic,
+};
 pub use snapshot::{
     read_snapshot, write_snapshot, PhaseData, PhaseView, SnapshotData, SnapshotView,
 };

@@ -56,6 +56,26 @@ fn is_ours(name: &str) -> bool {
 /// files: only remove files that this program writes (snapshot_*.h5, summary.json, *.tmp left by
 /// us) and keep everything else. Returns the canonical path.
 pub fn prepare_output_dir(dir: &Path, force: bool) -> Result<PathBuf, IoError> {
+    prepare_dir(dir, force, is_ours)
+}
+
+/// True for `name` or the temporary [`write_bytes_atomic`](super::write_bytes_atomic) writes
+/// it under (`.name.tmp`), when `owned(name)`.
+pub fn owned_or_temporary(name: &str, owned: impl Fn(&str) -> bool) -> bool {
+    let final_name = name
+        .strip_prefix('.')
+        .and_then(|s| s.strip_suffix(TMP_SUFFIX))
+        .unwrap_or(name);
+    owned(final_name)
+}
+
+/// [`prepare_output_dir`] with another notion of which files are ours (`is_ours(file name)`):
+/// `dustsph study` uses it for its own outputs.
+pub fn prepare_dir(
+    dir: &Path,
+    force: bool,
+    is_ours: impl Fn(&str) -> bool,
+) -> Result<PathBuf, IoError> {
     match fs::metadata(dir) {
         Ok(meta) if !meta.is_dir() => {
             return Err(IoError::invalid(
@@ -94,7 +114,7 @@ pub fn prepare_output_dir(dir: &Path, force: bool) -> Result<PathBuf, IoError> {
         // Only regular files: a directory or link that merely carries one of our names is the
         // user's, not ours.
         let is_file = entry.file_type().with_path(&entry.path())?.is_file();
-        if is_file && name.to_str().is_some_and(is_ours) {
+        if is_file && name.to_str().is_some_and(&is_ours) {
             fs::remove_file(entry.path()).with_path(&entry.path())?;
         }
     }

@@ -21,6 +21,9 @@ use crate::analysis::profiles::Profiles;
 use crate::analysis::radial::RadialCurve;
 use crate::io::{write_bytes_atomic, IoError, PhaseData, SnapshotData};
 
+pub mod loglog;
+pub use loglog::{fig_loglog, LogLogSeries};
+
 /// The embedded font (Bitstream Vera licence, see `DejaVuSans-LICENSE.txt`).
 const FONT_TTF: &[u8] = include_bytes!("DejaVuSans.ttf");
 /// The family plotters asks for by default; the embedded font is registered under it.

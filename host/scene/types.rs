@@ -4,7 +4,7 @@ use serde::Deserialize;
 type VResult = Result<(), (String, String)>;
 
 /// A number as a person would write it: plain in a friendly range, else in e-notation.
-pub(crate) fn num(v: f64) -> String {
+pub fn num(v: f64) -> String {
     if v == 0.0 || (1e-4..1e6).contains(&v.abs()) || !v.is_finite() {
         format!("{v}")
     } else {
@@ -52,6 +52,8 @@ pub struct Scene {
     pub sph: SphCfg,
     #[serde(default)]
     pub idic: IdicCfg,
+    #[serde(default)]
+    pub drag: DragCfg,
     pub time: TimeCfg,
     #[serde(default)]
     pub dustybox: Option<BoxCfg>,
@@ -207,6 +209,34 @@ impl Default for IdicCfg {
     fn default() -> Self {
         IdicCfg { cell: 0.5 }
     }
+}
+
+/// How the drag is integrated.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum DragMethod {
+    /// Implicit drag in cell (method.md §3): no time-step limit from the drag.
+    #[default]
+    Idic,
+    /// The comparison baseline: the same particle equations and cell means, drag evaluated at the
+    /// known velocities (forward Euler); needs τ ≤ 0.9 t_s (see `drag::explicit_rate`).
+    Explicit,
+}
+
+impl DragMethod {
+    pub fn name(self) -> &'static str {
+        match self {
+            DragMethod::Idic => "idic",
+            DragMethod::Explicit => "explicit",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DragCfg {
+    #[serde(default)]
+    pub method: DragMethod,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
@@ -383,6 +413,12 @@ impl Scene {
                     "must be between 0.05 and 4 (cell size in units of h; got {})",
                     num(self.idic.cell)
                 ),
+            ));
+        }
+        if self.drag.method == DragMethod::Explicit && self.dust.is_none() {
+            return Err((
+                "drag.method".into(),
+                "\"explicit\" drag needs a [dust] section (without dust there is no drag)".into(),
             ));
         }
         self.validate_time()?;

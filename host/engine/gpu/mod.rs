@@ -363,6 +363,12 @@ impl<L: Launcher> GpuEngine<L> {
                 "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
             )));
         }
+        if pipe.explicit_drag {
+            return Err(StepError::Blowup(
+                "the explicit drag baseline (drag.method = \"explicit\") runs on the CPU only; use --device cpu"
+                    .into(),
+            ));
+        }
         if pipe.continuity_density || pipe.variable_h {
             return Err(StepError::Blowup(
                 "sph.density = \"continuity\" and sph.variable_h run on the CPU only (use --device cpu)"

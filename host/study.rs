@@ -1,0 +1,1104 @@
+//! `dustsph study STUDY.toml`: one scene over a grid of parameters, run in this process, with
+//! error norms against the exact solution and wall times; writes `results.csv`, `results.md`
+//! and log–log plots of error against run time (one line per series).
+//!
+//! A study file (`configs/studies/`):
+//!
+//! ```toml
+//! [study]
+//! name = "dustywave_n1"
+//! scene = "../dustywave.toml"        # relative to the study file
+//! set = ["time.output_dt="]          # fixed --set overrides for every point
+//! series = ["drag.method"]           # axes whose values make the lines (the rest are points on them)
+//! metrics = ["max.l1", "rho_g.l1"]   # FIELD.NORM (l1, l2, linf) of the exact-solution errors at
+//!                                    # t_end; FIELD "max" is the largest over all fields
+//! plot = "max.l1"                    # the metric plotted (default: the first)
+//! repeat = 3                         # runs per point (median times) ...
+//! repeat_below = 2.0                 # ... when the first run's stepping took less (seconds)
+//! max_steps = 200000                 # points that would need more steps are skipped, with a row
+//! targets = [1e-2, 1e-3]             # "cheapest run reaching this error" table, per series
+//! plot_against = ["sph.n"]           # extra plots of the error against these (numeric) axes
+//! [[axis]]
+//! key = "drag.method"                # any scene key, as for --set
+//! values = ["idic", "explicit"]      # TOML values
+//! ```
+//!
+//! Every point's scene is built and validated before anything runs or is written.
+use crate::analysis::{self, ExactErrors};
+use crate::engine::cpu::CpuEngine;
+use crate::engine::{step_size, Physics};
+use crate::io::{self, IoError};
+use crate::plot::{fig_loglog, LogLogSeries};
+use crate::scene::{self, Scene};
+use crate::setup;
+use serde::Deserialize;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+fn one() -> usize {
+    1
+}
+fn default_max_steps() -> u64 {
+    200_000
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StudyFile {
+    study: StudyCfg,
+    #[serde(default)]
+    axis: Vec<AxisCfg>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StudyCfg {
+    pub name: String,
+    /// Heading of results.md and the plots (default: the name).
+    pub title: Option<String>,
+    /// A paragraph for results.md.
+    pub description: Option<String>,
+    /// Base scene, relative to the study file.
+    pub scene: PathBuf,
+    #[serde(default)]
+    pub set: Vec<String>,
+    #[serde(default)]
+    pub series: Vec<String>,
+    pub metrics: Vec<String>,
+    pub plot: Option<String>,
+    #[serde(default = "one")]
+    pub repeat: usize,
+    #[serde(default)]
+    pub repeat_below: f64,
+    #[serde(default = "default_max_steps")]
+    pub max_steps: u64,
+    #[serde(default)]
+    pub targets: Vec<f64>,
+    #[serde(default)]
+    pub plot_against: Vec<String>,
+    /// Threads of the runs (default 1: on a shared machine one thread's CPU time is a stable
+    /// measure of cost, and the points are small).
+    #[serde(default = "one")]
+    pub threads: usize,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisCfg {
+    /// A scene key (`--set` style), or with `sets` just the axis name.
+    pub key: String,
+    pub values: Vec<toml::Value>,
+    /// Instead of `key=value`: the overrides of each value (one list per value), for an axis
+    /// that moves several keys together (e.g. every fraction's t_stop by one scale).
+    pub sets: Option<Vec<Vec<String>>>,
+}
+
+/// A bad study file: which file, which key, what is wrong (as scene errors).
+#[derive(Debug, Clone)]
+pub struct StudyError {
+    pub file: PathBuf,
+    pub key: Option<String>,
+    pub msg: String,
+}
+
+impl std::fmt::Display for StudyError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.key {
+            Some(k) => write!(f, "{}: key `{}`: {}", self.file.display(), k, self.msg),
+            None => write!(f, "{}: {}", self.file.display(), self.msg),
+        }
+    }
+}
+impl std::error::Error for StudyError {}
+
+/// A metric: FIELD.NORM.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Metric {
+    pub field: String,
+    pub norm: Norm,
+    /// Which comparison of the scene (`FIELD.NORM@k`; 0, the first, by default): the ball has
+    /// 0 = inside r < R0 − 2h, 1 = the whole ball.
+    pub reference: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Norm {
+    L1,
+    L2,
+    Linf,
+}
+
+impl Metric {
+    fn parse(s: &str) -> Option<Metric> {
+        let (s, reference) = match s.split_once('@') {
+            Some((m, k)) => (m, k.parse().ok()?),
+            None => (s, 0),
+        };
+        let (field, norm) = s.rsplit_once('.')?;
+        let norm = match norm {
+            "l1" => Norm::L1,
+            "l2" => Norm::L2,
+            "linf" => Norm::Linf,
+            _ => return None,
+        };
+        (!field.is_empty()).then(|| Metric {
+            field: field.to_string(),
+            norm,
+            reference,
+        })
+    }
+
+    pub fn name(&self) -> String {
+        let n = match self.norm {
+            Norm::L1 => "l1",
+            Norm::L2 => "l2",
+            Norm::Linf => "linf",
+        };
+        if self.reference == 0 {
+            format!("{}.{n}", self.field)
+        } else {
+            format!("{}.{n}@{}", self.field, self.reference)
+        }
+    }
+
+    /// The value in its reference among `all` (NaN if missing).
+    fn of_all(&self, all: &[ExactErrors]) -> f64 {
+        all.get(self.reference).map_or(f64::NAN, |e| self.of(e))
+    }
+
+    /// The value in `e` (NaN if the field is missing).
+    fn of(&self, e: &ExactErrors) -> f64 {
+        let pick = |n: &analysis::norms::Norms| match self.norm {
+            Norm::L1 => n.l1,
+            Norm::L2 => n.l2,
+            Norm::Linf => n.linf,
+        };
+        if self.field == "max" {
+            e.fields
+                .iter()
+                .map(|f| pick(&f.norms))
+                .fold(f64::NAN, f64::max)
+        } else {
+            e.get(&self.field).map_or(f64::NAN, pick)
+        }
+    }
+}
+
+/// One point of the grid: a value index per axis, and its validated scene.
+#[derive(Debug, Clone)]
+pub struct Point {
+    pub index: Vec<usize>,
+    pub overrides: Vec<String>,
+    pub scene: Scene,
+}
+
+/// A loaded, fully validated study.
+#[derive(Debug, Clone)]
+pub struct Study {
+    pub file: PathBuf,
+    pub cfg: StudyCfg,
+    pub axes: Vec<AxisCfg>,
+    pub scene_file: PathBuf,
+    pub metrics: Vec<Metric>,
+    /// Index into `metrics` of the plotted one.
+    pub plot_metric: usize,
+    /// Axis indices of the series keys, and of the other axes.
+    pub series_axes: Vec<usize>,
+    pub point_axes: Vec<usize>,
+    pub plot_against: Vec<usize>,
+    pub points: Vec<Point>,
+}
+
+/// How a point ended.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Status {
+    Ok,
+    /// Not run: the first step's size says it would need this many steps (> max_steps).
+    Skipped(u64),
+    /// The run stopped (blow-up, bad time step, or more than max_steps steps).
+    Failed(String),
+}
+
+impl Status {
+    pub fn text(&self, max_steps: u64) -> String {
+        match self {
+            Status::Ok => "ok".into(),
+            Status::Skipped(n) => format!("skipped: would need ≈{n} steps (max_steps {max_steps})"),
+            Status::Failed(m) => format!("failed: {m}"),
+        }
+    }
+}
+
+/// Result of one point (times are medians over `runs`).
+#[derive(Debug, Clone)]
+pub struct PointResult {
+    pub status: Status,
+    pub steps: u64,
+    pub drag_limited_steps: u64,
+    pub dt_min: f64,
+    pub dt_max: f64,
+    pub runs: usize,
+    pub step_seconds: f64,
+    /// CPU seconds of the step loop (single-threaded studies; NaN otherwise).
+    pub step_cpu_seconds: f64,
+    pub total_seconds: f64,
+    pub metrics: Vec<f64>,
+    /// |P(t_end) − P(0)| / max_t Σ m|v|.
+    pub momentum_drift: f64,
+    /// The reference of the errors (first entry of the exact-solution comparison).
+    pub reference: String,
+}
+
+impl PointResult {
+    /// The cost plotted and ranked: the wall seconds of the step loop (single-threaded by
+    /// default; the CPU seconds beside them show whether other load inflated them — the CPU
+    /// clock here is too coarse, a few ms, to rank the shortest runs).
+    pub fn cost(&self) -> f64 {
+        self.step_seconds
+    }
+}
+
+/// A TOML value as a label: strings bare, numbers short.
+pub fn label_value(v: &toml::Value) -> String {
+    match v {
+        toml::Value::String(s) => s.clone(),
+        toml::Value::Float(f) => scene::num(*f),
+        toml::Value::Integer(i) => i.to_string(),
+        other => other.to_string(),
+    }
+}
+
+/// The last segment of a dotted key (`dust.fractions.0.t_stop` → `t_stop`).
+fn short_key(k: &str) -> &str {
+    k.rsplit('.')
+        .find(|s| s.parse::<usize>().is_err())
+        .unwrap_or(k)
+}
+
+/// Read and validate a study file, building every point's scene.
+pub fn load(path: &Path) -> Result<Study, StudyError> {
+    let err = |key: Option<String>, msg: String| StudyError {
+        file: path.to_path_buf(),
+        key,
+        msg,
+    };
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| err(None, format!("cannot read study file: {e}")))?;
+    let value: toml::Value = text
+        .parse::<toml::Table>()
+        .map(toml::Value::Table)
+        .map_err(|e| err(None, format!("not valid TOML: {e}")))?;
+    let f: StudyFile = serde_path_to_error::deserialize(value).map_err(|e| {
+        let key = e.path().to_string().replace('[', ".").replace(']', "");
+        let msg = e.into_inner().to_string();
+        let msg = match msg.find("\nin `").or_else(|| msg.find(" in `")) {
+            Some(i) => msg[..i].trim_end().to_string(),
+            None => msg,
+        };
+        err((key != "." && !key.is_empty()).then_some(key), msg)
+    })?;
+    let c = &f.study;
+    if c.name.trim().is_empty() {
+        return Err(err(Some("study.name".into()), "must not be empty".into()));
+    }
+    if c.repeat == 0 {
+        return Err(err(Some("study.repeat".into()), "must be ≥ 1".into()));
+    }
+    if !(c.repeat_below.is_finite() && c.repeat_below >= 0.0) {
+        return Err(err(
+            Some("study.repeat_below".into()),
+            "must be a finite number ≥ 0 (seconds)".into(),
+        ));
+    }
+    if c.threads == 0 {
+        return Err(err(Some("study.threads".into()), "must be ≥ 1".into()));
+    }
+    if c.max_steps == 0 {
+        return Err(err(Some("study.max_steps".into()), "must be ≥ 1".into()));
+    }
+    for (i, t) in c.targets.iter().enumerate() {
+        if !(t.is_finite() && *t > 0.0) {
+            return Err(err(
+                Some(format!("study.targets.{i}")),
+                "must be a finite number > 0".into(),
+            ));
+        }
+    }
+    if c.metrics.is_empty() {
+        return Err(err(
+            Some("study.metrics".into()),
+            "list at least one metric, e.g. \"max.l1\" or \"rho_g.l1\"".into(),
+        ));
+    }
+    let mut metrics = Vec::new();
+    for (i, m) in c.metrics.iter().enumerate() {
+        metrics.push(Metric::parse(m).ok_or_else(|| {
+            err(
+                Some(format!("study.metrics.{i}")),
+                format!("`{m}` is not FIELD.NORM[@k] with NORM one of l1, l2, linf"),
+            )
+        })?);
+    }
+    let plot_metric = match &c.plot {
+        None => 0,
+        Some(p) => c.metrics.iter().position(|m| m == p).ok_or_else(|| {
+            err(
+                Some("study.plot".into()),
+                format!("`{p}` is not one of study.metrics"),
+            )
+        })?,
+    };
+    if f.axis.is_empty() {
+        return Err(err(
+            Some("axis".into()),
+            "give at least one [[axis]] with key and values".into(),
+        ));
+    }
+    for (i, a) in f.axis.iter().enumerate() {
+        if a.key.trim().is_empty() || (a.sets.is_none() && a.key.contains('=')) {
+            return Err(err(
+                Some(format!("axis.{i}.key")),
+                "must be a scene key such as sph.n".into(),
+            ));
+        }
+        if a.values.is_empty() {
+            return Err(err(
+                Some(format!("axis.{i}.values")),
+                "must list at least one value".into(),
+            ));
+        }
+        if let Some(sets) = &a.sets {
+            if sets.len() != a.values.len() {
+                return Err(err(
+                    Some(format!("axis.{i}.sets")),
+                    format!(
+                        "needs one list of overrides per value ({}), got {}",
+                        a.values.len(),
+                        sets.len()
+                    ),
+                ));
+            }
+        }
+        if f.axis[..i].iter().any(|b| b.key == a.key) {
+            return Err(err(
+                Some(format!("axis.{i}.key")),
+                format!("`{}` is already an axis", a.key),
+            ));
+        }
+    }
+    let axis_of = |k: &str, key: String| {
+        f.axis
+            .iter()
+            .position(|a| a.key == k)
+            .ok_or_else(|| err(Some(key), format!("`{k}` is not the key of an [[axis]]")))
+    };
+    let series_axes = c
+        .series
+        .iter()
+        .enumerate()
+        .map(|(i, k)| axis_of(k, format!("study.series.{i}")))
+        .collect::<Result<Vec<_>, _>>()?;
+    let plot_against = c
+        .plot_against
+        .iter()
+        .enumerate()
+        .map(|(i, k)| axis_of(k, format!("study.plot_against.{i}")))
+        .collect::<Result<Vec<_>, _>>()?;
+    for (i, &a) in plot_against.iter().enumerate() {
+        if f.axis[a].values.iter().any(|v| as_number(v).is_none()) {
+            return Err(err(
+                Some(format!("study.plot_against.{i}")),
+                format!("axis `{}` has non-numeric values", f.axis[a].key),
+            ));
+        }
+    }
+    let point_axes: Vec<usize> = (0..f.axis.len())
+        .filter(|a| !series_axes.contains(a))
+        .collect();
+    let base = path.parent().unwrap_or(Path::new("."));
+    let scene_file = base.join(&c.scene);
+    let scene_text = std::fs::read_to_string(&scene_file).map_err(|e| {
+        err(
+            Some("study.scene".into()),
+            format!("cannot read {}: {e}", scene_file.display()),
+        )
+    })?;
+    // Every point, in axis order (the first axis varies slowest).
+    let mut points = Vec::new();
+    let n_points: usize = f.axis.iter().map(|a| a.values.len()).product();
+    for p in 0..n_points {
+        let mut index = vec![0; f.axis.len()];
+        let mut r = p;
+        for a in (0..f.axis.len()).rev() {
+            index[a] = r % f.axis[a].values.len();
+            r /= f.axis[a].values.len();
+        }
+        let mut overrides = c.set.clone();
+        for (a, &v) in index.iter().enumerate() {
+            match &f.axis[a].sets {
+                Some(sets) => overrides.extend(sets[v].iter().cloned()),
+                None => overrides.push(format!("{}={}", f.axis[a].key, f.axis[a].values[v])),
+            }
+        }
+        let scene = scene::parse(&scene_text, &scene_file, &overrides).map_err(|e| {
+            let at: Vec<String> = index
+                .iter()
+                .enumerate()
+                .map(|(a, &v)| format!("{}={}", f.axis[a].key, label_value(&f.axis[a].values[v])))
+                .collect();
+            let key = match &e.key {
+                Some(k) => match f.axis.iter().position(|a| &a.key == k) {
+                    Some(a) => Some(format!("axis.{a}.values.{}", index[a])),
+                    None => c
+                        .set
+                        .iter()
+                        .position(|s| s.split('=').next().map(str::trim) == Some(k.as_str()))
+                        .map(|i| format!("study.set.{i}")),
+                },
+                None => None,
+            };
+            err(key, format!("at point {}: {e}", at.join(", ")))
+        })?;
+        points.push(Point {
+            index,
+            overrides,
+            scene,
+        });
+    }
+    // Metric fields must exist in the scene's exact-solution comparison (names from t = 0).
+    let first = &points[0].scene;
+    let su = setup::build(first).map_err(|e| err(Some("study.scene".into()), e.to_string()))?;
+    let refs = analysis::exact_errors(first, &su.state, None);
+    let names: Vec<String> = refs
+        .first()
+        .map(|e| e.fields.iter().map(|f| f.field.clone()).collect())
+        .unwrap_or_default();
+    if names.is_empty() {
+        return Err(err(
+            Some("study.scene".into()),
+            format!(
+                "problem `{}` has no exact solution to measure errors against",
+                first.scene.problem.name()
+            ),
+        ));
+    }
+    for (i, m) in metrics.iter().enumerate() {
+        if m.reference >= refs.len() {
+            return Err(err(
+                Some(format!("study.metrics.{i}")),
+                format!(
+                    "@{}: this scene has {} comparison(s) (@0 … @{})",
+                    m.reference,
+                    refs.len(),
+                    refs.len() - 1
+                ),
+            ));
+        }
+        let names: Vec<String> = refs[m.reference]
+            .fields
+            .iter()
+            .map(|f| f.field.clone())
+            .collect();
+        if m.field != "max" && !names.contains(&m.field) {
+            return Err(err(
+                Some(format!("study.metrics.{i}")),
+                format!(
+                    "field `{}` is not compared for this scene (fields: max, {})",
+                    m.field,
+                    names.join(", ")
+                ),
+            ));
+        }
+    }
+    Ok(Study {
+        file: path.to_path_buf(),
+        cfg: f.study,
+        axes: f.axis,
+        scene_file,
+        metrics,
+        plot_metric,
+        series_axes,
+        point_axes,
+        plot_against,
+        points,
+    })
+}
+
+fn as_number(v: &toml::Value) -> Option<f64> {
+    match v {
+        toml::Value::Float(f) => Some(*f),
+        toml::Value::Integer(i) => Some(*i as f64),
+        _ => None,
+    }
+}
+
+/// One run of a scene without output: (status, steps, drag-limited steps, dt range, stepping
+/// seconds, total seconds, errors at t_end, momentum drift).
+struct Once {
+    status: Status,
+    steps: u64,
+    drag_limited: u64,
+    dt: (f64, f64),
+    step_s: f64,
+    /// CPU seconds of the step loop on this thread (single-threaded runs on Linux).
+    step_cpu: f64,
+    total_s: f64,
+    errors: Vec<ExactErrors>,
+    momentum_drift: f64,
+}
+
+fn run_once(scene: &Scene, max_steps: u64) -> Once {
+    let t0 = Instant::now();
+    let mut out = Once {
+        status: Status::Ok,
+        steps: 0,
+        drag_limited: 0,
+        dt: (f64::INFINITY, 0.0),
+        step_s: 0.0,
+        step_cpu: f64::NAN,
+        total_s: 0.0,
+        errors: Vec::new(),
+        momentum_drift: f64::NAN,
+    };
+    let fail = |mut o: Once, m: String| {
+        o.status = Status::Failed(m);
+        o.total_s = t0.elapsed().as_secs_f64();
+        o
+    };
+    let su = match setup::build(scene) {
+        Ok(s) => s,
+        Err(e) => return fail(out, e.to_string()),
+    };
+    let mut state = su.state;
+    let phys = Physics::from_scene(scene, su.h, su.domain);
+    let mut eng = match CpuEngine::new(phys, &mut state) {
+        Ok(e) => e,
+        Err(e) => return fail(out, e.to_string()),
+    };
+    let t_end = scene.time.t_end;
+    let p0 = state.total_momentum();
+    let mut pscale = state.momentum_scale();
+    let ts = Instant::now();
+    let cpu0 = thread_cpu_seconds();
+    while state.t < t_end {
+        let forces = eng.forces(&state);
+        let (dt_cfl, dt_force) = eng.dt_limits(&forces);
+        let dt_drag = eng.drag_dt_limit(&state);
+        let (mut dt, by_drag) = step_size(&scene.time, dt_cfl, dt_force, dt_drag);
+        if !(dt.is_finite() && dt > 0.0) {
+            let m = format!("step {}: time step {dt}", out.steps);
+            return fail(out, m);
+        }
+        if out.steps == 0 {
+            let need = (t_end / dt).ceil();
+            if need > max_steps as f64 {
+                out.status = Status::Skipped(need as u64);
+                out.total_s = t0.elapsed().as_secs_f64();
+                return out;
+            }
+        }
+        if out.steps >= max_steps {
+            return fail(out, format!("more than max_steps = {max_steps} steps"));
+        }
+        let landing = state.t + dt >= t_end - 1e-9 * dt;
+        if landing {
+            dt = t_end - state.t;
+        }
+        if let Err(e) = eng.advance(&mut state, &forces, dt) {
+            return fail(out, e.to_string());
+        }
+        if landing {
+            state.t = t_end;
+        }
+        out.steps += 1;
+        out.drag_limited += u64::from(by_drag);
+        out.dt = (out.dt.0.min(dt), out.dt.1.max(dt));
+        pscale = pscale.max(state.momentum_scale());
+    }
+    out.step_s = ts.elapsed().as_secs_f64();
+    if let (Some(a), Some(b)) = (cpu0, thread_cpu_seconds()) {
+        out.step_cpu = b - a;
+    }
+    eng.refresh_dust_density(&mut state);
+    out.errors = analysis::exact_errors(scene, &state, scene.time.dt);
+    let p1 = state.total_momentum();
+    let dp = ((0..3).map(|d| (p1[d] - p0[d]).powi(2)).sum::<f64>()).sqrt();
+    out.momentum_drift = if pscale > 0.0 { dp / pscale } else { dp };
+    out.total_s = t0.elapsed().as_secs_f64();
+    out
+}
+
+/// CPU time of the calling thread (Linux: /proc/thread-self/schedstat, nanoseconds).
+fn thread_cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: f64 = s.split_whitespace().next()?.parse().ok()?;
+    Some(ns * 1e-9)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+impl Study {
+    /// `key=value, ...` of a point over the given axes.
+    pub fn describe(&self, p: &Point, axes: &[usize], short: bool) -> String {
+        axes.iter()
+            .map(|&a| {
+                let k = &self.axes[a].key;
+                let k = if short { short_key(k) } else { k.as_str() };
+                let v = &self.axes[a].values[p.index[a]];
+                match v {
+                    toml::Value::String(s) if short => s.clone(),
+                    _ => format!("{k}={}", label_value(v)),
+                }
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    /// Run one point: once, and again up to `repeat` times while the first stepping took less
+    /// than `repeat_below` seconds (times are medians; errors come from the first run, the
+    /// runs being deterministic).
+    pub fn run_point(&self, p: &Point) -> PointResult {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(self.cfg.threads)
+            .build();
+        let once = || match &pool {
+            Ok(pool) => pool.install(|| run_once(&p.scene, self.cfg.max_steps)),
+            Err(_) => run_once(&p.scene, self.cfg.max_steps),
+        };
+        let single = self.cfg.threads == 1 && pool.is_ok();
+        let first = once();
+        let mut step = vec![first.step_s];
+        let mut cpu = vec![first.step_cpu];
+        let mut total = vec![first.total_s];
+        if first.status == Status::Ok && first.step_s < self.cfg.repeat_below {
+            for _ in 1..self.cfg.repeat {
+                let o = once();
+                step.push(o.step_s);
+                cpu.push(o.step_cpu);
+                total.push(o.total_s);
+            }
+        }
+        PointResult {
+            runs: step.len(),
+            step_cpu_seconds: if single { median(cpu) } else { f64::NAN },
+            step_seconds: median(step),
+            total_seconds: median(total),
+            metrics: self
+                .metrics
+                .iter()
+                .map(|m| m.of_all(&first.errors))
+                .collect(),
+            reference: first
+                .errors
+                .iter()
+                .enumerate()
+                .map(|(k, e)| format!("@{k}: {}", e.reference))
+                .collect::<Vec<_>>()
+                .join("; "),
+            status: first.status,
+            steps: first.steps,
+            drag_limited_steps: first.drag_limited,
+            dt_min: first.dt.0,
+            dt_max: first.dt.1,
+            momentum_drift: first.momentum_drift,
+        }
+    }
+
+    fn series_label(&self, p: &Point) -> String {
+        if self.series_axes.is_empty() {
+            "all points".into()
+        } else {
+            self.describe(p, &self.series_axes, true)
+        }
+    }
+
+    /// Distinct series in order of first appearance, with the points (indices) on each.
+    fn series(&self) -> Vec<(String, Vec<usize>)> {
+        let mut out: Vec<(String, Vec<usize>)> = Vec::new();
+        for (i, p) in self.points.iter().enumerate() {
+            let l = self.series_label(p);
+            match out.iter_mut().find(|s| s.0 == l) {
+                Some(s) => s.1.push(i),
+                None => out.push((l, vec![i])),
+            }
+        }
+        out
+    }
+
+    /// Write results.csv, results.md and the plots into `dir` (already prepared).
+    pub fn write(
+        &self,
+        dir: &Path,
+        results: &[PointResult],
+        command: &str,
+    ) -> Result<Vec<PathBuf>, IoError> {
+        let mut files = Vec::new();
+        // CSV
+        let mut csv = String::new();
+        let mut head: Vec<String> = vec!["series".into()];
+        head.extend(self.axes.iter().map(|a| a.key.clone()));
+        head.extend(
+            [
+                "status",
+                "steps",
+                "drag_limited_steps",
+                "dt_min",
+                "dt_max",
+                "runs",
+                "step_seconds",
+                "step_cpu_seconds",
+                "total_seconds",
+            ]
+            .map(String::from),
+        );
+        head.extend(self.metrics.iter().map(|m| m.name()));
+        head.push("momentum_drift".into());
+        let quote = |s: &str| {
+            if s.contains([',', '"', '\n']) {
+                format!("\"{}\"", s.replace('"', "\"\""))
+            } else {
+                s.to_string()
+            }
+        };
+        csv.push_str(&head.iter().map(|h| quote(h)).collect::<Vec<_>>().join(","));
+        csv.push('\n');
+        for (p, r) in self.points.iter().zip(results) {
+            let mut row = vec![quote(&self.series_label(p))];
+            row.extend(
+                self.axes
+                    .iter()
+                    .zip(&p.index)
+                    .map(|(a, &i)| quote(&a.values[i].to_string())),
+            );
+            row.push(quote(&r.status.text(self.cfg.max_steps)));
+            row.push(r.steps.to_string());
+            row.push(r.drag_limited_steps.to_string());
+            for v in [r.dt_min, r.dt_max] {
+                row.push(if r.steps > 0 {
+                    format!("{v:e}")
+                } else {
+                    String::new()
+                });
+            }
+            row.push(r.runs.to_string());
+            row.push(format!("{:.6}", r.step_seconds));
+            row.push(if r.step_cpu_seconds.is_finite() {
+                format!("{:.6}", r.step_cpu_seconds)
+            } else {
+                String::new()
+            });
+            row.push(format!("{:.6}", r.total_seconds));
+            for m in &r.metrics {
+                row.push(if m.is_finite() {
+                    format!("{m:e}")
+                } else {
+                    String::new()
+                });
+            }
+            row.push(if r.momentum_drift.is_finite() {
+                format!("{:e}", r.momentum_drift)
+            } else {
+                String::new()
+            });
+            csv.push_str(&row.join(","));
+            csv.push('\n');
+        }
+        let p = dir.join("results.csv");
+        io::write_bytes_atomic(&p, csv.as_bytes())?;
+        files.push(p);
+
+        // Plots
+        let series = self.series();
+        let styles = self.styles(&series);
+        let pm = self.plot_metric;
+        let title = self.cfg.title.clone().unwrap_or(self.cfg.name.clone());
+        let mk = |x: &dyn Fn(usize) -> f64| -> Vec<LogLogSeries> {
+            series
+                .iter()
+                .zip(&styles)
+                .map(|((label, idx), &(color, style))| LogLogSeries {
+                    label: label.clone(),
+                    points: idx
+                        .iter()
+                        .filter(|&&i| results[i].status == Status::Ok)
+                        .map(|&i| (x(i), results[i].metrics[pm]))
+                        .collect(),
+                    color,
+                    style,
+                })
+                .collect()
+        };
+        let p = dir.join("error_vs_time.png");
+        let x_desc = format!(
+            "wall time of the step loop, {} thread{} [s]",
+            self.cfg.threads,
+            if self.cfg.threads == 1 { "" } else { "s" }
+        );
+        fig_loglog(
+            &p,
+            &format!("{title}: error against run time"),
+            &x_desc,
+            &self.metrics[pm].name(),
+            &mk(&|i| results[i].cost()),
+        )?;
+        files.push(p);
+        for &a in &self.plot_against {
+            let key = &self.axes[a].key;
+            let p = dir.join(format!("error_vs_{}.png", key.replace('.', "_")));
+            fig_loglog(
+                &p,
+                &format!("{title}: error against {key}"),
+                key,
+                &self.metrics[pm].name(),
+                &mk(&|i| {
+                    as_number(&self.axes[a].values[self.points[i].index[a]]).unwrap_or(f64::NAN)
+                }),
+            )?;
+            files.push(p);
+        }
+
+        // Markdown
+        let p = dir.join("results.md");
+        io::write_bytes_atomic(&p, self.markdown(results, command, &files).as_bytes())?;
+        files.push(p);
+        Ok(files)
+    }
+
+    /// Colour and marker of each series: the first series axis picks the marker/dash, the
+    /// others the colour (one axis: colour and marker both follow it).
+    fn styles(&self, series: &[(String, Vec<usize>)]) -> Vec<(usize, usize)> {
+        let mut colors: Vec<String> = Vec::new();
+        series
+            .iter()
+            .map(|(_, idx)| {
+                let p = &self.points[idx[0]];
+                let style = self.series_axes.first().map_or(0, |&a| p.index[a]);
+                let rest = if self.series_axes.len() > 1 {
+                    self.describe(p, &self.series_axes[1..], true)
+                } else {
+                    self.describe(p, &self.series_axes, true)
+                };
+                let color = match colors.iter().position(|c| *c == rest) {
+                    Some(c) => c,
+                    None => {
+                        colors.push(rest);
+                        colors.len() - 1
+                    }
+                };
+                (color, style)
+            })
+            .collect()
+    }
+
+    fn markdown(&self, results: &[PointResult], command: &str, files: &[PathBuf]) -> String {
+        let c = &self.cfg;
+        let mut s = String::new();
+        let title = c.title.clone().unwrap_or(c.name.clone());
+        let _ = writeln!(s, "# {title}\n");
+        if let Some(d) = &c.description {
+            let _ = writeln!(s, "{}\n", d.trim());
+        }
+        let _ = writeln!(
+            s,
+            "Generated by `{command}` (dustsph {}, git {}).\n",
+            env!("CARGO_PKG_VERSION"),
+            env!("DUSTSPH_GIT")
+        );
+        let _ = writeln!(
+            s,
+            "- Study file: `{}`; base scene: `{}`; fixed overrides: {}",
+            self.file.display(),
+            self.scene_file.display(),
+            if c.set.is_empty() {
+                "none".to_string()
+            } else {
+                c.set
+                    .iter()
+                    .map(|x| format!("`{x}`"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            }
+        );
+        let _ = writeln!(
+            s,
+            "- Backend: CPU (rayon, {} thread(s)), f64. **step s** = wall time of the time-step loop, the cost plotted and ranked; **cpu s** = CPU time of that loop on its one thread (single-threaded studies; a cpu s well below step s means other load slowed the run; the CPU clock read here ticks in milliseconds, so it is rough for the shortest runs); **total s** (wall) adds set-up, initial densities and the error evaluation. Times are the median of up to {} runs when the first step loop took < {} s (column *runs*).",
+            c.threads,
+            c.repeat,
+            c.repeat_below
+        );
+        if let Some(r) = results.iter().find(|r| !r.reference.is_empty()) {
+            let _ = writeln!(s, "- Errors at t_end against (FIELD.NORM@k uses comparison k, @0 when not given): {}. `max.*` is the largest norm over all compared fields.", r.reference);
+        }
+        let _ = writeln!(
+            s,
+            "- Points whose first step shows they would need more than {} steps are not run (status *skipped*), and say how many they would need.",
+            c.max_steps
+        );
+        let _ = writeln!(
+            s,
+            "- Momentum drift = |P(t_end) − P(0)| / max_t Σ m|v| (scenes with fixed wall particles exchange momentum with the walls: there it is not a conservation check).\n"
+        );
+        for f in files {
+            if f.extension().is_some_and(|e| e == "png") {
+                if let Some(n) = f.file_name() {
+                    let n = n.to_string_lossy();
+                    let _ = writeln!(s, "![{n}]({n})\n");
+                }
+            }
+        }
+        // Table
+        let mut head: Vec<String> = self.axes.iter().map(|a| format!("`{}`", a.key)).collect();
+        head.extend(
+            [
+                "steps", "dt min", "dt max", "runs", "step s", "cpu s", "total s",
+            ]
+            .map(String::from),
+        );
+        head.extend(self.metrics.iter().map(|m| m.name()));
+        head.extend(["momentum drift", "status"].map(String::from));
+        let _ = writeln!(s, "| {} |", head.join(" | "));
+        let _ = writeln!(s, "|{}", "---|".repeat(head.len()));
+        let g = |v: f64| {
+            if v.is_finite() {
+                format!("{v:.3e}")
+            } else {
+                "–".into()
+            }
+        };
+        for (p, r) in self.points.iter().zip(results) {
+            let mut row: Vec<String> = self
+                .axes
+                .iter()
+                .zip(&p.index)
+                .map(|(a, &i)| label_value(&a.values[i]).replace('|', "\\|"))
+                .collect();
+            let ran = r.status == Status::Ok;
+            row.push(if r.steps > 0 {
+                r.steps.to_string()
+            } else {
+                "–".into()
+            });
+            row.push(if r.steps > 0 {
+                g(r.dt_min)
+            } else {
+                "–".into()
+            });
+            row.push(if r.steps > 0 {
+                g(r.dt_max)
+            } else {
+                "–".into()
+            });
+            row.push(r.runs.to_string());
+            row.push(if ran {
+                format!("{:.3}", r.step_seconds)
+            } else {
+                "–".into()
+            });
+            row.push(if ran && r.step_cpu_seconds.is_finite() {
+                format!("{:.3}", r.step_cpu_seconds)
+            } else {
+                "–".into()
+            });
+            row.push(if ran {
+                format!("{:.3}", r.total_seconds)
+            } else {
+                "–".into()
+            });
+            row.extend(r.metrics.iter().map(|&m| g(m)));
+            row.push(g(r.momentum_drift));
+            row.push(r.status.text(c.max_steps));
+            let _ = writeln!(s, "| {} |", row.join(" | "));
+        }
+        // Cheapest run reaching each target error, per series.
+        if !c.targets.is_empty() {
+            let pm = self.plot_metric;
+            let _ = writeln!(
+                s,
+                "\n## Cheapest run reaching a target `{}`\n\nFor each series, the run with the smallest step-loop wall time (step s) among those whose error is at or below the target (no interpolation).\n",
+                self.metrics[pm].name()
+            );
+            let mut head = vec!["series".to_string()];
+            head.extend(c.targets.iter().map(|t| format!("≤ {}", scene::num(*t))));
+            let _ = writeln!(s, "| {} |", head.join(" | "));
+            let _ = writeln!(s, "|{}", "---|".repeat(head.len()));
+            for (label, idx) in self.series() {
+                let mut row = vec![label];
+                for &t in &c.targets {
+                    let best = idx
+                        .iter()
+                        .filter(|&&i| {
+                            results[i].status == Status::Ok && results[i].metrics[pm] <= t
+                        })
+                        .min_by(|&&a, &&b| {
+                            results[a].step_seconds.total_cmp(&results[b].step_seconds)
+                        });
+                    row.push(match best {
+                        Some(&i) => format!(
+                            "{:.3} s ({}{})",
+                            results[i].cost(),
+                            self.describe(&self.points[i], &self.point_axes, true),
+                            format_args!(", {} steps", results[i].steps)
+                        ),
+                        None => "not reached".into(),
+                    });
+                }
+                let _ = writeln!(s, "| {} |", row.join(" | "));
+            }
+        }
+        s
+    }
+}
+
+/// The names `dustsph study` writes into its output directory.
+pub fn is_study_output(name: &str) -> bool {
+    io::owned_or_temporary(name, |n| {
+        n == "results.csv"
+            || n == "results.md"
+            || (n.starts_with("error_vs_") && n.ends_with(".png"))
+    })
+}
+
+/// Run a loaded study into `out` (prepared with the `--out`/`--force` policy of `run`); prints a
+/// line per point on stderr unless `quiet`. Returns the results and the files written.
+pub fn run(
+    study: &Study,
+    out: &Path,
+    force: bool,
+    quiet: bool,
+    command: &str,
+) -> Result<(Vec<PointResult>, Vec<PathBuf>), IoError> {
+    let dir = io::prepare_dir(out, force, is_study_output)?;
+    let n = study.points.len();
+    let mut results = Vec::with_capacity(n);
+    for (i, p) in study.points.iter().enumerate() {
+        let r = study.run_point(p);
+        if !quiet {
+            let all: Vec<usize> = (0..study.axes.len()).collect();
+            eprintln!(
+                "[{}/{n}] {}: {} steps, {:.3} s (cpu {:.3} s), {} = {:.3e}  {}",
+                i + 1,
+                study.describe(p, &all, true),
+                r.steps,
+                r.step_seconds,
+                r.step_cpu_seconds,
+                study.metrics[study.plot_metric].name(),
+                r.metrics[study.plot_metric],
+                r.status.text(study.cfg.max_steps)
+            );
+        }
+        results.push(r);
+    }
+    let files = study.write(&dir, &results, command)?;
+    Ok((results, files))
+}
