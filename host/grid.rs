@@ -144,6 +144,16 @@ impl Grid {
         Ok(Grid { geom: g })
     }
 
+    /// The same cells with another search radius (neighbour reach); keys are unchanged.
+    pub fn with_support(&self, support: f64) -> Grid {
+        let mut g = self.geom;
+        g.support = support;
+        for k in 0..g.dim as usize {
+            g.reach[k] = (support / g.cell[k] - 1e-12).ceil().max(1.0) as u64;
+        }
+        Grid { geom: g }
+    }
+
     #[inline(always)]
     pub fn key(&self, x: [f64; 3]) -> u64 {
         self.geom.key(x)

@@ -139,7 +139,9 @@ fn report(s: &Summary, out: &std::path::Path) {
         s.particle_steps_per_second,
         out.join("summary.json").display()
     );
-    if let Some(last) = s.errors.iter().rev().find(|e| e.t == s.t_final) {
+    for last in s.errors.iter().filter(|e| e.t == s.t_final) {
+        let r = &last.reference;
+        println!("  vs {}", r.split(';').next().unwrap_or(r));
         for f in &last.fields {
             println!(
                 "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",

@@ -75,6 +75,10 @@ pub struct Gas {
     pub c: Vec<f64>,
     /// Specific internal energy: adiabatic gas only.
     pub e: Option<Vec<f64>>,
+    /// Per-particle smoothing length and grad-h term Ω (variable-h SPH only; `None` until the
+    /// first density solve).
+    pub h: Option<Vec<f64>>,
+    pub omega: Option<Vec<f64>>,
 }
 
 impl Gas {
@@ -83,8 +87,11 @@ impl Gas {
         let apply = |v: &mut Vec<f64>| *v = perm.iter().map(|&p| v[p as usize]).collect();
         apply(&mut self.p);
         apply(&mut self.c);
-        if let Some(e) = &mut self.e {
-            apply(e);
+        for f in [&mut self.e, &mut self.h, &mut self.omega]
+            .into_iter()
+            .flatten()
+        {
+            apply(f);
         }
     }
 

@@ -55,6 +55,8 @@ pub fn state_from_snapshot(s: &SnapshotData) -> State {
         p: g.p.clone().unwrap_or_else(|| vec![0.0; g.x.len()]),
         c: vec![0.0; g.x.len()],
         e: g.e.clone(),
+        h: None,
+        omega: None,
     });
     let dust = s.dust.as_ref().map_or_else(Vec::new, |d| {
         let fr = d.fraction.clone().unwrap_or_else(|| vec![0; d.x.len()]);

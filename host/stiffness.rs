@@ -14,7 +14,7 @@ use crate::engine::{step_size, Physics};
 use crate::exact::complex::C;
 use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
-use crate::scene::{self, DragMethod, PositionUpdate, Scene};
+use crate::scene::{self, DensityMethod, DragMethod, PositionUpdate, Scene};
 use crate::setup::{self, dustywave};
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -302,6 +302,8 @@ fn slab() -> (Physics, State, f64, f64) {
             p: vec![0.0; ng],
             c: vec![0.0; ng],
             e: None,
+            h: None,
+            omega: None,
         },
         dust: vec![dust0, dust1],
     };
@@ -323,6 +325,8 @@ fn slab() -> (Physics, State, f64, f64) {
             periodic: [None; 3],
         },
         position_update: PositionUpdate::New,
+        density: DensityMethod::Summation,
+        variable_h: None,
     };
     (phys, st, 1e-3, 0.5)
 }

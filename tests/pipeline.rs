@@ -5,7 +5,7 @@ use dustsph::engine::cpu::CpuEngine;
 use dustsph::engine::{Physics, Pipeline};
 use dustsph::grid::Domain;
 use dustsph::particles::{Gas, Phase, State};
-use dustsph::scene::{DragMethod, PositionUpdate};
+use dustsph::scene::{DensityMethod, DragMethod, PositionUpdate};
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
 
@@ -85,6 +85,8 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
             p: vec![0.0; n],
             c: vec![0.0; n],
             e: Some(vec![2.5; n]),
+            h: None,
+            omega: None,
         },
         dust: vec![phase(0.5 * dx, n as u64)],
     };
@@ -103,6 +105,8 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
             periodic: [None; 3],
         },
         position_update: PositionUpdate::New,
+        density: DensityMethod::Summation,
+        variable_h: None,
     };
     assert!(Pipeline::from_physics(&phys).drag);
     let mut eng = CpuEngine::new(phys, &mut st).unwrap();
@@ -158,6 +162,8 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
             p: vec![0.0; n],
             c: vec![0.0; n],
             e: None,
+            h: None,
+            omega: None,
         },
         dust: vec![Phase {
             x: dxs.clone(),
@@ -183,6 +189,8 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
             periodic: [None; 3],
         },
         position_update: PositionUpdate::New,
+        density: DensityMethod::Summation,
+        variable_h: None,
     };
     let mut eng = CpuEngine::new(phys, &mut st).unwrap();
     for _ in 0..10 {

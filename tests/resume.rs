@@ -71,6 +71,12 @@ fn resumed_ball_is_bit_identical() {
 }
 
 #[test]
+fn resumed_variable_h_wave_is_bit_identical() {
+    // 3D close-packed slab, variable h (h and Ω travel in the checkpoint), constant-K drag.
+    resume_is_bit_exact("dustywave_phantom", &["sph.n=16", "dustywave.layers=6"], 10);
+}
+
+#[test]
 fn resumed_shock_tube_is_bit_identical() {
     // Viscosity, drag heating, fixed walls, CFL time step.
     resume_is_bit_exact("dustyshock", &["sph.n=400"], 30);

@@ -13,7 +13,13 @@ fn err(scene: &str, sets: &[&str]) -> SceneError {
 
 #[test]
 fn every_scene_in_configs_is_valid() {
-    for s in ["dustybox", "dustywave", "dustyshock"] {
+    for s in [
+        "dustybox",
+        "dustywave",
+        "dustyshock",
+        "dustywave_phantom",
+        "dustywave_phantom_poly",
+    ] {
         load(&config(s), &[]).unwrap_or_else(|e| panic!("{e}"));
     }
 }
@@ -42,7 +48,17 @@ fn impossible_values_name_their_key_and_file() {
         ("dustywave", "time.cfl=2", "time.cfl"),
         ("dustybox", "time.t_end=0", "time.t_end"),
         ("dustybox", "scene.dim=4", "scene.dim"),
-        ("dustywave", "scene.dim=3", "scene.dim"),
+        ("dustyshock", "scene.dim=3", "scene.dim"),
+        (
+            "dustywave_phantom",
+            "dustywave.layers=8",
+            "dustywave.layers",
+        ),
+        (
+            "dustywave_phantom",
+            "sph.density=\"continuity\"",
+            "sph.variable_h",
+        ),
         ("dustybox", "dustybox.u_dust=[1.0]", "dustybox.u_dust"),
         ("dustybox", "dust.fractions.0.k=1.0", "dust.fractions.0.k"),
         ("dustybox", "dust.heating=true", "dust.heating"),

@@ -4,7 +4,14 @@ use crate::Real;
 /// Integer cell coordinate of `x` on a lattice of spacing `dc` anchored at `origin`.
 #[inline(always)]
 pub fn cell_coord<R: Real>(x: R, origin: R, inv_dc: R) -> i64 {
-    ((x - origin) * inv_dc).floor().to_f64() as i64
+    // ⌊v⌋ by truncation and a correction (no libm floor); NaN gives 0 as before.
+    let v = ((x - origin) * inv_dc).to_f64();
+    let t = v as i64;
+    if (t as f64) > v {
+        t - 1
+    } else {
+        t
+    }
 }
 
 /// Row-major key of a cell with non-negative coordinates inside an (nx, ny, nz) box.

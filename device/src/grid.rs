@@ -25,17 +25,6 @@ pub struct GridGeom<R> {
     pub periodic: [u32; 3],
 }
 
-#[inline(always)]
-fn ceil_u64<R: Real>(x: R) -> u64 {
-    let f = x.floor();
-    let c = if f < x { f + R::ONE } else { f };
-    if c > R::ZERO {
-        c.to_f64() as u64
-    } else {
-        0
-    }
-}
-
 impl<R: Real> GridGeom<R> {
     #[inline(always)]
     pub fn is_periodic(&self, k: usize) -> bool {
@@ -139,7 +128,8 @@ impl<R: Real> GridGeom<R> {
         if self.is_periodic(k) && self.n[k] - d < d {
             d = self.n[k] - d;
         }
-        R::from_f64(d.saturating_sub(1) as f64) * self.cell[k]
+        // Only cells within reach get here (d ≤ reach): the u32 conversion is exact and cheap.
+        R::from_f64(d.saturating_sub(1) as u32 as f64) * self.cell[k]
     }
 
     /// Calls `f(lo_key, hi_key)` for every row of cells (inclusive key range along x) that may
@@ -161,18 +151,22 @@ impl<R: Real> GridGeom<R> {
                         if g2 >= s2 {
                             continue;
                         }
-                        let rx = ceil_u64((s2 - g2).sqrt() / self.cell[0]);
-                        let rx = if rx < self.reach[0] {
-                            rx
-                        } else {
-                            self.reach[0]
-                        };
+                        // Reach along x for this row: the largest r ≤ reach whose cell gap
+                        // (r − 1)Δ is inside the sphere, ((r − 1)Δ)² < s² − g² (= ⌈√(s² − g²)/Δ⌉
+                        // without a square root or a float → integer conversion).
+                        let d2 = s2 - g2;
+                        let mut rx = self.reach[0];
+                        while rx > 1 {
+                            let g = R::from_f64((rx - 1) as u32 as f64) * self.cell[0];
+                            if g * g < d2 {
+                                break;
+                            }
+                            rx -= 1;
+                        }
                         let (xr, nx) = self.axis_ranges(0, c[0], rx);
+                        let row = (iz * self.n[1] + iy) * self.n[0];
                         for &(x0, x1) in &xr[..nx] {
-                            f(
-                                self.key_of_coord([x0, iy, iz]),
-                                self.key_of_coord([x1, iy, iz]),
-                            );
+                            f(row + x0, row + x1);
                         }
                     }
                 }

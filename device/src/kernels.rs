@@ -7,6 +7,7 @@
 use crate::drag::{self, CellMeans, StoppingLaw};
 use crate::eos::Eos;
 use crate::grid::{for_neighbours, CellLookup, GridGeom};
+use crate::kernel::KernelAt;
 use crate::sph::{self, GasPair, GasState, Viscosity};
 use crate::{add, axpy, scale, update, Real, Vec3};
 
@@ -42,11 +43,114 @@ pub fn density_at<R: Real>(
     if is_fixed(fixed, i) {
         return rho_fixed;
     }
+    let k = KernelAt::new(h, dim);
     let mut rho = R::ZERO;
     for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, _, r2| {
-        rho += sph::density_term(m[j], r2.sqrt(), h, dim);
+        rho += m[j] * k.w(r2.sqrt());
     });
     rho
+}
+
+/// Continuity-equation density rate of particle i within its own phase:
+/// dρ_i/dt = Σ_j m_j (v_i − v_j)·∇_i W_ij (zero for fixed particles).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn density_rate_at<R: Real>(
+    s: &Sorted<'_, R>,
+    v: &[Vec3<R>],
+    m: &[R],
+    fixed: &[bool],
+    i: usize,
+    h: R,
+    dim: u32,
+) -> R {
+    if is_fixed(fixed, i) {
+        return R::ZERO;
+    }
+    let vi = v[i];
+    let k = KernelAt::new(h, dim);
+    let mut rate = R::ZERO;
+    for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, dx, r2| {
+        rate += sph::density_rate_term(m[j], vi, v[j], dx, r2.sqrt(), &k);
+    });
+    rate
+}
+
+/// Variable smoothing length (Price 2012; Phantom): h_i solves Σ_j m_j W(r_ij, h_i) =
+/// m_i (hfact/h_i)^d. Result of [`solve_h_at`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HSolve<R> {
+    pub h: R,
+    /// ρ_i = m_i (hfact/h_i)^d at the accepted h.
+    pub rho: R,
+    /// The grad-h term Ω_i = 1 + (h_i/(d ρ_i)) Σ_j m_j ∂W_ij/∂h_i.
+    pub omega: R,
+    /// Newton iterations used (neighbour passes).
+    pub iterations: u32,
+    /// False if h would leave (0, h_max] or the iteration did not settle.
+    pub ok: bool,
+}
+
+/// Newton–Raphson for h_i from the guess `h0` (the previous step's h): one neighbour pass per
+/// iteration; stops when the relative correction is below `tol`, and accepts the corrected h.
+/// `h_max` is half the search radius of the grid: h must stay below it. Fixed particles keep
+/// `h0` and `rho_fixed`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn solve_h_at<R: Real>(
+    s: &Sorted<'_, R>,
+    m: &[R],
+    fixed: &[bool],
+    rho_fixed: R,
+    i: usize,
+    h0: R,
+    hfact: R,
+    h_max: R,
+    tol: R,
+    dim: u32,
+) -> HSolve<R> {
+    if is_fixed(fixed, i) {
+        return HSolve {
+            h: h0,
+            rho: rho_fixed,
+            omega: R::ONE,
+            iterations: 0,
+            ok: true,
+        };
+    }
+    let d = R::from_f64(dim as f64);
+    let mhd = m[i] * crate::kernel::h_pow_dim(hfact, dim);
+    let mut h = h0;
+    let mut it = 0;
+    loop {
+        let k = KernelAt::new(h, dim);
+        let (mut sum, mut dsum) = (R::ZERO, R::ZERO);
+        for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, _, r2| {
+            let r = r2.sqrt();
+            sum += m[j] * k.w(r);
+            dsum += m[j] * k.dw_dh(r);
+        });
+        it += 1;
+        let rho_h = mhd / crate::kernel::h_pow_dim(h, dim);
+        // f(h) = Σ m W(h) − m (hfact/h)^d;  f'(h) = Σ m ∂W/∂h + d ρ_h / h.
+        let f = sum - rho_h;
+        let df = dsum + d * rho_h / h;
+        let h_new = h - f / df;
+        let done = (h_new - h).abs() < tol * h;
+        let bad = !(h_new > R::ZERO && h_new <= h_max && df > R::ZERO) || it >= 30;
+        if done || bad {
+            let hh = if bad { h } else { h_new };
+            let rho = mhd / crate::kernel::h_pow_dim(hh, dim);
+            return HSolve {
+                h: hh,
+                rho,
+                omega: R::ONE + h / (d * rho_h) * dsum,
+                iterations: it,
+                ok: done && !bad,
+            };
+        }
+        h = h_new;
+    }
 }
 
 /// The gas fields the force loop reads.
@@ -94,12 +198,56 @@ pub fn forces_at<R: Real>(
         return out;
     }
     let a = g.state(s.x[i], i);
+    let k = KernelAt::new(h, dim);
+    let pa = a.p / (a.rho * a.rho);
     out.vsig = a.c;
-    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, _| {
+    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, r2| {
         if j == i {
             return;
         }
-        let pr = sph::gas_pair(&a, &g.state(s.x[j], j), dx, h, dim, av);
+        let b = g.state(s.x[j], j);
+        let pb = b.p / (b.rho * b.rho);
+        let pr = sph::gas_pair(&a, &b, pa, pb, dx, r2, &k, av);
+        out.acc = add(out.acc, pr.acc);
+        out.dedt += pr.dedt;
+        out.vsig = out.vsig.max(pr.vsig);
+    });
+    out
+}
+
+/// [`forces_at`] for variable smoothing lengths, with per-particle kernels `k` (at h_j) and
+/// pressure terms `pt` = p_j/(Ω_j ρ_j²) (grad-h, Price 2012):
+/// A_i = −Σ_j m_j [pt_i ∇W_ij(h_i) + pt_j ∇W_ij(h_j) + Π_ij ∇̄W_ij],
+/// de_i/dt = pt_i Σ_j m_j v_ij·∇W_ij(h_i) + ½ Σ_j m_j Π_ij v_ij·∇̄W_ij, with ∇̄W the mean of the
+/// two gradients. The grid's search radius must cover 2 max h.
+#[inline(always)]
+pub fn forces_vh_at<R: Real>(
+    s: &Sorted<'_, R>,
+    g: &GasView<'_, R>,
+    k: &[KernelAt<R>],
+    pt: &[R],
+    i: usize,
+    av: Option<&Viscosity<R>>,
+) -> GasPair<R> {
+    let mut out = GasPair {
+        acc: [R::ZERO; 3],
+        dedt: R::ZERO,
+        vsig: R::ZERO,
+    };
+    if is_fixed(g.fixed, i) {
+        return out;
+    }
+    let a = g.state(s.x[i], i);
+    let (ka, pa) = (k[i], pt[i]);
+    out.vsig = a.c;
+    let s2 = R::from_f64(crate::kernel::SUPPORT * crate::kernel::SUPPORT);
+    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, r2| {
+        // Only pairs within either support: the result must not depend on the search radius.
+        let hm = ka.h.max(k[j].h);
+        if j == i || r2 >= s2 * hm * hm {
+            return;
+        }
+        let pr = sph::gas_pair_vh(&a, &g.state(s.x[j], j), pa, pt[j], dx, r2, &ka, &k[j], av);
         out.acc = add(out.acc, pr.acc);
         out.dedt += pr.dedt;
         out.vsig = out.vsig.max(pr.vsig);

@@ -30,6 +30,20 @@ pub fn density_term<R: Real>(m_b: R, r: R, h: R, dim: u32) -> R {
     m_b * kernel::w(r, h, dim)
 }
 
+/// Contribution of a neighbour b at separation r_ab (|r_ab| = r) to the continuity-equation
+/// density rate of a: m_b (v_a − v_b)·∇_a W_ab (zero for b = a, where ∇W = 0).
+#[inline(always)]
+pub fn density_rate_term<R: Real>(
+    m_b: R,
+    v_a: Vec3<R>,
+    v_b: Vec3<R>,
+    dx: Vec3<R>,
+    r: R,
+    k: &kernel::KernelAt<R>,
+) -> R {
+    m_b * dot(crate::sub(v_a, v_b), dx) * k.grad_factor(r)
+}
+
 /// μ_ab = h (v_ab·r_ab)/(|r_ab|² + ν²).
 #[inline(always)]
 pub fn mu<R: Real>(vr: R, r2: R, h: R, nu2_factor: R) -> R {
@@ -58,24 +72,45 @@ pub struct GasPair<R> {
 }
 
 /// The gas–gas pair term for particle a from neighbour b, with r_ab = `dx` (minimum image for
-/// periodic boundaries). Momentum: −m_b (p_a/ρ_a² + p_b/ρ_b² + Π_ab) ∇_a W_ab, antisymmetric in
-/// a↔b, so total momentum is conserved to round-off. Energy: (p_a/ρ_a²) m_b v_ab·∇W +
-/// ½ m_b Π_ab v_ab·∇W.
+/// periodic boundaries) and the kernel `k` at the global h. Momentum: −m_b (p_a/ρ_a² + p_b/ρ_b² +
+/// Π_ab) ∇_a W_ab, antisymmetric in a↔b, so total momentum is conserved to round-off. Energy:
+/// (p_a/ρ_a²) m_b v_ab·∇W + ½ m_b Π_ab v_ab·∇W. `pa` = p_a/ρ_a², `pb` = p_b/ρ_b².
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 pub fn gas_pair<R: Real>(
     a: &GasState<R>,
     b: &GasState<R>,
+    pa: R,
+    pb: R,
     dx: Vec3<R>,
-    h: R,
-    dim: u32,
+    r2: R,
+    k: &kernel::KernelAt<R>,
     av: Option<&Viscosity<R>>,
 ) -> GasPair<R> {
-    let r2 = dot(dx, dx);
-    let r = r2.sqrt();
-    let f = kernel::grad_w_factor(r, h, dim);
+    let f = k.grad_factor(r2.sqrt());
     let dv = crate::sub(a.v, b.v);
     let vr = dot(dv, dx);
-    let (pi, vsig) = match av {
+    let (pi, vsig) = viscous(a, b, vr, r2, k.h, av);
+    let coef = -b.m * (pa + pb + pi) * f;
+    let vgrad = vr * f;
+    GasPair {
+        acc: [coef * dx[0], coef * dx[1], coef * dx[2]],
+        dedt: b.m * (pa + R::from_f64(0.5) * pi) * vgrad,
+        vsig,
+    }
+}
+
+/// Monaghan Π_ab and the pair signal speed (c_a without viscosity).
+#[inline(always)]
+fn viscous<R: Real>(
+    a: &GasState<R>,
+    b: &GasState<R>,
+    vr: R,
+    r2: R,
+    h: R,
+    av: Option<&Viscosity<R>>,
+) -> (R, R) {
+    match av {
         Some(av) => {
             let cbar = R::from_f64(0.5) * (a.c + b.c);
             let rhobar = R::from_f64(0.5) * (a.rho + b.rho);
@@ -89,14 +124,38 @@ pub fn gas_pair<R: Real>(
             (pi, a.c + R::from_f64(1.2) * (av.alpha * cbar + av.beta * m))
         }
         None => (R::ZERO, a.c),
-    };
-    let pa = a.p / (a.rho * a.rho);
-    let pb = b.p / (b.rho * b.rho);
-    let coef = -b.m * (pa + pb + pi) * f;
-    let vgrad = vr * f;
+    }
+}
+
+/// [`gas_pair`] with variable smoothing lengths (kernels `ka`, `kb` at h_a, h_b) and grad-h
+/// terms folded into `pa` = p_a/(Ω_a ρ_a²), `pb` = p_b/(Ω_b ρ_b²) (Price 2012, eqs. 35–36):
+/// each side's pressure term uses its own kernel gradient; the artificial viscosity uses the
+/// mean gradient and the mean h.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn gas_pair_vh<R: Real>(
+    a: &GasState<R>,
+    b: &GasState<R>,
+    pa: R,
+    pb: R,
+    dx: Vec3<R>,
+    r2: R,
+    ka: &kernel::KernelAt<R>,
+    kb: &kernel::KernelAt<R>,
+    av: Option<&Viscosity<R>>,
+) -> GasPair<R> {
+    let r = r2.sqrt();
+    let fa = ka.grad_factor(r);
+    let fb = kb.grad_factor(r);
+    let dv = crate::sub(a.v, b.v);
+    let vr = dot(dv, dx);
+    let half = R::from_f64(0.5);
+    let (pi, vsig) = viscous(a, b, vr, r2, half * (ka.h + kb.h), av);
+    let fbar = half * (fa + fb);
+    let coef = -b.m * (pa * fa + pb * fb + pi * fbar);
     GasPair {
         acc: [coef * dx[0], coef * dx[1], coef * dx[2]],
-        dedt: b.m * (pa + R::from_f64(0.5) * pi) * vgrad,
+        dedt: b.m * (pa * fa + half * pi * fbar) * vr,
         vsig,
     }
 }

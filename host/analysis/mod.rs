@@ -99,6 +99,24 @@ fn phase_errors(
     ]
 }
 
+/// v_x errors of one phase normalised by the rms of the exact v_x over its particles (all three
+/// norms use that scale); mass-weighted like every other norm (equal masses: plain means).
+fn relative_velocity_error(name: &str, ph: &Phase, exact: impl Fn([f64; 3]) -> f64) -> FieldError {
+    let active: Vec<usize> = (0..ph.len()).filter(|&i| !ph.is_fixed(i)).collect();
+    let m: Vec<f64> = active.iter().map(|&i| ph.m[i]).collect();
+    let ex: Vec<f64> = active.iter().map(|&i| exact(ph.x[i])).collect();
+    let rms = Norms::of(&ex, &m).l2.max(f64::MIN_POSITIVE);
+    let err: Vec<f64> = active
+        .iter()
+        .zip(&ex)
+        .map(|(&i, e)| (ph.v[i][0] - e) / rms)
+        .collect();
+    FieldError {
+        field: name.into(),
+        norms: Norms::of(&err, &m),
+    }
+}
+
 fn all_phase_errors(
     state: &State,
     rho_scale: &dyn Fn(usize) -> f64,
@@ -188,6 +206,21 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
                     |x| (dustywave::field(rho0, a, y.rho_g, k, x[0]), dustywave::field(0.0, a, y.v_g, k, x[0])),
                     |kf, x| (dustywave::field(rd0[kf], a, y.rho_d[kf], k, x[0]), dustywave::field(0.0, a, y.v_d[kf], k, x[0])),
                 ),
+            });
+            // Phantom's DUSTYWAVE metric: L2 of v_x − exact over the particles of a phase,
+            // divided by the rms of the exact v_x over the same particles.
+            let mut fields = vec![relative_velocity_error("v_g", &state.gas.ph, |x| {
+                dustywave::field(0.0, a, y.v_g, k, x[0])
+            })];
+            for (kf, d) in state.dust.iter().enumerate() {
+                fields.push(relative_velocity_error(&format!("u_d{kf}"), d, |x| {
+                    dustywave::field(0.0, a, y.v_d[kf], k, x[0])
+                }));
+            }
+            out.push(ExactErrors {
+                t,
+                reference: "exact linear solution; v_x errors relative to the rms of the exact v_x of the phase (Phantom's DUSTYWAVE metric: l2 = L2(v_x − v_exact)/rms(v_exact))".into(),
+                fields,
             });
         }
         Problem::Dustyshock => {

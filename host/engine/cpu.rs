@@ -64,13 +64,15 @@ pub enum StepError {
     Grid(GridError),
     /// A non-finite value or negative density: step, phase, particle id, field.
     Blowup(String),
+    /// The scene asks for something this backend does not do.
+    Unsupported(String),
 }
 
 impl std::fmt::Display for StepError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             StepError::Grid(e) => write!(f, "grid: {e}"),
-            StepError::Blowup(s) => f.write_str(s),
+            StepError::Blowup(s) | StepError::Unsupported(s) => f.write_str(s),
         }
     }
 }
@@ -98,7 +100,7 @@ impl CpuEngine {
             limit_table: None,
         };
         eng.regrid(state)?;
-        eng.gas_density_eos(state);
+        eng.gas_density_eos(state, None)?;
         eng.refresh_dust_density(state);
         eng.check(state)?;
         Ok(eng)
@@ -111,7 +113,7 @@ impl CpuEngine {
         self.grid = Grid::build(
             &self.phys.domain,
             self.phys.cell_size,
-            self.phys.support(),
+            self.search_support(state),
             &xs,
         )?;
         let (perm, idx) = CellIndex::sort(&self.grid, &state.gas.ph.x);
@@ -124,6 +126,63 @@ impl CpuEngine {
             self.dust_idx.push(idx);
         }
         Ok(())
+    }
+
+    /// Search radius of the grid: the kernel support 2h; with variable h, 2 max h_a plus 0.1% for
+    /// the growth of h within a step (the density solve widens it further if needed).
+    fn search_support(&self, state: &State) -> f64 {
+        let base = self.phys.support();
+        match (&state.gas.h, self.pipe.variable_h) {
+            (Some(h), true) => {
+                let hmax = h.par_iter().copied().reduce(|| 0.0, f64::max);
+                base.max(kernel::SUPPORT * hmax * (1.0 + 1e-3))
+            }
+            _ => base,
+        }
+    }
+
+    /// Variable h: solve h_a, ρ_a, Ω_a of every gas particle by Newton–Raphson from the
+    /// current h (the reference h at the start). A particle whose h would outgrow the search
+    /// radius widens the grid's reach (same cells and order) and the solve is repeated.
+    fn solve_gas_h(&mut self, state: &mut State, hfact: f64) -> Result<(), StepError> {
+        const TOL: f64 = 1e-4; // Phantom's tolh
+        let dim = self.phys.dim;
+        let n = state.gas.ph.len();
+        let h0 = state.gas.h.take().unwrap_or_else(|| vec![self.phys.h; n]);
+        for _attempt in 0..40 {
+            let ph = &state.gas.ph;
+            let s = self.sorted(&self.gas_idx, &ph.x);
+            let fixed = ph.fixed.as_deref().unwrap_or(&[]);
+            let h_max = self.grid.geom.support / kernel::SUPPORT;
+            let out: Vec<kernels::HSolve<f64>> = (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    kernels::solve_h_at(
+                        &s, &ph.m, fixed, ph.rho[i], i, h0[i], hfact, h_max, TOL, dim,
+                    )
+                })
+                .collect();
+            if let Some(i) = out.iter().position(|o| !o.ok) {
+                if out[i].iterations < 30 && self.grid.geom.support < 1e300 {
+                    // h ran into the search radius: widen it and solve again.
+                    self.grid = self.grid.with_support(1.02 * self.grid.geom.support);
+                    continue;
+                }
+                return Err(StepError::Blowup(format!(
+                    "step {}: variable h did not converge for gas particle id {} (h = {:e})",
+                    state.step, ph.id[i], out[i].h
+                )));
+            }
+            let g = &mut state.gas;
+            g.ph.rho = out.iter().map(|o| o.rho).collect();
+            g.h = Some(out.iter().map(|o| o.h).collect());
+            g.omega = Some(out.iter().map(|o| o.omega).collect());
+            return Ok(());
+        }
+        Err(StepError::Blowup(format!(
+            "step {}: variable h outgrew every search radius",
+            state.step
+        )))
     }
 
     /// Visit same-phase neighbours j of particle i within the kernel support; `f(j, dx, r2)`.
@@ -165,9 +224,32 @@ impl CpuEngine {
             .collect()
     }
 
-    fn gas_density_eos(&mut self, state: &mut State) {
-        let rho = self.density(&self.gas_idx, &state.gas.ph);
-        state.gas.ph.rho = rho;
+    /// Gas density at the current (new) positions, then the EOS. Summation; or, for the
+    /// continuity equation, ρ += τ dρ/dt with the current velocities and positions (`tau`
+    /// `None` at start-up and on resume: the state's density is kept as it is).
+    fn gas_density_eos(&mut self, state: &mut State, tau: Option<f64>) -> Result<(), StepError> {
+        if let Some(hfact) = self.phys.variable_h {
+            // On resume the state carries h, Ω and ρ of the last step: keep them as they are.
+            let resumed = tau.is_none() && state.gas.h.is_some() && state.gas.omega.is_some();
+            if !resumed {
+                self.solve_gas_h(state, hfact)?;
+            }
+        } else if !self.pipe.continuity_density {
+            let rho = self.density(&self.gas_idx, &state.gas.ph);
+            state.gas.ph.rho = rho;
+        } else if let Some(tau) = tau {
+            let (h, dim) = (self.phys.h, self.phys.dim);
+            let ph = &state.gas.ph;
+            let s = self.sorted(&self.gas_idx, &ph.x);
+            let fixed = ph.fixed.as_deref().unwrap_or(&[]);
+            let rho: Vec<f64> = (0..ph.len())
+                .into_par_iter()
+                .map(|i| {
+                    ph.rho[i] + tau * kernels::density_rate_at(&s, &ph.v, &ph.m, fixed, i, h, dim)
+                })
+                .collect();
+            state.gas.ph.rho = rho;
+        }
         let eos = self.phys.eos;
         let g = &mut state.gas;
         let e = g.e.as_deref();
@@ -180,6 +262,7 @@ impl CpuEngine {
             })
             .collect();
         (g.p, g.c) = out.into_iter().unzip();
+        Ok(())
     }
 
     /// Dust densities for output (and for constant-K drag, which refreshes them every step).
@@ -222,10 +305,26 @@ impl CpuEngine {
             c: &g.c,
             fixed: g.ph.fixed.as_deref().unwrap_or(&[]),
         };
+        // Variable h: each particle's kernel constants and p/(Ω ρ²), once per step.
+        let vh: Option<(Vec<kernel::KernelAt<f64>>, Vec<f64>)> =
+            g.h.as_deref().zip(g.omega.as_deref()).map(|(hv, om)| {
+                let k = hv
+                    .par_iter()
+                    .map(|&h| kernel::KernelAt::new(h, dim))
+                    .collect();
+                let pt = (0..hv.len())
+                    .into_par_iter()
+                    .map(|i| g.p[i] / (om[i] * g.ph.rho[i] * g.ph.rho[i]))
+                    .collect();
+                (k, pt)
+            });
         let out: Vec<([f64; 3], f64, f64)> = (0..g.ph.len())
             .into_par_iter()
             .map(|i| {
-                let r = kernels::forces_at(&s, &view, i, h, dim, av);
+                let r = match &vh {
+                    Some((k, pt)) => kernels::forces_vh_at(&s, &view, k, pt, i, av),
+                    None => kernels::forces_at(&s, &view, i, h, dim, av),
+                };
                 (r.acc, r.dedt, r.vsig)
             })
             .collect();
@@ -642,7 +741,9 @@ impl CpuEngine {
             }
         });
         timers.time("grid rebuild + sort", || self.regrid(state))?;
-        timers.time("gas density + EOS", || self.gas_density_eos(state));
+        timers.time("gas density + EOS", || {
+            self.gas_density_eos(state, Some(tau))
+        })?;
         self.dust_density_fresh = false;
         if self.pipe.dust_density_each_step {
             timers.time("dust density", || self.refresh_dust_density(state));

@@ -8,7 +8,7 @@ pub mod gpu;
 pub mod timers;
 
 use crate::grid::Domain;
-use crate::scene::{DragMethod, EosKind, LawKind, PositionUpdate, Scene, TimeCfg};
+use crate::scene::{DensityMethod, DragMethod, EosKind, LawKind, PositionUpdate, Scene, TimeCfg};
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
 use dustsph_device::sph::Viscosity;
@@ -30,6 +30,11 @@ pub struct Physics {
     pub cell_size: f64,
     pub domain: Domain,
     pub position_update: PositionUpdate,
+    /// Gas density by summation, or by the continuity equation.
+    pub density: DensityMethod,
+    /// Variable-h gas (Phantom's): `Some(hfact)`; `h` is then the initial/reference h (IDIC
+    /// cells, CFL, dust densities).
+    pub variable_h: Option<f64>,
 }
 
 impl Physics {
@@ -78,6 +83,8 @@ impl Physics {
             cell_size: scene.idic.cell * h,
             domain,
             position_update: scene.time.position_update,
+            density: scene.sph.density,
+            variable_h: scene.sph.variable_h.then(|| scene.sph.hfact.unwrap_or(1.2)),
         }
     }
 
@@ -129,6 +136,10 @@ pub struct Pipeline {
     pub heating: bool,
     /// Dust SPH density every step (constant-K drag needs it); otherwise only for output.
     pub dust_density_each_step: bool,
+    /// Gas density from the continuity equation instead of summation.
+    pub continuity_density: bool,
+    /// Variable smoothing length (grad-h SPH) for the gas.
+    pub variable_h: bool,
 }
 
 impl Pipeline {
@@ -140,6 +151,8 @@ impl Pipeline {
             viscosity: p.av.is_some(),
             heating: p.heating,
             dust_density_each_step: p.laws.iter().any(|l| l.needs_dust_density()),
+            continuity_density: p.density == DensityMethod::Continuity,
+            variable_h: p.variable_h.is_some(),
         }
     }
 
@@ -172,7 +185,13 @@ impl Pipeline {
             s.push("gas energy");
         }
         s.push("grid rebuild + sort");
-        s.push("gas density + EOS");
+        s.push(if self.continuity_density {
+            "gas density (continuity equation) + EOS"
+        } else if self.variable_h {
+            "gas h and density (variable h, Newton–Raphson) + EOS"
+        } else {
+            "gas density + EOS"
+        });
         if self.drag && self.dust_density_each_step {
             s.push("dust density");
         }

@@ -78,8 +78,14 @@ pub fn write_checkpoint(path: &Path, state: &State, meta: &CheckpointMeta) -> Re
         let g = put_phase(&file, "gas", &state.gas.ph, path)?;
         put_dataset(&g, "p", &state.gas.p, 1, path)?;
         put_dataset(&g, "c", &state.gas.c, 1, path)?;
-        if let Some(e) = &state.gas.e {
-            put_dataset(&g, "e", e, 1, path)?;
+        for (name, f) in [
+            ("e", &state.gas.e),
+            ("h", &state.gas.h),
+            ("omega", &state.gas.omega),
+        ] {
+            if let Some(f) = f {
+                put_dataset(&g, name, f, 1, path)?;
+            }
         }
         for (k, d) in state.dust.iter().enumerate() {
             put_phase(&file, &format!("dust{k}"), d, path)?;
@@ -105,6 +111,8 @@ pub fn read_checkpoint(path: &Path) -> Result<(State, CheckpointMeta), IoError> 
         p: get_column(&g, "p", n, path)?,
         c: get_column(&g, "c", n, path)?,
         e: get_optional(&g, "e", n, path)?,
+        h: get_optional(&g, "h", n, path)?,
+        omega: get_optional(&g, "omega", n, path)?,
         ph: gas_ph,
     };
     let dust = (0..n_dust)
@@ -151,6 +159,8 @@ mod tests {
                 p: vec![0.7; 7],
                 c: vec![1.1; 7],
                 e: Some(vec![2.5; 7]),
+                h: Some(vec![0.01; 7]),
+                omega: None,
             },
             dust: vec![ph(5, false), ph(0, false)],
         };

@@ -156,12 +156,35 @@ pub struct SphCfg {
     pub hfact: Option<f64>,
     /// Absolute smoothing length (instead of hfact).
     pub h: Option<f64>,
+    /// Variable smoothing length for the gas (Phantom's): h_a = hfact (m_a/ρ_a)^(1/d) solved
+    /// with the density by Newton–Raphson, grad-h terms in the forces. Needs `hfact`; dust
+    /// densities keep the fixed h. CPU only.
+    #[serde(default)]
+    pub variable_h: bool,
+    /// How the gas density is obtained: `summation` (the default) or `continuity`.
+    #[serde(default)]
+    pub density: DensityMethod,
     #[serde(default)]
     pub viscosity: bool,
     #[serde(default = "one")]
     pub alpha: f64,
     #[serde(default = "two")]
     pub beta: f64,
+}
+
+/// Gas density method (dust densities are always summed).
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum DensityMethod {
+    /// ρ_a = Σ_b m_b W_ab every step (method.md §2).
+    #[default]
+    Summation,
+    /// dρ_a/dt = Σ_b m_b v_ab·∇_a W_ab, integrated with the new velocities at the new
+    /// positions: ρ^{n+1} = ρ^n + τ Σ_b m_b v_ab^{n+1}·∇_a W_ab(x^{n+1}); the initial density is
+    /// the set-up's (exact) one. With a fixed h, summation responds to a compression through
+    /// the lattice sum Σ W(h/Δ), whose slope at h = 1.2Δ mis-scales the pressure response by
+    /// ~10% (docs/phantom_comparison.md); the continuity form does not. CPU only.
+    Continuity,
 }
 
 fn one() -> f64 {
@@ -263,6 +286,18 @@ pub enum WaveMode {
     Sine,
 }
 
+/// Particle lattice of the 2D/3D wave (the 1D wave is a uniform line either way).
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Lattice {
+    /// Close-packed: hexagonal rows in 2D, face-centred cubic (ABC-stacked hexagonal layers)
+    /// in 3D, as Phantom's `set_unifdis('closepacked')`.
+    #[default]
+    Closepacked,
+    /// Cubic (square in 2D).
+    Cubic,
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WaveCfg {
@@ -270,6 +305,17 @@ pub struct WaveCfg {
     pub length: f64,
     pub amplitude: f64,
     pub mode: WaveMode,
+    /// 2D/3D: the lattice of the unperturbed particles.
+    #[serde(default)]
+    pub lattice: Lattice,
+    /// 2D/3D: lattice rows across the slab along y (and layers along z); the slab is periodic
+    /// and this many rows thick. Phantom's DUSTYWAVE uses 12.
+    #[serde(default = "twelve")]
+    pub layers: usize,
+}
+
+fn twelve() -> usize {
+    12
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -318,7 +364,7 @@ impl Scene {
             ));
         }
         match s.problem {
-            Problem::Dustywave | Problem::Dustyshock if s.dim != 1 => {
+            Problem::Dustyshock if s.dim != 1 => {
                 return Err((
                     "scene.dim".into(),
                     format!(
@@ -544,6 +590,20 @@ impl Scene {
             (Some(h), None) => positive("sph.h", h)?,
             (None, Some(f)) => positive("sph.hfact", f)?,
         }
+        if s.variable_h {
+            if s.hfact.is_none() {
+                return Err((
+                    "sph.variable_h".into(),
+                    "needs sph.hfact (h = hfact (m/ρ)^(1/d)), not sph.h".into(),
+                ));
+            }
+            if s.density == DensityMethod::Continuity {
+                return Err((
+                    "sph.variable_h".into(),
+                    "variable h defines the density by summation (sph.density = \"continuity\" excludes it)".into(),
+                ));
+            }
+        }
         non_negative("sph.alpha", s.alpha)?;
         non_negative("sph.beta", s.beta)?;
         Ok(())
@@ -633,6 +693,23 @@ impl Scene {
         if let Some(w) = &self.dustywave {
             positive("dustywave.length", w.length)?;
             positive("dustywave.amplitude", w.amplitude)?;
+            if self.scene.dim > 1 {
+                let need = match (w.lattice, self.scene.dim) {
+                    // Hexagonal rows alternate (period 2); fcc layers repeat every 3.
+                    (Lattice::Closepacked, 2) => 2,
+                    (Lattice::Closepacked, _) => 6,
+                    (Lattice::Cubic, _) => 1,
+                };
+                if w.layers == 0 || w.layers % need != 0 {
+                    return Err((
+                        "dustywave.layers".into(),
+                        format!(
+                            "must be a positive multiple of {need} for a periodic {:?} lattice in {}D (got {})",
+                            w.lattice, self.scene.dim, w.layers
+                        ),
+                    ));
+                }
+            }
             if w.amplitude > 0.1 {
                 return Err((
                     "dustywave.amplitude".into(),

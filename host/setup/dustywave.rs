@@ -1,10 +1,10 @@
-//! DUSTYWAVE (method.md §7.2–7.3): a linear sound wave in a periodic 1D box, any number of
-//! fractions, isothermal or adiabatic. Particles are placed so that the SPH density follows
-//! the perturbation exactly in mass coordinates.
+//! DUSTYWAVE (method.md §7.2–7.3): a linear sound wave along x in a periodic box (1D line, 2D
+//! or 3D slab), any number of fractions, isothermal or adiabatic. Particles are placed so that
+//! the density follows the perturbation exactly in mass coordinates.
 use super::*;
 use crate::exact::complex::C;
 use crate::exact::dustywave::{LinearWave, WaveAmplitudes, WaveGas};
-use crate::scene::{LawKind, WaveMode};
+use crate::scene::{Lattice, LawKind, WaveMode};
 
 /// The linear model of the scene (background state, linear stopping times).
 pub fn model(scene: &Scene) -> LinearWave {
@@ -82,14 +82,69 @@ pub fn field(f0: f64, amp: f64, fhat: C, k: f64, x: f64) -> f64 {
     f0 + amp * (fhat * C::new(0.0, k * x).exp()).re
 }
 
-/// Positions of `n` equal-mass particles whose density is ρ0 + A Re[ρ̂ e^{ikx}] on [0, L).
-fn place(n: usize, length: f64, rho0: f64, amp: f64, rho_hat: C, k: f64) -> Vec<[f64; 3]> {
-    let dx = length / n as f64;
+/// The unperturbed lattice of the wave: points in [0, Lx) × [0, Ly) × [0, Lz) and the box
+/// lengths (1 on unused axes). `nx` points per row along x with spacing Δ = length/nx; in 2D/3D `layers`
+/// rows along y (and layers along z).
+///
+/// Close-packed (Phantom's `set_unifdis('closepacked')`, written from its geometry): rows of
+/// spacing Δ along x, rows Δ√3/2 apart along y with every other row shifted by Δ/2 (a hexagonal
+/// layer), layers Δ√(2/3) apart along z, each shifted by (Δ/2, Δ√3/6) from the one below (ABC
+/// stacking, so every particle has 12 neighbours at distance Δ: face-centred cubic). Periodic
+/// when the row count is even and the layer count a multiple of 3. Cubic: spacing Δ on every axis.
+pub fn lattice(
+    dim: u32,
+    lattice: Lattice,
+    nx: usize,
+    length: f64,
+    layers: usize,
+) -> (Vec<[f64; 3]>, [f64; 3]) {
+    let dx = length / nx as f64;
+    if dim == 1 {
+        let x = (0..nx).map(|i| [(i as f64 + 0.5) * dx, 0.0, 0.0]).collect();
+        return (x, [length, 1.0, 1.0]);
+    }
+    let (ny, nz) = (layers, if dim == 3 { layers } else { 1 });
+    let (dy, dz) = match lattice {
+        Lattice::Closepacked => (dx * 0.75f64.sqrt(), dx * 6f64.sqrt() / 3.0),
+        Lattice::Cubic => (dx, dx),
+    };
+    let mut x = Vec::with_capacity(nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            // Layer k of the ABC stack shifts rows by k/3 of a row spacing along y, and the
+            // half-spacing x offset alternates with the row parity of the shifted layer.
+            let (ox, oy) = match lattice {
+                Lattice::Closepacked if dim == 2 => (0.25 + 0.5 * (j % 2) as f64, 0.5),
+                Lattice::Closepacked => (
+                    0.25 + 0.5 * ((j + k % 3) % 2) as f64,
+                    1.0 / 6.0 + (k % 3) as f64 / 3.0,
+                ),
+                Lattice::Cubic => (0.5, 0.5),
+            };
+            let y = (j as f64 + oy) * dy;
+            let z = if dim == 3 { (k as f64 + 0.5) * dz } else { 0.0 };
+            for i in 0..nx {
+                x.push([(i as f64 + ox) * dx, y, z]);
+            }
+        }
+    }
+    let len = [
+        length,
+        ny as f64 * dy,
+        if dim == 3 { nz as f64 * dz } else { 1.0 },
+    ];
+    (x, len)
+}
+
+/// Stretch unperturbed points along x (uniform density ρ0 on [0, L)) so that the density
+/// becomes ρ0 + A Re[ρ̂ e^{ikx}]: each point moves to the x whose mass coordinate
+/// ∫₀ˣ ρ dx' equals ρ0 x₀ (Newton iteration; exact in mass coordinates).
+fn stretch(x0: &[[f64; 3]], length: f64, rho0: f64, amp: f64, rho_hat: C, k: f64) -> Vec<[f64; 3]> {
     let ik = C::new(0.0, k);
-    (0..n)
-        .map(|i| {
-            let target = (i as f64 + 0.5) * dx * rho0;
-            let mut x = (i as f64 + 0.5) * dx;
+    x0.iter()
+        .map(|p| {
+            let target = p[0] * rho0;
+            let mut x = p[0];
             for _ in 0..50 {
                 let e = C::new(0.0, k * x).exp();
                 let mass = rho0 * x + amp * (rho_hat * (e - C::ONE) / ik).re;
@@ -100,21 +155,38 @@ fn place(n: usize, length: f64, rho0: f64, amp: f64, rho_hat: C, k: f64) -> Vec<
                     break;
                 }
             }
-            [x, 0.0, 0.0]
+            [x, p[1], p[2]]
         })
         .collect()
 }
 
 pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let w = scene.dustywave.as_ref().expect("validated");
+    let dim = scene.dim();
     let n = ((scene.sph.n as f64 * w.length).round() as usize).max(2);
     let dx = w.length / n as f64;
-    let h = smoothing_length(scene, dx);
-    check_periodic_fits(w.length, h, "dustywave.length")?;
+    let (x0, len) = lattice(dim, w.lattice, n, w.length, w.layers);
+    let np = x0.len();
+    let volume: f64 = len[..dim as usize].iter().product();
+    // h = hfact × the mean spacing (V/N)^(1/d), Phantom's convention (h = hfact (m/ρ)^(1/d));
+    // in 1D that is Δx.
+    let spacing = if dim == 1 {
+        dx
+    } else {
+        (volume / np as f64).powf(1.0 / dim as f64)
+    };
+    let h = smoothing_length(scene, spacing);
+    for (a, key) in ["dustywave.length", "dustywave.layers", "dustywave.layers"]
+        .iter()
+        .enumerate()
+        .take(dim as usize)
+    {
+        check_periodic_fits(len[a], h, key)?;
+    }
     let lw = model(scene);
     let y = initial_amplitudes(scene, &lw);
     let (a, k) = (w.amplitude, lw.k);
-    let x = place(n, w.length, lw.rho_g0, a, y.rho_g, k);
+    let x = stretch(&x0, w.length, lw.rho_g0, a, y.rho_g, k);
     let v: Vec<[f64; 3]> = x
         .iter()
         .map(|p| [field(0.0, a, y.v_g, k, p[0]), 0.0, 0.0])
@@ -126,41 +198,102 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
         }
         _ => None,
     };
+    // Equal masses giving the background density exactly: m = ρ0 V / N.
+    let cell_volume = if dim == 1 { dx } else { volume / np as f64 };
+    // The exact initial density (summation replaces it; the continuity equation starts from it).
+    let rho = x
+        .iter()
+        .map(|p| field(lw.rho_g0, a, y.rho_g, k, p[0]))
+        .collect();
     let gas = Phase {
         x,
         v,
-        m: vec![lw.rho_g0 * dx; n],
-        rho: vec![lw.rho_g0; n],
-        id: (0..n as u64).collect(),
+        m: vec![lw.rho_g0 * cell_volume; np],
+        rho,
+        id: (0..np as u64).collect(),
         fixed: None,
     };
+    let npu = np as u64;
     let dust = (0..lw.rho_d0.len())
         .map(|kf| {
             let rho0 = lw.rho_d0[kf];
-            let x = place(n, w.length, rho0, a, y.rho_d[kf], k);
+            let x = stretch(&x0, w.length, rho0, a, y.rho_d[kf], k);
             let v = x
                 .iter()
                 .map(|p| [field(0.0, a, y.v_d[kf], k, p[0]), 0.0, 0.0])
                 .collect();
+            let rho = x
+                .iter()
+                .map(|p| field(rho0, a, y.rho_d[kf], k, p[0]))
+                .collect();
             Phase {
                 x,
                 v,
-                m: vec![rho0 * dx; n],
-                rho: vec![rho0; n],
-                id: ((kf as u64 + 1) * n as u64..(kf as u64 + 2) * n as u64).collect(),
+                m: vec![rho0 * cell_volume; np],
+                rho,
+                id: ((kf as u64 + 1) * npu..(kf as u64 + 2) * npu).collect(),
                 fixed: None,
             }
         })
         .collect();
+    let mut periodic = [None; 3];
+    for (p, &l) in periodic.iter_mut().zip(&len).take(dim as usize) {
+        *p = Some((0.0, l));
+    }
     Ok(Setup::at_start(
         gas_phase(gas, e),
         dust,
         h,
-        Domain {
-            dim: 1,
-            periodic: [Some((0.0, w.length)), None, None],
-        },
-        dx,
+        Domain { dim, periodic },
+        spacing,
         w.length,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Minimum-image distances from particle i to every other.
+    fn distances(x: &[[f64; 3]], len: [f64; 3], i: usize) -> Vec<f64> {
+        x.iter()
+            .enumerate()
+            .filter(|&(j, _)| j != i)
+            .map(|(_, p)| {
+                (0..3)
+                    .map(|k| {
+                        let d = p[k] - x[i][k];
+                        let d = d - len[k] * (d / len[k]).round();
+                        d * d
+                    })
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn close_packed_lattices_are_periodic_fcc_and_hexagonal() {
+        // 3D: every particle has 12 nearest neighbours at Δ, across the periodic boundaries too;
+        // the box is nx Δ × ny Δ√3/2 × nz Δ√(2/3) and the volume per particle Δ³/√2.
+        let (nx, dx) = (16, 1.0 / 16.0);
+        let (x, len) = lattice(3, Lattice::Closepacked, nx, 1.0, 6);
+        assert_eq!(x.len(), nx * 6 * 6);
+        assert!((len[1] - 6.0 * dx * 0.75f64.sqrt()).abs() < 1e-15);
+        assert!((len[2] - 6.0 * dx * (2.0f64 / 3.0).sqrt()).abs() < 1e-15);
+        let vol = len[0] * len[1] * len[2] / x.len() as f64;
+        assert!((vol - dx.powi(3) / 2f64.sqrt()).abs() < 1e-15);
+        for i in [0, 17, 100, 311, x.len() - 1] {
+            let d = distances(&x, len, i);
+            let near = d.iter().filter(|&&r| (r - dx).abs() < 1e-12).count();
+            assert_eq!(near, 12, "particle {i}");
+            assert!(d.iter().all(|&r| r > dx - 1e-12));
+        }
+        // 2D: six neighbours at Δ.
+        let (x, len) = lattice(2, Lattice::Closepacked, nx, 1.0, 6);
+        for i in [0, 21, x.len() - 1] {
+            let d = distances(&x, len, i);
+            assert_eq!(d.iter().filter(|&&r| (r - dx).abs() < 1e-12).count(), 6);
+        }
+    }
 }

@@ -107,6 +107,8 @@ pub(crate) fn gas_phase(ph: Phase, e: Option<Vec<f64>>) -> Gas {
         p: vec![0.0; n],
         c: vec![0.0; n],
         e,
+        h: None,
+        omega: None,
     }
 }
 
