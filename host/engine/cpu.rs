@@ -64,13 +64,15 @@ pub enum StepError {
     Grid(GridError),
     /// A non-finite value or negative density: step, phase, particle id, field.
     Blowup(String),
+    /// The scene asks for something this backend does not do.
+    Unsupported(String),
 }
 
 impl std::fmt::Display for StepError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             StepError::Grid(e) => write!(f, "grid: {e}"),
-            StepError::Blowup(s) => f.write_str(s),
+            StepError::Blowup(s) | StepError::Unsupported(s) => f.write_str(s),
         }
     }
 }

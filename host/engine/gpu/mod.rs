@@ -359,15 +359,28 @@ impl<L: Launcher> GpuEngine<L> {
         let pipe = Pipeline::from_physics(&phys);
         let nf = state.dust.len();
         if nf > MAX_FRACTIONS {
-            return Err(StepError::Blowup(format!(
+            return Err(StepError::Unsupported(format!(
                 "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
             )));
         }
-        if pipe.explicit_drag {
-            return Err(StepError::Blowup(
-                "the explicit drag baseline (drag.method = \"explicit\") runs on the CPU only; use --device cpu"
-                    .into(),
-            ));
+        let cpu_only = [
+            (
+                pipe.explicit_drag,
+                "the explicit drag baseline (drag.method = \"explicit\")",
+            ),
+            (
+                pipe.variable_h,
+                "variable smoothing lengths (sph.variable_h)",
+            ),
+            (
+                pipe.continuity_density,
+                "continuity-equation density (sph.density)",
+            ),
+        ];
+        if let Some((_, what)) = cpu_only.iter().find(|c| c.0) {
+            return Err(StepError::Unsupported(format!(
+                "{what} runs on the CPU only so far; use --device cpu"
+            )));
         }
         if pipe.continuity_density || pipe.variable_h {
             return Err(StepError::Blowup(
