@@ -6,9 +6,9 @@ for every point, reads each run's summary.json, and writes to docs/phantom/:
   results.csv, results.md   error (L2 of v_x / rms of the exact v_x, Phantom's metric) and wall time
   error_vs_time.png         error against wall time, dustsph lines per K, Phantom's figures as markers
 
-This is the stand-in for `dustsph study` (not on main when this was written); the same grid as a
-study file is configs/studies/dustywave_phantom.toml. Needs python3 with matplotlib; build first
-(`cargo build --release`).
+`dustsph study configs/studies/dustywave_phantom.toml` runs the same grid (docs/studies/); this
+script adds Phantom's figures to the table and the plot, and times every run with 2 threads.
+Needs python3 with matplotlib; build first (`cargo build --release`).
 
     scripts/phantom_study.py [--quick] [--threads N] [--out docs/phantom]
 """
