@@ -36,6 +36,8 @@ pub trait Launcher {
     fn addr(&self, m: &Self::Mem) -> u64;
     fn upload(&self, m: &mut Self::Mem, bytes: &[u8]) -> Result<(), GpuError>;
     fn download(&self, m: &Self::Mem, out: &mut [u8]) -> Result<(), GpuError>;
+    /// Zero the first `bytes` bytes on the device (no host copy).
+    fn zero(&self, m: &mut Self::Mem, bytes: usize) -> Result<(), GpuError>;
     /// Run `threads` threads of kernel `name`, whose per-thread function is `f`.
     fn launch<A: Copy>(
         &self,
@@ -89,6 +91,13 @@ impl Launcher for Emulated {
         // SAFETY: as in `upload`.
         let src = unsafe { std::slice::from_raw_parts(m.0.as_ptr() as *const u8, m.0.len() * 8) };
         out.copy_from_slice(&src[..out.len()]);
+        Ok(())
+    }
+
+    fn zero(&self, m: &mut HostMem, bytes: usize) -> Result<(), GpuError> {
+        // Whole words: the buffer is u64-backed and callers zero from the start.
+        let words = bytes.div_ceil(8).min(m.0.len());
+        m.0[..words].fill(0);
         Ok(())
     }
 
@@ -243,6 +252,15 @@ impl Launcher for Cuda {
         let view = m.slice(0..out.len());
         self.stream.memcpy_dtoh(&view, out)?;
         self.stream.synchronize()?;
+        Ok(())
+    }
+
+    fn zero(&self, m: &mut CudaSlice<u8>, bytes: usize) -> Result<(), GpuError> {
+        if bytes == 0 {
+            return Ok(());
+        }
+        let mut view = m.slice_mut(0..bytes);
+        self.stream.memset_zeros(&mut view)?;
         Ok(())
     }
 

@@ -80,12 +80,13 @@ impl<L: Launcher> Dev<L> {
     fn opt<T>(&self, b: &Option<Buf<L, T>>) -> *mut T {
         b.as_ref().map_or(std::ptr::null_mut(), |b| self.ptr(b))
     }
-    /// Grow `b` to at least `len` elements (contents are not kept) and zero its first `len`.
-    fn zeroed<T: Copy + Default>(&self, b: &mut Buf<L, T>, len: usize) -> Result<(), GpuError> {
+    /// Grow `b` to at least `len` elements (contents are not kept) and zero its first `len`
+    /// on the device (a memset, no host copy; allocation only when it must grow).
+    fn zeroed<T: Copy>(&self, b: &mut Buf<L, T>, len: usize) -> Result<(), GpuError> {
         if b.len < len {
             *b = self.buf(len + len / 2)?;
         } else {
-            self.put(b, &vec![T::default(); len])?;
+            self.0.zero(&mut b.mem, len * std::mem::size_of::<T>())?;
         }
         Ok(())
     }
