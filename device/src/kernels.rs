@@ -361,6 +361,28 @@ pub struct CellCoupling<R> {
     pub v_new: Vec3<R>,
 }
 
+/// How one dust fraction couples in a cell, from the cell's sums: `None` without both phases
+/// in the cell (no drag), else ε_k and the cell stopping time t_k* (method.md §3.4; `None` when
+/// the law cannot couple). `gamma_root` turns the mean sqrt(p/ρ) into c_s*.
+#[inline(always)]
+pub fn fraction_coupling<R: Real>(
+    gas: &GasSums<R>,
+    d: &DustSums<R>,
+    law: &StoppingLaw<R>,
+    gamma_root: R,
+) -> Option<(R, Option<R>)> {
+    if d.count == 0 || gas.count == 0 {
+        return None;
+    }
+    let count = R::from_f64(gas.count as f64);
+    let means = CellMeans {
+        rho_dust: d.rho / R::from_f64(d.count as f64),
+        rho_gas: gas.rho / count,
+        cs_gas: gamma_root * gas.cs / count,
+    };
+    Some((drag::cell_eps(d.mass, gas.mass), law.cell_time(&means)))
+}
+
 /// The IDIC cell step from a cell's sums (method.md §3.3–3.4): cell ε_k, stopping times t_k*
 /// from each fraction's law (+∞ when it does not couple: no gas or no dust in the cell), and the
 /// closed-form implicit solve. `gamma_root` turns the mean sqrt(p/ρ) into c_s*.
@@ -382,24 +404,17 @@ pub fn cell_couple<R: Real>(
         v_new: [R::ZERO; 3],
     };
     let mut u_tilde = [[R::ZERO; 3]; MAX_FRACTIONS];
-    let count = R::from_f64(gas.count as f64);
     for k in 0..nf {
         let d = &dust[k];
         if d.mass > R::ZERO {
             u_tilde[k] = scale(R::ONE / d.mass, d.mom);
         }
-        if d.count == 0 || gas.count == 0 {
-            continue; // no drag without both phases in the cell
-        }
-        c.eps[k] = drag::cell_eps(d.mass, gas.mass);
-        let means = CellMeans {
-            rho_dust: d.rho / R::from_f64(d.count as f64),
-            rho_gas: gas.rho / count,
-            cs_gas: gamma_root * gas.cs / count,
-        };
-        if let Some(t) = laws[k].cell_time(&means) {
-            c.t_stop[k] = t;
-            c.beta[k] = drag::cell_beta(tau, Some(t));
+        if let Some((eps, t)) = fraction_coupling(gas, d, &laws[k], gamma_root) {
+            c.eps[k] = eps;
+            if let Some(t) = t {
+                c.t_stop[k] = t;
+                c.beta[k] = drag::cell_beta(tau, Some(t));
+            }
         }
     }
     let v_tilde = if gas.mass > R::ZERO {

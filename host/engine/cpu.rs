@@ -7,7 +7,7 @@ use super::{Physics, Pipeline};
 use crate::grid::{CellIndex, Grid, GridError};
 use crate::particles::{Phase, State};
 use crate::scene::PositionUpdate;
-use dustsph_device::drag::{self, CellMeans};
+use dustsph_device::drag;
 use dustsph_device::kernels::{self, GasView, Sorted};
 use dustsph_device::{dot, kernel, update};
 use rayon::prelude::*;
@@ -385,8 +385,8 @@ impl CpuEngine {
         let g = &state.gas;
         let needs_gas_state = self.phys.laws.iter().any(|l| l.needs_gas_state());
         let gamma_root = self.phys.eos.gamma_root();
-        let mut rho_g = vec![0.0; if needs_gas_state { n } else { 0 }];
-        let mut cs_g = vec![0.0; if needs_gas_state { n } else { 0 }];
+        // Gas sums of every union cell (what the stopping-time laws read).
+        let mut gas_u = vec![kernels::GasSums::default(); n];
         // Gas sums per gas cell (contiguous particle ranges), scattered to union cells.
         let eos = self.phys.eos;
         let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
@@ -407,25 +407,12 @@ impl CpuEngine {
                 )
             })
             .collect();
-        for (
-            c,
-            kernels::GasSums {
-                mass: m,
-                count: cnt,
-                mom,
-                rho: rs,
-                cs,
-            },
-        ) in gsum.into_iter().enumerate()
-        {
+        for (c, gs) in gsum.into_iter().enumerate() {
             let u = t.gas_map[c] as usize;
-            t.gas_mass[u] = m;
-            t.gas_count[u] = cnt;
-            t.gas_mom[u] = mom;
-            if needs_gas_state && cnt > 0 {
-                rho_g[u] = rs / cnt as f64;
-                cs_g[u] = gamma_root * cs / cnt as f64;
-            }
+            t.gas_mass[u] = gs.mass;
+            t.gas_count[u] = gs.count;
+            t.gas_mom[u] = gs.mom;
+            gas_u[u] = gs;
         }
         for (k, d) in state.dust.iter().enumerate() {
             let idx = &self.dust_idx[k];
@@ -438,32 +425,19 @@ impl CpuEngine {
                     kernels::dust_cell_sums(r.start, r.end, &d.m, &d.v, &d.rho, dfixed, needs_rho)
                 })
                 .collect();
-            for (
-                c,
-                kernels::DustSums {
-                    mass: m,
-                    count: cnt,
-                    mom,
-                    rho: rs,
-                },
-            ) in dsum.into_iter().enumerate()
-            {
+            for (c, ds) in dsum.into_iter().enumerate() {
                 let u = t.dust_map[k][c] as usize;
                 let s = u * nf + k;
-                t.dust_mass[s] = m;
-                t.dust_count[s] = cnt;
-                t.dust_mom[s] = mom;
-                if cnt == 0 || t.gas_count[u] == 0 {
-                    continue; // no drag without both phases in the cell
-                }
-                t.eps[s] = drag::cell_eps(m, t.gas_mass[u]);
-                let means = CellMeans {
-                    rho_dust: rs / cnt as f64,
-                    rho_gas: if needs_gas_state { rho_g[u] } else { 0.0 },
-                    cs_gas: if needs_gas_state { cs_g[u] } else { 0.0 },
-                };
-                if let Some(ts) = self.phys.laws[k].cell_time(&means) {
-                    t.t_stop[s] = ts;
+                t.dust_mass[s] = ds.mass;
+                t.dust_count[s] = ds.count;
+                t.dust_mom[s] = ds.mom;
+                let law = &self.phys.laws[k];
+                if let Some((eps, ts)) = kernels::fraction_coupling(&gas_u[u], &ds, law, gamma_root)
+                {
+                    t.eps[s] = eps;
+                    if let Some(ts) = ts {
+                        t.t_stop[s] = ts;
+                    }
                 }
             }
         }
