@@ -327,6 +327,7 @@ fn slab() -> (Physics, State, f64, f64) {
         position_update: PositionUpdate::New,
         density: DensityMethod::Summation,
         variable_h: None,
+        gradient: crate::scene::GradientMethod::Standard,
     };
     (phys, st, 1e-3, 0.5)
 }

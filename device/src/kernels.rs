@@ -153,6 +153,69 @@ pub fn solve_h_at<R: Real>(
     }
 }
 
+/// IAD matrix C_a = τ_a⁻¹ of gas particle i ([`sph::iad_inverse`]), from the neighbours within
+/// its own support 2h_i (`k[i]`); volumes V_b = m_b/ρ_b. Fixed particles get the same matrix
+/// (their neighbours read it).
+#[inline(always)]
+pub fn iad_matrix_at<R: Real>(
+    s: &Sorted<'_, R>,
+    m: &[R],
+    rho: &[R],
+    k: &[KernelAt<R>],
+    i: usize,
+) -> sph::Sym3<R> {
+    let ki = k[i];
+    let s2 = R::from_f64(crate::kernel::SUPPORT * crate::kernel::SUPPORT) * ki.h * ki.h;
+    let mut t = [R::ZERO; 6];
+    for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, dx, r2| {
+        if j == i || r2 >= s2 {
+            return;
+        }
+        let c = sph::iad_moment_term(m[j] / rho[j], dx, ki.w(r2.sqrt()));
+        for (a, b) in t.iter_mut().zip(c) {
+            *a += b;
+        }
+    });
+    sph::iad_inverse(t, ki.dim)
+}
+
+/// Forces on gas particle i with the IAD gradient ([`sph::gas_pair_iad`]): per-particle
+/// kernels `k` (all equal for a fixed h), `pt` = p/ρ², IAD matrices `c`.
+#[inline(always)]
+pub fn forces_iad_at<R: Real>(
+    s: &Sorted<'_, R>,
+    g: &GasView<'_, R>,
+    k: &[KernelAt<R>],
+    pt: &[R],
+    c: &[sph::Sym3<R>],
+    i: usize,
+    av: Option<&Viscosity<R>>,
+) -> GasPair<R> {
+    let mut out = GasPair {
+        acc: [R::ZERO; 3],
+        dedt: R::ZERO,
+        vsig: R::ZERO,
+    };
+    if is_fixed(g.fixed, i) {
+        return out;
+    }
+    let a = g.state(s.x[i], i);
+    out.vsig = a.c;
+    let s2 = R::from_f64(crate::kernel::SUPPORT * crate::kernel::SUPPORT);
+    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, r2| {
+        let hm = k[i].h.max(k[j].h);
+        if j == i || r2 >= s2 * hm * hm {
+            return;
+        }
+        let b = g.state(s.x[j], j);
+        let pr = sph::gas_pair_iad(&a, &b, pt[i], pt[j], dx, r2, &k[i], &k[j], &c[i], &c[j], av);
+        out.acc = add(out.acc, pr.acc);
+        out.dedt += pr.dedt;
+        out.vsig = out.vsig.max(pr.vsig);
+    });
+    out
+}
+
 /// The gas fields the force loop reads.
 #[derive(Clone, Copy)]
 pub struct GasView<'a, R> {

@@ -159,3 +159,117 @@ pub fn gas_pair_vh<R: Real>(
         vsig,
     }
 }
+
+/// Symmetric 3×3 matrix stored as (xx, xy, xz, yy, yz, zz).
+pub type Sym3<R> = [R; 6];
+
+/// Contribution of neighbour b to the IAD moment matrix of a (García-Senz, Cabezón &
+/// Escartín 2012): τ_a = Σ_b V_b r_ab ⊗ r_ab W_ab(h_a), V_b = m_b/ρ_b.
+#[inline(always)]
+pub fn iad_moment_term<R: Real>(v_b: R, dx: Vec3<R>, w: R) -> Sym3<R> {
+    let s = v_b * w;
+    [
+        s * dx[0] * dx[0],
+        s * dx[0] * dx[1],
+        s * dx[0] * dx[2],
+        s * dx[1] * dx[1],
+        s * dx[1] * dx[2],
+        s * dx[2] * dx[2],
+    ]
+}
+
+/// C_a = τ_a⁻¹ in `dim` dimensions (the inactive axes get a unit diagonal, so their zero
+/// separations stay zero). A particle whose neighbours do not span space (det τ ≲ 0) gets the
+/// isotropic estimate C = (dim / tr τ) I: the trace of C τ is then still dim.
+#[inline(always)]
+pub fn iad_inverse<R: Real>(mut t: Sym3<R>, dim: u32) -> Sym3<R> {
+    if dim < 3 {
+        t[2] = R::ZERO;
+        t[4] = R::ZERO;
+        t[5] = R::ONE;
+    }
+    if dim < 2 {
+        t[1] = R::ZERO;
+        t[3] = R::ONE;
+    }
+    let [xx, xy, xz, yy, yz, zz] = t;
+    let cxx = yy * zz - yz * yz;
+    let cxy = xz * yz - xy * zz;
+    let cxz = xy * yz - xz * yy;
+    let det = xx * cxx + xy * cxy + xz * cxz;
+    let tr = xx + yy + zz;
+    let scale3 = tr * tr * tr;
+    if !(det > R::from_f64(1e-9) * scale3) {
+        let d = R::from_f64(dim as f64);
+        let tr_active = match dim {
+            1 => xx,
+            2 => xx + yy,
+            _ => tr,
+        };
+        let c = if tr_active > R::ZERO {
+            d / tr_active
+        } else {
+            R::ZERO
+        };
+        return [c, R::ZERO, R::ZERO, c, R::ZERO, c];
+    }
+    let inv = R::ONE / det;
+    [
+        cxx * inv,
+        cxy * inv,
+        cxz * inv,
+        (xx * zz - xz * xz) * inv,
+        (xy * xz - xx * yz) * inv,
+        (xx * yy - xy * xy) * inv,
+    ]
+}
+
+/// C · r.
+#[inline(always)]
+pub fn sym_mul<R: Real>(c: &Sym3<R>, r: Vec3<R>) -> Vec3<R> {
+    [
+        c[0] * r[0] + c[1] * r[1] + c[2] * r[2],
+        c[1] * r[0] + c[3] * r[1] + c[4] * r[2],
+        c[2] * r[0] + c[4] * r[1] + c[5] * r[2],
+    ]
+}
+
+/// [`gas_pair_vh`] with the integral approach to derivatives (IAD; García-Senz et al. 2012,
+/// the gradient of SPHYNX and SPH-EXA): each side's kernel gradient ∇_a W_ab(h_s) is replaced
+/// by −C_s r_ab W_ab(h_s), which differentiates linear fields exactly on any particle
+/// arrangement. Antisymmetric in a↔b (momentum and energy conserved like the standard form);
+/// `pa` = p_a/ρ_a², `pb` = p_b/ρ_b² (no grad-h factors). On the close-packed lattice at
+/// h = 1.2 (m/ρ)^(1/3) the standard gradient's long-wave sound speed is 1.2% fast at every
+/// resolution; with IAD the error falls as (kh)² (docs/phantom_comparison.md).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn gas_pair_iad<R: Real>(
+    a: &GasState<R>,
+    b: &GasState<R>,
+    pa: R,
+    pb: R,
+    dx: Vec3<R>,
+    r2: R,
+    ka: &kernel::KernelAt<R>,
+    kb: &kernel::KernelAt<R>,
+    ca: &Sym3<R>,
+    cb: &Sym3<R>,
+    av: Option<&Viscosity<R>>,
+) -> GasPair<R> {
+    let r = r2.sqrt();
+    let ga = crate::scale(-ka.w(r), sym_mul(ca, dx));
+    let gb = crate::scale(-kb.w(r), sym_mul(cb, dx));
+    let dv = crate::sub(a.v, b.v);
+    let half = R::from_f64(0.5);
+    let (pi, vsig) = viscous(a, b, dot(dv, dx), r2, half * (ka.h + kb.h), av);
+    let mut acc = [R::ZERO; 3];
+    for d in 0..3 {
+        acc[d] = -b.m * (pa * ga[d] + pb * gb[d] + pi * half * (ga[d] + gb[d]));
+    }
+    let (va, vb) = (dot(dv, ga), dot(dv, gb));
+    GasPair {
+        acc,
+        dedt: b.m * (pa * va + half * half * pi * (va + vb)),
+        vsig,
+    }
+}

@@ -306,28 +306,52 @@ impl CpuEngine {
             fixed: g.ph.fixed.as_deref().unwrap_or(&[]),
         };
         // Variable h: each particle's kernel constants and p/(Ω ρ²), once per step.
-        let vh: Option<(Vec<kernel::KernelAt<f64>>, Vec<f64>)> =
-            g.h.as_deref().zip(g.omega.as_deref()).map(|(hv, om)| {
-                let k = hv
-                    .par_iter()
-                    .map(|&h| kernel::KernelAt::new(h, dim))
-                    .collect();
-                let pt = (0..hv.len())
-                    .into_par_iter()
-                    .map(|i| g.p[i] / (om[i] * g.ph.rho[i] * g.ph.rho[i]))
-                    .collect();
-                (k, pt)
-            });
-        let out: Vec<([f64; 3], f64, f64)> = (0..g.ph.len())
-            .into_par_iter()
-            .map(|i| {
-                let r = match &vh {
-                    Some((k, pt)) => kernels::forces_vh_at(&s, &view, k, pt, i, av),
-                    None => kernels::forces_at(&s, &view, i, h, dim, av),
-                };
-                (r.acc, r.dedt, r.vsig)
-            })
-            .collect();
+        let kernels_at = |hv: &[f64]| -> Vec<kernel::KernelAt<f64>> {
+            hv.par_iter()
+                .map(|&h| kernel::KernelAt::new(h, dim))
+                .collect()
+        };
+        let out: Vec<([f64; 3], f64, f64)> = if self.pipe.iad {
+            // IAD: per-particle kernels (all at h for a fixed h), p/ρ², the matrices C_a.
+            let k = match g.h.as_deref() {
+                Some(hv) => kernels_at(hv),
+                None => vec![kernel::KernelAt::new(h, dim); g.ph.len()],
+            };
+            let pt: Vec<f64> = (0..g.ph.len())
+                .into_par_iter()
+                .map(|i| g.p[i] / (g.ph.rho[i] * g.ph.rho[i]))
+                .collect();
+            let c: Vec<_> = (0..g.ph.len())
+                .into_par_iter()
+                .map(|i| kernels::iad_matrix_at(&s, &g.ph.m, &g.ph.rho, &k, i))
+                .collect();
+            (0..g.ph.len())
+                .into_par_iter()
+                .map(|i| {
+                    let r = kernels::forces_iad_at(&s, &view, &k, &pt, &c, i, av);
+                    (r.acc, r.dedt, r.vsig)
+                })
+                .collect()
+        } else {
+            let vh: Option<(Vec<kernel::KernelAt<f64>>, Vec<f64>)> =
+                g.h.as_deref().zip(g.omega.as_deref()).map(|(hv, om)| {
+                    let pt = (0..hv.len())
+                        .into_par_iter()
+                        .map(|i| g.p[i] / (om[i] * g.ph.rho[i] * g.ph.rho[i]))
+                        .collect();
+                    (kernels_at(hv), pt)
+                });
+            (0..g.ph.len())
+                .into_par_iter()
+                .map(|i| {
+                    let r = match &vh {
+                        Some((k, pt)) => kernels::forces_vh_at(&s, &view, k, pt, i, av),
+                        None => kernels::forces_at(&s, &view, i, h, dim, av),
+                    };
+                    (r.acc, r.dedt, r.vsig)
+                })
+                .collect()
+        };
         let mut f = Forces {
             acc: Vec::with_capacity(out.len()),
             dedt: energy.then(|| Vec::with_capacity(out.len())),

@@ -8,7 +8,9 @@ pub mod gpu;
 pub mod timers;
 
 use crate::grid::Domain;
-use crate::scene::{DensityMethod, DragMethod, EosKind, LawKind, PositionUpdate, Scene, TimeCfg};
+use crate::scene::{
+    DensityMethod, DragMethod, EosKind, GradientMethod, LawKind, PositionUpdate, Scene, TimeCfg,
+};
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
 use dustsph_device::sph::Viscosity;
@@ -35,6 +37,8 @@ pub struct Physics {
     /// Variable-h gas (Phantom's): `Some(hfact)`; `h` is then the initial/reference h (IDIC
     /// cells, CFL, dust densities).
     pub variable_h: Option<f64>,
+    /// Standard kernel gradient or IAD in the gas pair terms.
+    pub gradient: GradientMethod,
 }
 
 impl Physics {
@@ -85,6 +89,7 @@ impl Physics {
             position_update: scene.time.position_update,
             density: scene.sph.density,
             variable_h: scene.sph.variable_h.then(|| scene.sph.hfact.unwrap_or(1.2)),
+            gradient: scene.sph.gradient,
         }
     }
 
@@ -140,6 +145,8 @@ pub struct Pipeline {
     pub continuity_density: bool,
     /// Variable smoothing length (grad-h SPH) for the gas.
     pub variable_h: bool,
+    /// IAD gradient: a pass for the matrices C_a before the forces.
+    pub iad: bool,
 }
 
 impl Pipeline {
@@ -153,16 +160,22 @@ impl Pipeline {
             dust_density_each_step: p.laws.iter().any(|l| l.needs_dust_density()),
             continuity_density: p.density == DensityMethod::Continuity,
             variable_h: p.variable_h.is_some(),
+            iad: p.gradient == GradientMethod::Iad,
         }
     }
 
     /// The stages a step runs, in order.
     pub fn stages(&self) -> Vec<&'static str> {
-        let mut s = vec![if self.viscosity {
-            "gas forces (pressure + artificial viscosity)"
-        } else {
-            "gas forces (pressure)"
-        }];
+        let mut s = Vec::new();
+        if self.iad {
+            s.push("gas IAD matrices");
+        }
+        s.push(match (self.viscosity, self.iad) {
+            (true, false) => "gas forces (pressure + artificial viscosity)",
+            (false, false) => "gas forces (pressure)",
+            (true, true) => "gas forces (pressure + artificial viscosity, IAD gradient)",
+            (false, true) => "gas forces (pressure, IAD gradient)",
+        });
         if self.energy {
             s.push("gas energy rate");
         }

@@ -377,17 +377,12 @@ impl<L: Launcher> GpuEngine<L> {
                 pipe.continuity_density,
                 "continuity-equation density (sph.density)",
             ),
+            (pipe.iad, "the IAD gradient (sph.gradient = \"iad\")"),
         ];
         if let Some((_, what)) = cpu_only.iter().find(|c| c.0) {
             return Err(StepError::Unsupported(format!(
                 "{what} runs on the CPU only so far; use --device cpu"
             )));
-        }
-        if pipe.continuity_density || pipe.variable_h {
-            return Err(StepError::Blowup(
-                "sph.density = \"continuity\" and sph.variable_h run on the CPU only (use --device cpu)"
-                    .into(),
-            ));
         }
         let d = Dev(launcher);
         let (eos_kind, eos_value) = match phys.eos {
