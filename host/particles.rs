@@ -79,6 +79,11 @@ pub struct Gas {
     /// first density solve).
     pub h: Option<Vec<f64>>,
     pub omega: Option<Vec<f64>>,
+    /// Leapfrog (time.integrator = "kdk") only: the forces the next step opens with, per
+    /// particle (A_x, A_y, A_z, ė, v_sig), computed by the last step's closing kick from
+    /// predicted velocities and energies; kept with the state so that a resumed run is
+    /// bit-identical. `None` otherwise.
+    pub next_forces: Option<Vec<[f64; 5]>>,
 }
 
 impl Gas {
@@ -92,6 +97,9 @@ impl Gas {
             .flatten()
         {
             apply(f);
+        }
+        if let Some(f) = &mut self.next_forces {
+            *f = perm.iter().map(|&p| f[p as usize]).collect();
         }
     }
 

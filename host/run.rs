@@ -92,6 +92,10 @@ pub struct Summary {
     pub h: f64,
     pub idic_cell: f64,
     pub position_update: String,
+    /// `first_order` (the report's step) or `kdk` (leapfrog).
+    pub integrator: &'static str,
+    /// `standard` kernel gradient or `iad`.
+    pub gradient: &'static str,
     /// `idic`, or `explicit` (the baseline: τ ≤ 0.9 t_s).
     pub drag_method: &'static str,
     /// Steps whose size the explicit drag's limit set (always 0 with IDIC).
@@ -645,6 +649,14 @@ impl Runner {
             h: eng.phys().h,
             idic_cell: eng.phys().cell_size,
             position_update: format!("{:?}", eng.phys().position_update).to_lowercase(),
+            integrator: match eng.phys().integrator {
+                crate::scene::Integrator::FirstOrder => "first_order",
+                crate::scene::Integrator::Kdk => "kdk",
+            },
+            gradient: match eng.phys().gradient {
+                crate::scene::GradientMethod::Standard => "standard",
+                crate::scene::GradientMethod::Iad => "iad",
+            },
             pipeline: eng.pipe().stages(),
             drag_method: eng.phys().drag.name(),
             drag_limited_steps: prog.drag_limited_steps,

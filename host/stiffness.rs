@@ -304,6 +304,7 @@ fn slab() -> (Physics, State, f64, f64) {
             e: None,
             h: None,
             omega: None,
+            next_forces: None,
         },
         dust: vec![dust0, dust1],
     };
@@ -328,6 +329,7 @@ fn slab() -> (Physics, State, f64, f64) {
         density: DensityMethod::Summation,
         variable_h: None,
         gradient: crate::scene::GradientMethod::Standard,
+        integrator: crate::scene::Integrator::FirstOrder,
     };
     (phys, st, 1e-3, 0.5)
 }
@@ -365,6 +367,7 @@ pub fn run_case(case: &Case) -> CaseReport {
         output_dt: None,
         output_times: None,
         position_update: PositionUpdate::New,
+        integrator: crate::scene::Integrator::FirstOrder,
     };
     let (phys, mut state, time, scene): (Physics, State, crate::scene::TimeCfg, Option<Scene>) =
         match &case.kind {

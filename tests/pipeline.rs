@@ -87,6 +87,7 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
             e: Some(vec![2.5; n]),
             h: None,
             omega: None,
+            next_forces: None,
         },
         dust: vec![phase(0.5 * dx, n as u64)],
     };
@@ -107,6 +108,8 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
         position_update: PositionUpdate::New,
         density: DensityMethod::Summation,
         variable_h: None,
+        gradient: dustsph::scene::GradientMethod::Standard,
+        integrator: dustsph::scene::Integrator::FirstOrder,
     };
     assert!(Pipeline::from_physics(&phys).drag);
     let mut eng = CpuEngine::new(phys, &mut st).unwrap();
@@ -164,6 +167,7 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
             e: None,
             h: None,
             omega: None,
+            next_forces: None,
         },
         dust: vec![Phase {
             x: dxs.clone(),
@@ -191,6 +195,8 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
         position_update: PositionUpdate::New,
         density: DensityMethod::Summation,
         variable_h: None,
+        gradient: dustsph::scene::GradientMethod::Standard,
+        integrator: dustsph::scene::Integrator::FirstOrder,
     };
     let mut eng = CpuEngine::new(phys, &mut st).unwrap();
     for _ in 0..10 {

@@ -178,19 +178,20 @@ pub fn iad_moment_term<R: Real>(v_b: R, dx: Vec3<R>, w: R) -> Sym3<R> {
     ]
 }
 
-/// C_a = τ_a⁻¹ in `dim` dimensions (the inactive axes get a unit diagonal, so their zero
-/// separations stay zero). A particle whose neighbours do not span space (det τ ≲ 0) gets the
+/// C_a = τ_a⁻¹ in `dim` dimensions (the inactive axes are decoupled; their separations are
+/// zero). A particle whose neighbours do not span space (det τ ≲ 0) gets the
 /// isotropic estimate C = (dim / tr τ) I: the trace of C τ is then still dim.
 #[inline(always)]
 pub fn iad_inverse<R: Real>(mut t: Sym3<R>, dim: u32) -> Sym3<R> {
+    // Inactive axes: decoupled, with the active axes' scale so the conditioning test is fair.
+    if dim < 2 {
+        t[1] = R::ZERO;
+        t[3] = t[0];
+    }
     if dim < 3 {
         t[2] = R::ZERO;
         t[4] = R::ZERO;
-        t[5] = R::ONE;
-    }
-    if dim < 2 {
-        t[1] = R::ZERO;
-        t[3] = R::ONE;
+        t[5] = R::from_f64(0.5) * (t[0] + t[3]);
     }
     let [xx, xy, xz, yy, yz, zz] = t;
     let cxx = yy * zz - yz * yz;
@@ -199,29 +200,29 @@ pub fn iad_inverse<R: Real>(mut t: Sym3<R>, dim: u32) -> Sym3<R> {
     let det = xx * cxx + xy * cxy + xz * cxz;
     let tr = xx + yy + zz;
     let scale3 = tr * tr * tr;
-    if !(det > R::from_f64(1e-9) * scale3) {
-        let d = R::from_f64(dim as f64);
-        let tr_active = match dim {
-            1 => xx,
-            2 => xx + yy,
-            _ => tr,
-        };
-        let c = if tr_active > R::ZERO {
-            d / tr_active
-        } else {
-            R::ZERO
-        };
-        return [c, R::ZERO, R::ZERO, c, R::ZERO, c];
+    if det > R::from_f64(1e-9) * scale3 {
+        let inv = R::ONE / det;
+        return [
+            cxx * inv,
+            cxy * inv,
+            cxz * inv,
+            (xx * zz - xz * xz) * inv,
+            (xy * xz - xx * yz) * inv,
+            (xx * yy - xy * xy) * inv,
+        ];
     }
-    let inv = R::ONE / det;
-    [
-        cxx * inv,
-        cxy * inv,
-        cxz * inv,
-        (xx * zz - xz * xz) * inv,
-        (xy * xz - xx * yz) * inv,
-        (xx * yy - xy * xy) * inv,
-    ]
+    let d = R::from_f64(dim as f64);
+    let tr_active = match dim {
+        1 => xx,
+        2 => xx + yy,
+        _ => tr,
+    };
+    let c = if tr_active > R::ZERO {
+        d / tr_active
+    } else {
+        R::ZERO
+    };
+    [c, R::ZERO, R::ZERO, c, R::ZERO, c]
 }
 
 /// C · r.

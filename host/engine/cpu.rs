@@ -23,6 +23,29 @@ pub struct Forces {
     pub acc_max: f64,
 }
 
+impl Forces {
+    /// From per-particle rows (A_x, A_y, A_z, ė, v_sig); ė is dropped without an energy
+    /// equation.
+    pub fn from_rows(rows: &[[f64; 5]], energy: bool) -> Forces {
+        let mut f = Forces {
+            acc: Vec::with_capacity(rows.len()),
+            dedt: energy.then(|| Vec::with_capacity(rows.len())),
+            vsig_max: 0.0,
+            acc_max: 0.0,
+        };
+        for r in rows {
+            let a = [r[0], r[1], r[2]];
+            f.acc_max = f.acc_max.max(dot(a, a).sqrt());
+            f.vsig_max = f.vsig_max.max(r[4]);
+            f.acc.push(a);
+            if let Some(d) = &mut f.dedt {
+                d.push(r[3]);
+            }
+        }
+        f
+    }
+}
+
 /// IDIC cells at one layer: the union of cells occupied by any phase, with per-cell sums
 /// and the cell quantities of method.md §3.3–3.4. Arrays indexed `c * nf + k` hold
 /// fraction k of cell c.
@@ -250,6 +273,12 @@ impl CpuEngine {
                 .collect();
             state.gas.ph.rho = rho;
         }
+        self.eos(state);
+        Ok(())
+    }
+
+    /// Pressure and sound speed of every gas particle from its density and energy.
+    fn eos(&self, state: &mut State) {
         let eos = self.phys.eos;
         let g = &mut state.gas;
         let e = g.e.as_deref();
@@ -262,7 +291,6 @@ impl CpuEngine {
             })
             .collect();
         (g.p, g.c) = out.into_iter().unzip();
-        Ok(())
     }
 
     /// Dust densities for output (and for constant-K drag, which refreshes them every step).
@@ -292,10 +320,17 @@ impl CpuEngine {
 
     /// Non-drag gas accelerations A^n (pressure + AV) and de/dt^n.
     pub fn forces(&self, state: &State) -> Forces {
+        match (&state.gas.next_forces, self.pipe.kdk) {
+            (Some(rows), true) => Forces::from_rows(rows, self.pipe.energy),
+            _ => Forces::from_rows(&self.force_rows(state), self.pipe.energy),
+        }
+    }
+
+    /// The forces at the state as it is, per particle: (A_x, A_y, A_z, ė, v_sig).
+    fn force_rows(&self, state: &State) -> Vec<[f64; 5]> {
         let g = &state.gas;
         let (h, dim) = (self.phys.h, self.phys.dim);
         let av = self.phys.av.as_ref();
-        let energy = self.pipe.energy;
         let s = self.sorted(&self.gas_idx, &g.ph.x);
         let view = GasView {
             v: &g.ph.v,
@@ -311,7 +346,7 @@ impl CpuEngine {
                 .map(|&h| kernel::KernelAt::new(h, dim))
                 .collect()
         };
-        let out: Vec<([f64; 3], f64, f64)> = if self.pipe.iad {
+        let out: Vec<[f64; 5]> = if self.pipe.iad {
             // IAD: per-particle kernels (all at h for a fixed h), p/ρ², the matrices C_a.
             let k = match g.h.as_deref() {
                 Some(hv) => kernels_at(hv),
@@ -329,7 +364,7 @@ impl CpuEngine {
                 .into_par_iter()
                 .map(|i| {
                     let r = kernels::forces_iad_at(&s, &view, &k, &pt, &c, i, av);
-                    (r.acc, r.dedt, r.vsig)
+                    [r.acc[0], r.acc[1], r.acc[2], r.dedt, r.vsig]
                 })
                 .collect()
         } else {
@@ -348,25 +383,11 @@ impl CpuEngine {
                         Some((k, pt)) => kernels::forces_vh_at(&s, &view, k, pt, i, av),
                         None => kernels::forces_at(&s, &view, i, h, dim, av),
                     };
-                    (r.acc, r.dedt, r.vsig)
+                    [r.acc[0], r.acc[1], r.acc[2], r.dedt, r.vsig]
                 })
                 .collect()
         };
-        let mut f = Forces {
-            acc: Vec::with_capacity(out.len()),
-            dedt: energy.then(|| Vec::with_capacity(out.len())),
-            vsig_max: 0.0,
-            acc_max: 0.0,
-        };
-        for (a, e, v) in out {
-            f.acc_max = f.acc_max.max(dot(a, a).sqrt());
-            f.vsig_max = f.vsig_max.max(v);
-            f.acc.push(a);
-            if let Some(d) = &mut f.dedt {
-                d.push(e);
-            }
-        }
-        f
+        out
     }
 
     /// Time-step limits from the forces (see [`super::dt_limits`]).
@@ -675,67 +696,21 @@ impl CpuEngine {
 
     /// Advance one step of size τ from layer n (forces already computed at layer n).
     pub fn advance(&mut self, state: &mut State, f: &Forces, tau: f64) -> Result<(), StepError> {
+        if self.pipe.kdk {
+            return self.advance_kdk(state, f, tau);
+        }
         let old_gas_v =
             (self.phys.position_update == PositionUpdate::Old).then(|| state.gas.ph.v.clone());
         let old_dust_v: Option<Vec<Vec<[f64; 3]>>> = (self.phys.position_update
             == PositionUpdate::Old)
             .then(|| state.dust.iter().map(|d| d.v.clone()).collect());
-        let g = &state.gas.ph;
-        let v_tilde: Vec<[f64; 3]> = (0..g.len())
-            .into_par_iter()
-            .map(|i| dustsph_device::axpy(g.v[i], tau, f.acc[i]))
-            .collect();
-        let heat = if self.pipe.drag {
-            let mut timers = std::mem::take(&mut self.timers);
-            let name = if self.pipe.explicit_drag {
-                "explicit drag"
-            } else {
-                "idic"
-            };
-            let table = self.limit_table.take();
-            let h = timers.time(name, || self.idic(state, &v_tilde, tau, table));
-            self.timers = timers;
-            h
-        } else {
-            let g = &mut state.gas.ph;
-            let v_new: Vec<[f64; 3]> = v_tilde
-                .into_iter()
-                .enumerate()
-                .map(|(i, v)| if g.is_fixed(i) { g.v[i] } else { v })
-                .collect();
-            g.v = v_new;
-            None
-        };
-        let geom = self.grid.geom;
+        let table = self.limit_table.take();
+        let heat = self.kick(state, &f.acc, tau, table);
         let mut timers = std::mem::take(&mut self.timers);
         timers.time("positions + energy", || {
-            let drift = |ph: &mut Phase, w: Option<&Vec<[f64; 3]>>| {
-                let fixed = ph.fixed.as_deref();
-                let w = w.unwrap_or(&ph.v);
-                let x: Vec<[f64; 3]> =
-                    ph.x.par_iter()
-                        .enumerate()
-                        .map(|(i, &x)| {
-                            if fixed.is_some_and(|f| f[i]) {
-                                x
-                            } else {
-                                geom.wrap(update::drift(x, w[i], tau))
-                            }
-                        })
-                        .collect();
-                ph.x = x;
-            };
-            drift(&mut state.gas.ph, old_gas_v.as_ref());
-            for (k, d) in state.dust.iter_mut().enumerate() {
-                drift(d, old_dust_v.as_ref().map(|o| &o[k]));
-            }
-            if let (Some(e), Some(dedt)) = (&mut state.gas.e, &f.dedt) {
-                let fixed = state.gas.ph.fixed.as_deref();
-                e.par_iter_mut().enumerate().for_each(|(i, e)| {
-                    if !fixed.is_some_and(|f| f[i]) {
-                        *e = update::energy(*e, dedt[i], tau) + heat.as_ref().map_or(0.0, |h| h[i]);
-                    }
-                });
+            self.drift(state, tau, old_gas_v.as_ref(), old_dust_v.as_ref());
+            if let Some(dedt) = &f.dedt {
+                Self::energy_step(state, dedt, tau, heat.as_deref());
             }
         });
         timers.time("grid rebuild + sort", || self.regrid(state))?;
@@ -750,6 +725,145 @@ impl CpuEngine {
         state.t += tau;
         state.step += 1;
         self.check(state)
+    }
+
+    /// Kick–drift–kick leapfrog ([`crate::scene::Integrator::Kdk`]): from layer n with its
+    /// forces `f`, half kick (forces + drag over τ/2), drift with v^{n+1/2}, forces at n+1 from
+    /// predicted v*, e* (a τ/2 kick of v^{n+1/2} with the old forces and the drag at the new
+    /// layer), closing half kick with the new forces. The new forces are kept for the next
+    /// step, so a step costs one force evaluation.
+    fn advance_kdk(&mut self, state: &mut State, f: &Forces, tau: f64) -> Result<(), StepError> {
+        let half = 0.5 * tau;
+        let table = self.limit_table.take();
+        let heat = self.kick(state, &f.acc, half, table);
+        let mut timers = std::mem::take(&mut self.timers);
+        timers.time("positions + energy", || {
+            if let Some(dedt) = &f.dedt {
+                Self::energy_step(state, dedt, half, heat.as_deref());
+            }
+            self.drift(state, tau, None, None);
+        });
+        timers.time("grid rebuild + sort", || self.regrid(state))?;
+        // Predicted energy e* = e^{n+1/2} + τ/2 ė^n sets the pressure of the new layer.
+        let e_half = state.gas.e.clone();
+        if let Some(dedt) = &f.dedt {
+            Self::energy_step(state, dedt, half, None);
+        }
+        timers.time("gas density + EOS", || {
+            self.gas_density_eos(state, Some(tau))
+        })?;
+        self.dust_density_fresh = false;
+        if self.pipe.dust_density_each_step {
+            timers.time("dust density", || self.refresh_dust_density(state));
+        }
+        self.timers = timers;
+        // Predicted velocities v* (drag included: for stiff drag the undragged prediction would
+        // be off by O(1)), for the energy rate and the viscosity of the new layer.
+        let v_half = state.gas.ph.v.clone();
+        let u_half: Vec<Vec<[f64; 3]>> = state.dust.iter().map(|d| d.v.clone()).collect();
+        self.kick(state, &f.acc, half, None);
+        let mut timers = std::mem::take(&mut self.timers);
+        let rows = timers.time("gas forces", || self.force_rows(state));
+        let f1 = Forces::from_rows(&rows, self.pipe.energy);
+        self.timers = timers;
+        state.gas.ph.v = v_half;
+        for (d, u) in state.dust.iter_mut().zip(u_half) {
+            d.v = u;
+        }
+        state.gas.e = e_half;
+        let heat = self.kick(state, &f1.acc, half, None);
+        let mut timers = std::mem::take(&mut self.timers);
+        timers.time("positions + energy", || {
+            if let Some(dedt) = &f1.dedt {
+                Self::energy_step(state, dedt, half, heat.as_deref());
+                self.eos(state);
+            }
+        });
+        self.timers = timers;
+        state.t += tau;
+        state.step += 1;
+        state.gas.next_forces = Some(rows);
+        self.check(state)
+    }
+
+    /// Velocity kick over `dt`: ṽ = v + dt·A, then the drag pass over `dt` (gas and dust) or,
+    /// without dust, v = ṽ. Fixed particles keep their velocity. Returns the drag heat per unit
+    /// gas mass when heating is on.
+    fn kick(
+        &mut self,
+        state: &mut State,
+        acc: &[[f64; 3]],
+        dt: f64,
+        table: Option<CellTable>,
+    ) -> Option<Vec<f64>> {
+        let g = &state.gas.ph;
+        let v_tilde: Vec<[f64; 3]> = (0..g.len())
+            .into_par_iter()
+            .map(|i| dustsph_device::axpy(g.v[i], dt, acc[i]))
+            .collect();
+        if self.pipe.drag {
+            let mut timers = std::mem::take(&mut self.timers);
+            let name = if self.pipe.explicit_drag {
+                "explicit drag"
+            } else {
+                "idic"
+            };
+            let h = timers.time(name, || self.idic(state, &v_tilde, dt, table));
+            self.timers = timers;
+            h
+        } else {
+            let g = &mut state.gas.ph;
+            let v_new: Vec<[f64; 3]> = v_tilde
+                .into_iter()
+                .enumerate()
+                .map(|(i, v)| if g.is_fixed(i) { g.v[i] } else { v })
+                .collect();
+            g.v = v_new;
+            None
+        }
+    }
+
+    /// x += τ w for every phase, w = the phase's velocity or the given old one.
+    fn drift(
+        &self,
+        state: &mut State,
+        tau: f64,
+        old_gas_v: Option<&Vec<[f64; 3]>>,
+        old_dust_v: Option<&Vec<Vec<[f64; 3]>>>,
+    ) {
+        let geom = self.grid.geom;
+        let drift = |ph: &mut Phase, w: Option<&Vec<[f64; 3]>>| {
+            let fixed = ph.fixed.as_deref();
+            let w = w.unwrap_or(&ph.v);
+            let x: Vec<[f64; 3]> =
+                ph.x.par_iter()
+                    .enumerate()
+                    .map(|(i, &x)| {
+                        if fixed.is_some_and(|f| f[i]) {
+                            x
+                        } else {
+                            geom.wrap(update::drift(x, w[i], tau))
+                        }
+                    })
+                    .collect();
+            ph.x = x;
+        };
+        drift(&mut state.gas.ph, old_gas_v);
+        for (k, d) in state.dust.iter_mut().enumerate() {
+            drift(d, old_dust_v.map(|o| &o[k]));
+        }
+    }
+
+    /// e += dt ė (+ drag heat) for every free gas particle.
+    fn energy_step(state: &mut State, dedt: &[f64], dt: f64, heat: Option<&[f64]>) {
+        if let Some(e) = &mut state.gas.e {
+            let fixed = state.gas.ph.fixed.as_deref();
+            e.par_iter_mut().enumerate().for_each(|(i, e)| {
+                if !fixed.is_some_and(|f| f[i]) {
+                    *e = update::energy(*e, dedt[i], dt) + heat.map_or(0.0, |h| h[i]);
+                }
+            });
+        }
     }
 
     /// Full step: forces, then advance. Returns the forces used (for diagnostics).

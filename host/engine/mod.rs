@@ -9,7 +9,8 @@ pub mod timers;
 
 use crate::grid::Domain;
 use crate::scene::{
-    DensityMethod, DragMethod, EosKind, GradientMethod, LawKind, PositionUpdate, Scene, TimeCfg,
+    DensityMethod, DragMethod, EosKind, GradientMethod, Integrator, LawKind, PositionUpdate, Scene,
+    TimeCfg,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -39,6 +40,7 @@ pub struct Physics {
     pub variable_h: Option<f64>,
     /// Standard kernel gradient or IAD in the gas pair terms.
     pub gradient: GradientMethod,
+    pub integrator: Integrator,
 }
 
 impl Physics {
@@ -90,6 +92,7 @@ impl Physics {
             density: scene.sph.density,
             variable_h: scene.sph.variable_h.then(|| scene.sph.hfact.unwrap_or(1.2)),
             gradient: scene.sph.gradient,
+            integrator: scene.time.integrator,
         }
     }
 
@@ -147,6 +150,8 @@ pub struct Pipeline {
     pub variable_h: bool,
     /// IAD gradient: a pass for the matrices C_a before the forces.
     pub iad: bool,
+    /// Kick–drift–kick leapfrog instead of the first-order step.
+    pub kdk: bool,
 }
 
 impl Pipeline {
@@ -161,24 +166,70 @@ impl Pipeline {
             continuity_density: p.density == DensityMethod::Continuity,
             variable_h: p.variable_h.is_some(),
             iad: p.gradient == GradientMethod::Iad,
+            kdk: p.integrator == Integrator::Kdk,
         }
     }
 
     /// The stages a step runs, in order.
     pub fn stages(&self) -> Vec<&'static str> {
-        let mut s = Vec::new();
-        if self.iad {
-            s.push("gas IAD matrices");
-        }
-        s.push(match (self.viscosity, self.iad) {
+        let forces = match (self.viscosity, self.iad) {
             (true, false) => "gas forces (pressure + artificial viscosity)",
             (false, false) => "gas forces (pressure)",
             (true, true) => "gas forces (pressure + artificial viscosity, IAD gradient)",
             (false, true) => "gas forces (pressure, IAD gradient)",
-        });
-        if self.energy {
-            s.push("gas energy rate");
+        };
+        let density = if self.continuity_density {
+            "gas density (continuity equation) + EOS"
+        } else if self.variable_h {
+            "gas h and density (variable h, Newton–Raphson) + EOS"
+        } else {
+            "gas density + EOS"
+        };
+        let mut s = Vec::new();
+        let force_pass = |s: &mut Vec<&'static str>| {
+            if self.iad {
+                s.push("gas IAD matrices");
+            }
+            s.push(forces);
+            if self.energy {
+                s.push("gas energy rate");
+            }
+        };
+        if self.kdk {
+            // The opening forces are the previous step's closing ones (computed once at start).
+            s.push(if self.drag {
+                "half kick: gas velocities + IDIC drag over τ/2 (gas, then dust)"
+            } else {
+                "half kick: gas velocities"
+            });
+            if self.explicit_drag {
+                s.push("explicit drag time-step limit (τ ≤ 0.9 t_s)");
+            }
+            if self.energy {
+                s.push("gas energy half step");
+            }
+            s.push("positions (v^{n+1/2})");
+            s.push("grid rebuild + sort");
+            s.push(density);
+            if self.drag && self.dust_density_each_step {
+                s.push("dust density");
+            }
+            s.push("predicted v, e at the new layer (half kick + drag over τ/2)");
+            force_pass(&mut s);
+            s.push(if self.drag {
+                "closing half kick: gas velocities + IDIC drag over τ/2"
+            } else {
+                "closing half kick: gas velocities"
+            });
+            if self.drag && self.heating {
+                s.push("drag heating");
+            }
+            if self.energy {
+                s.push("gas energy half step + EOS");
+            }
+            return s;
         }
+        force_pass(&mut s);
         if self.explicit_drag {
             s.push("explicit drag time-step limit (τ ≤ 0.9 t_s)");
             s.push("explicit drag cell sums");
@@ -198,13 +249,7 @@ impl Pipeline {
             s.push("gas energy");
         }
         s.push("grid rebuild + sort");
-        s.push(if self.continuity_density {
-            "gas density (continuity equation) + EOS"
-        } else if self.variable_h {
-            "gas h and density (variable h, Newton–Raphson) + EOS"
-        } else {
-            "gas density + EOS"
-        });
+        s.push(density);
         if self.drag && self.dust_density_each_step {
             s.push("dust density");
         }

@@ -87,6 +87,10 @@ pub fn write_checkpoint(path: &Path, state: &State, meta: &CheckpointMeta) -> Re
                 put_dataset(&g, name, f, 1, path)?;
             }
         }
+        if let Some(f) = &state.gas.next_forces {
+            let flat: Vec<f64> = f.iter().flatten().copied().collect();
+            put_dataset(&g, "next_forces", &flat, 5, path)?;
+        }
         for (k, d) in state.dust.iter().enumerate() {
             put_phase(&file, &format!("dust{k}"), d, path)?;
         }
@@ -113,6 +117,16 @@ pub fn read_checkpoint(path: &Path) -> Result<(State, CheckpointMeta), IoError> 
         e: get_optional(&g, "e", n, path)?,
         h: get_optional(&g, "h", n, path)?,
         omega: get_optional(&g, "omega", n, path)?,
+        next_forces: if g.link_exists("next_forces") {
+            let flat: Vec<f64> = get_shaped(&g, "next_forces", &[n, 5], path)?;
+            Some(
+                flat.chunks_exact(5)
+                    .map(|c| [c[0], c[1], c[2], c[3], c[4]])
+                    .collect(),
+            )
+        } else {
+            None
+        },
         ph: gas_ph,
     };
     let dust = (0..n_dust)
@@ -161,6 +175,7 @@ mod tests {
                 e: Some(vec![2.5; 7]),
                 h: Some(vec![0.01; 7]),
                 omega: None,
+                next_forces: None,
             },
             dust: vec![ph(5, false), ph(0, false)],
         };

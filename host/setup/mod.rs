@@ -109,6 +109,7 @@ pub(crate) fn gas_phase(ph: Phase, e: Option<Vec<f64>>) -> Gas {
         e,
         h: None,
         omega: None,
+        next_forces: None,
     }
 }
 

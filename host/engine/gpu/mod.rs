@@ -378,6 +378,10 @@ impl<L: Launcher> GpuEngine<L> {
                 "continuity-equation density (sph.density)",
             ),
             (pipe.iad, "the IAD gradient (sph.gradient = \"iad\")"),
+            (
+                pipe.kdk,
+                "the leapfrog integrator (time.integrator = \"kdk\")",
+            ),
         ];
         if let Some((_, what)) = cpu_only.iter().find(|c| c.0) {
             return Err(StepError::Unsupported(format!(
