@@ -165,12 +165,9 @@ pub fn iad_matrix_at<R: Real>(
     i: usize,
 ) -> sph::Sym3<R> {
     let ki = k[i];
-    let s2 = R::from_f64(crate::kernel::SUPPORT * crate::kernel::SUPPORT) * ki.h * ki.h;
     let mut t = [R::ZERO; 6];
+    // W(h_i) = 0 beyond 2h_i and r_ab = 0 for b = a: no test needed.
     for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, dx, r2| {
-        if j == i || r2 >= s2 {
-            return;
-        }
         let c = sph::iad_moment_term(m[j] / rho[j], dx, ki.w(r2.sqrt()));
         for (a, b) in t.iter_mut().zip(c) {
             *a += b;
