@@ -49,6 +49,23 @@ struct StudyFile {
     study: StudyCfg,
     #[serde(default)]
     axis: Vec<AxisCfg>,
+    #[serde(default)]
+    reference: Vec<ReferenceCfg>,
+}
+
+/// A figure measured elsewhere (another code, a paper), drawn into the error-against-time plot
+/// as its own marker and listed in results.md; never run by the study.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceCfg {
+    /// Legend label, e.g. "Phantom two-fluid implicit, K = 1e5".
+    pub label: String,
+    /// Its wall time [s] and its error in the plotted metric.
+    pub wall_s: f64,
+    pub error: f64,
+    /// Conditions and source (machine, steps, time of the error, ...).
+    #[serde(default)]
+    pub note: String,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -208,6 +225,8 @@ pub struct Study {
     pub point_axes: Vec<usize>,
     pub plot_against: Vec<usize>,
     pub points: Vec<Point>,
+    /// Figures from elsewhere, drawn into the error-against-time plot.
+    pub references: Vec<ReferenceCfg>,
 }
 
 /// How a point ended.
@@ -298,6 +317,16 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
         };
         err((key != "." && !key.is_empty()).then_some(key), msg)
     })?;
+    for (i, r) in f.reference.iter().enumerate() {
+        for (key, v) in [("wall_s", r.wall_s), ("error", r.error)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(err(
+                    Some(format!("reference.{i}.{key}")),
+                    "must be a finite number > 0 (it is drawn on log axes)".into(),
+                ));
+            }
+        }
+    }
     let c = &f.study;
     if c.name.trim().is_empty() {
         return Err(err(Some("study.name".into()), "must not be empty".into()));
@@ -522,6 +551,7 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
         point_axes,
         plot_against,
         points,
+        references: f.reference,
     })
 }
 
@@ -845,12 +875,25 @@ impl Study {
             self.cfg.threads,
             if self.cfg.threads == 1 { "" } else { "s" }
         );
+        let mut lines = mk(&|i| results[i].cost());
+        let n_lines = lines.len();
+        lines.extend(
+            self.references
+                .iter()
+                .enumerate()
+                .map(|(k, r)| LogLogSeries {
+                    label: r.label.clone(),
+                    points: vec![(r.wall_s, r.error)],
+                    color: n_lines + k,
+                    style: 2,
+                }),
+        );
         fig_loglog(
             &p,
             &format!("{title}: error against run time"),
             &x_desc,
             &self.metrics[pm].name(),
-            &mk(&|i| results[i].cost()),
+            &lines,
         )?;
         files.push(p);
         for &a in &self.plot_against {
@@ -956,6 +999,24 @@ impl Study {
                     let _ = writeln!(s, "![{n}]({n})\n");
                 }
             }
+        }
+        if !self.references.is_empty() {
+            let _ = writeln!(
+                s,
+                "Reference points (measured elsewhere, not run by this study; squares in the plot):\n\n| reference | wall time s | {} | note |\n|---|---|---|---|",
+                self.metrics[self.plot_metric].name()
+            );
+            for r in &self.references {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {:.3e} | {} |",
+                    r.label.replace('|', "\\|"),
+                    r.wall_s,
+                    r.error,
+                    r.note.replace('|', "\\|")
+                );
+            }
+            let _ = writeln!(s);
         }
         // Table
         let mut head: Vec<String> = self.axes.iter().map(|a| format!("`{}`", a.key)).collect();
