@@ -7,6 +7,7 @@
 //!    comparison is exact, bit for bit — the f64 bound the real GPU must also meet.
 //! 2. The PTX entry points take exactly the argument bytes the host passes: the parameter size
 //!    of every `.entry` equals the size of its host-side argument struct.
+mod common;
 use dustsph::engine::backend::DeviceChoice;
 use dustsph::engine::gpu::{self, launch::KERNELS};
 use dustsph::parity::{compare, CASES};
@@ -133,4 +134,26 @@ fn ptx_entry_points_take_the_host_argument_structs() {
         !gpu::PTX.contains(".extern"),
         "unresolved externs in the PTX"
     );
+}
+
+/// The GPU engine refuses what it does not implement, naming the scene key (the run then
+/// falls back to the CPU under `--device auto`).
+#[test]
+fn gpu_engine_names_the_cpu_only_options_it_refuses() {
+    use dustsph::engine::backend::Backend;
+    use dustsph::engine::Physics;
+    for (set, key) in [
+        ("sph.gradient=\"iad\"", "sph.gradient"),
+        ("time.integrator=\"kdk\"", "time.integrator"),
+    ] {
+        let sets = vec![set.to_string(), "sph.n=32".to_string()];
+        let loaded = dustsph::scene::load(&common::config("dustywave"), &sets).unwrap();
+        let su = dustsph::setup::build(&loaded.scene).unwrap();
+        let mut state = su.state;
+        let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
+        match Backend::new(DeviceChoice::Emulate, phys, &mut state) {
+            Ok(_) => panic!("{set}: accepted by the GPU engine"),
+            Err(e) => assert!(e.to_string().contains(key), "{set}: {e}"),
+        }
+    }
 }

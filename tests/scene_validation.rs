@@ -80,6 +80,11 @@ fn impossible_values_name_their_key_and_file() {
         ("dustyshock", "idic.cell=10", "idic.cell"),
         ("dustybox", "time.output_dt=1e-14", "time.output_dt"),
         ("dustywave", "sph.n=1", "sph.n"),
+        (
+            "dustywave_phantom",
+            "time.position_update=\"old\"",
+            "time.position_update",
+        ),
     ];
     for (scene, set, key) in cases.iter().chain(more) {
         let e = err(scene, &[set]);
@@ -112,6 +117,10 @@ fn unknown_keys_and_wrong_types_name_their_key() {
     assert_eq!(e.key.as_deref(), Some("dust.law"), "{e}");
     let e = err("dustybox", &["dust.fractions.9.eps=1"]);
     assert_eq!(e.key.as_deref(), Some("dust.fractions.9.eps"), "{e}");
+    let e = err("dustybox", &["time.integrator=\"rk4\""]);
+    assert_eq!(e.key.as_deref(), Some("time.integrator"), "{e}");
+    let e = err("dustybox", &["sph.gradient=\"corrected\""]);
+    assert_eq!(e.key.as_deref(), Some("sph.gradient"), "{e}");
     let e = err("dustybox", &["no_equals_sign"]);
     assert!(e.to_string().contains("key=value"), "{e}");
 }
