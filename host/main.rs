@@ -492,16 +492,20 @@ fn main() -> ExitCode {
         }
         Cmd::Gpu { write_ptx } => {
             use dustsph::engine::gpu;
-            println!(
+            use std::io::Write as _;
+            // A reader that closes the pipe early (`dustsph gpu | head -1`) is not an error.
+            let mut out = std::io::stdout().lock();
+            let _ = writeln!(
+                out,
                 "kernels: {} ({} bytes of PTX, {} entry points)",
                 gpu::PTX_NOTE,
                 gpu::PTX.len(),
                 gpu::PTX.matches(".entry ").count()
             );
-            match gpu::probe() {
-                Ok(name) => println!("device: {name}"),
-                Err(why) => println!("device: none ({why})"),
-            }
+            let _ = match gpu::probe() {
+                Ok(name) => writeln!(out, "device: {name}"),
+                Err(why) => writeln!(out, "device: none ({why})"),
+            };
             if let Some(f) = write_ptx {
                 if gpu::PTX.is_empty() {
                     eprintln!("error: this binary has no PTX to write ({})", gpu::PTX_NOTE);
@@ -511,7 +515,7 @@ fn main() -> ExitCode {
                     eprintln!("error: {}: {e}", f.display());
                     return ExitCode::from(1);
                 }
-                println!("wrote {}", f.display());
+                let _ = writeln!(out, "wrote {}", f.display());
             }
             ExitCode::SUCCESS
         }
