@@ -72,3 +72,30 @@ fn iad_gives_the_lattice_sound_speed_that_the_standard_gradient_misses() {
     eprintln!("c² ratio: IAD with a fixed h {iad_fixed:.5}");
     assert!((iad_fixed - 1.0).abs() < 0.01, "IAD, fixed h: {iad_fixed}");
 }
+
+#[test]
+fn dust_shift_offsets_every_dust_lattice_by_the_given_spacings() {
+    let sets: Vec<String> = ["sph.n=16", "dustywave.dust_shift=0.5"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let loaded = dustsph::scene::load(&common::config("dustywave_phantom"), &sets).unwrap();
+    let su = dustsph::setup::build(&loaded.scene).unwrap();
+    let (g, d) = (&su.state.gas.ph, &su.state.dust[0]);
+    let np = g.len() as u64;
+    let half = 0.5 / 16.0; // 0.5 Δ, Δ = 1/16 along x
+                           // The slab's width: 12 rows of Δ√3/2 along y, 12 layers of Δ√(2/3) along z.
+    let period = [
+        0.0,
+        12.0 * 0.75f64.sqrt() / 16.0,
+        12.0 * (2.0f64 / 3.0).sqrt() / 16.0,
+    ];
+    for (i, xg) in g.x.iter().enumerate() {
+        let j = d.id.iter().position(|&id| id == np + g.id[i]).unwrap();
+        for k in 1..3 {
+            // y and z are not stretched: the offset is exact (modulo the period).
+            let off = (d.x[j][k] - xg[k]).rem_euclid(period[k]);
+            assert!((off - half).abs() < 1e-12, "particle {i}, axis {k}: {off}");
+        }
+    }
+}

@@ -349,6 +349,11 @@ pub struct WaveCfg {
     /// and this many rows thick. Phantom's DUSTYWAVE uses 12.
     #[serde(default = "twelve")]
     pub layers: usize,
+    /// Offset of every dust lattice from the gas lattice, in units of the spacing Δ along x,
+    /// applied along every axis (Phantom's `dust_shift`); 0 puts each dust particle on a gas
+    /// particle.
+    #[serde(default)]
+    pub dust_shift: f64,
 }
 
 fn twelve() -> usize {
@@ -736,6 +741,7 @@ impl Scene {
         if let Some(w) = &self.dustywave {
             positive("dustywave.length", w.length)?;
             positive("dustywave.amplitude", w.amplitude)?;
+            finite("dustywave.dust_shift", w.dust_shift)?;
             if self.scene.dim > 1 {
                 let need = match (w.lattice, self.scene.dim) {
                     // Hexagonal rows alternate (period 2); fcc layers repeat every 3.

@@ -214,10 +214,20 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
         fixed: None,
     };
     let npu = np as u64;
+    let x0_dust: Vec<[f64; 3]> = x0
+        .iter()
+        .map(|p| {
+            let mut q = *p;
+            for (c, l) in q.iter_mut().zip(&len).take(dim as usize) {
+                *c = (*c + w.dust_shift * dx).rem_euclid(*l);
+            }
+            q
+        })
+        .collect();
     let dust = (0..lw.rho_d0.len())
         .map(|kf| {
             let rho0 = lw.rho_d0[kf];
-            let x = stretch(&x0, w.length, rho0, a, y.rho_d[kf], k);
+            let x = stretch(&x0_dust, w.length, rho0, a, y.rho_d[kf], k);
             let v = x
                 .iter()
                 .map(|p| [field(0.0, a, y.v_d[kf], k, p[0]), 0.0, 0.0])
