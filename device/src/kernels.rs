@@ -188,6 +188,21 @@ pub fn forces_iad_at<R: Real>(
     i: usize,
     av: Option<&Viscosity<R>>,
 ) -> GasPair<R> {
+    forces_two_sided_at(s, g, k, i, |a, b, j, dx, r2| {
+        sph::gas_pair_iad(a, b, pt[i], pt[j], dx, r2, &k[i], &k[j], &c[i], &c[j], av)
+    })
+}
+
+/// The force loop of the per-particle-h forms: neighbours j within either support (the result
+/// must not depend on the search radius), `pair(a, b, j, r_ab, r²)` per pair.
+#[inline(always)]
+fn forces_two_sided_at<R: Real>(
+    s: &Sorted<'_, R>,
+    g: &GasView<'_, R>,
+    k: &[KernelAt<R>],
+    i: usize,
+    pair: impl Fn(&GasState<R>, &GasState<R>, usize, Vec3<R>, R) -> GasPair<R>,
+) -> GasPair<R> {
     let mut out = GasPair {
         acc: [R::ZERO; 3],
         dedt: R::ZERO,
@@ -204,8 +219,7 @@ pub fn forces_iad_at<R: Real>(
         if j == i || r2 >= s2 * hm * hm {
             return;
         }
-        let b = g.state(s.x[j], j);
-        let pr = sph::gas_pair_iad(&a, &b, pt[i], pt[j], dx, r2, &k[i], &k[j], &c[i], &c[j], av);
+        let pr = pair(&a, &g.state(s.x[j], j), j, dx, r2);
         out.acc = add(out.acc, pr.acc);
         out.dedt += pr.dedt;
         out.vsig = out.vsig.max(pr.vsig);
@@ -289,30 +303,9 @@ pub fn forces_vh_at<R: Real>(
     i: usize,
     av: Option<&Viscosity<R>>,
 ) -> GasPair<R> {
-    let mut out = GasPair {
-        acc: [R::ZERO; 3],
-        dedt: R::ZERO,
-        vsig: R::ZERO,
-    };
-    if is_fixed(g.fixed, i) {
-        return out;
-    }
-    let a = g.state(s.x[i], i);
-    let (ka, pa) = (k[i], pt[i]);
-    out.vsig = a.c;
-    let s2 = R::from_f64(crate::kernel::SUPPORT * crate::kernel::SUPPORT);
-    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, r2| {
-        // Only pairs within either support: the result must not depend on the search radius.
-        let hm = ka.h.max(k[j].h);
-        if j == i || r2 >= s2 * hm * hm {
-            return;
-        }
-        let pr = sph::gas_pair_vh(&a, &g.state(s.x[j], j), pa, pt[j], dx, r2, &ka, &k[j], av);
-        out.acc = add(out.acc, pr.acc);
-        out.dedt += pr.dedt;
-        out.vsig = out.vsig.max(pr.vsig);
-    });
-    out
+    forces_two_sided_at(s, g, k, i, |a, b, j, dx, r2| {
+        sph::gas_pair_vh(a, b, pt[i], pt[j], dx, r2, &k[i], &k[j], av)
+    })
 }
 
 /// Pressure and sound speed of a gas particle from its density (and energy).

@@ -145,17 +145,44 @@ pub fn gas_pair_vh<R: Real>(
     av: Option<&Viscosity<R>>,
 ) -> GasPair<R> {
     let r = r2.sqrt();
-    let fa = ka.grad_factor(r);
-    let fb = kb.grad_factor(r);
+    let ga = crate::scale(ka.grad_factor(r), dx);
+    let gb = crate::scale(kb.grad_factor(r), dx);
+    let hbar = R::from_f64(0.5) * (ka.h + kb.h);
+    gas_pair_two_sided(a, b, pa, pb, dx, r2, hbar, ga, gb, av)
+}
+
+/// The pair term with one kernel gradient per side: `ga` stands for ∇_a W_ab(h_a), `gb` for
+/// ∇_a W_ab(h_b). Momentum −m_b (p̂_a ga + p̂_b gb + Π_ab ḡ), energy m_b (p̂_a v_ab·ga +
+/// ½ Π_ab v_ab·ḡ), ḡ = (ga + gb)/2, Π_ab at the mean h `hbar`. Shared by the variable-h and the
+/// IAD forms, which differ only in the gradients.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn gas_pair_two_sided<R: Real>(
+    a: &GasState<R>,
+    b: &GasState<R>,
+    pa: R,
+    pb: R,
+    dx: Vec3<R>,
+    r2: R,
+    hbar: R,
+    ga: Vec3<R>,
+    gb: Vec3<R>,
+    av: Option<&Viscosity<R>>,
+) -> GasPair<R> {
     let dv = crate::sub(a.v, b.v);
-    let vr = dot(dv, dx);
     let half = R::from_f64(0.5);
-    let (pi, vsig) = viscous(a, b, vr, r2, half * (ka.h + kb.h), av);
-    let fbar = half * (fa + fb);
-    let coef = -b.m * (pa * fa + pb * fb + pi * fbar);
+    let (pi, vsig) = viscous(a, b, dot(dv, dx), r2, hbar, av);
+    let gbar = crate::scale(half, crate::add(ga, gb));
+    let acc = crate::scale(
+        -b.m,
+        crate::add(
+            crate::add(crate::scale(pa, ga), crate::scale(pb, gb)),
+            crate::scale(pi, gbar),
+        ),
+    );
     GasPair {
-        acc: [coef * dx[0], coef * dx[1], coef * dx[2]],
-        dedt: b.m * (pa * fa + half * pi * fbar) * vr,
+        acc,
+        dedt: b.m * (pa * dot(dv, ga) + half * pi * dot(dv, gbar)),
         vsig,
     }
 }
@@ -260,17 +287,6 @@ pub fn gas_pair_iad<R: Real>(
     let r = r2.sqrt();
     let ga = crate::scale(-ka.w(r), sym_mul(ca, dx));
     let gb = crate::scale(-kb.w(r), sym_mul(cb, dx));
-    let dv = crate::sub(a.v, b.v);
-    let half = R::from_f64(0.5);
-    let (pi, vsig) = viscous(a, b, dot(dv, dx), r2, half * (ka.h + kb.h), av);
-    let mut acc = [R::ZERO; 3];
-    for d in 0..3 {
-        acc[d] = -b.m * (pa * ga[d] + pb * gb[d] + pi * half * (ga[d] + gb[d]));
-    }
-    let (va, vb) = (dot(dv, ga), dot(dv, gb));
-    GasPair {
-        acc,
-        dedt: b.m * (pa * va + half * half * pi * (va + vb)),
-        vsig,
-    }
+    let hbar = R::from_f64(0.5) * (ka.h + kb.h);
+    gas_pair_two_sided(a, b, pa, pb, dx, r2, hbar, ga, gb, av)
 }

@@ -130,7 +130,8 @@ impl CpuEngine {
     }
 
     /// Rebuild the grid over the current positions and sort every phase by cell key.
-    fn regrid(&mut self, state: &mut State) -> Result<(), StepError> {
+    /// Returns the permutation applied to the gas (new index → old index).
+    fn regrid(&mut self, state: &mut State) -> Result<Vec<u32>, StepError> {
         let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
         xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
         self.grid = Grid::build(
@@ -139,8 +140,8 @@ impl CpuEngine {
             self.search_support(state),
             &xs,
         )?;
-        let (perm, idx) = CellIndex::sort(&self.grid, &state.gas.ph.x);
-        state.gas.permute(&perm);
+        let (perm_gas, idx) = CellIndex::sort(&self.grid, &state.gas.ph.x);
+        state.gas.permute(&perm_gas);
         self.gas_idx = idx;
         self.dust_idx.clear();
         for d in &mut state.dust {
@@ -148,7 +149,7 @@ impl CpuEngine {
             d.permute(&perm);
             self.dust_idx.push(idx);
         }
-        Ok(())
+        Ok(perm_gas)
     }
 
     /// Search radius of the grid: the kernel support 2h; with variable h, 2 max h_a plus 0.1% for
@@ -713,18 +714,37 @@ impl CpuEngine {
                 Self::energy_step(state, dedt, tau, heat.as_deref());
             }
         });
-        timers.time("grid rebuild + sort", || self.regrid(state))?;
-        timers.time("gas density + EOS", || {
-            self.gas_density_eos(state, Some(tau))
-        })?;
-        self.dust_density_fresh = false;
-        if self.pipe.dust_density_each_step {
-            timers.time("dust density", || self.refresh_dust_density(state));
-        }
         self.timers = timers;
+        self.new_layer(state, tau, |_, _| {})?;
         state.t += tau;
         state.step += 1;
         self.check(state)
+    }
+
+    /// The layer after the drift: grid rebuild and sort, then `before_density(state, perm)`
+    /// (perm: the gas permutation of the sort, new index → old index), the gas density and EOS,
+    /// and the dust densities where the drag needs them every step.
+    fn new_layer(
+        &mut self,
+        state: &mut State,
+        tau: f64,
+        before_density: impl FnOnce(&mut State, &[u32]),
+    ) -> Result<(), StepError> {
+        let mut timers = std::mem::take(&mut self.timers);
+        let res = (|| {
+            let perm = timers.time("grid rebuild + sort", || self.regrid(state))?;
+            before_density(state, &perm);
+            timers.time("gas density + EOS", || {
+                self.gas_density_eos(state, Some(tau))
+            })?;
+            self.dust_density_fresh = false;
+            if self.pipe.dust_density_each_step {
+                timers.time("dust density", || self.refresh_dust_density(state));
+            }
+            Ok(())
+        })();
+        self.timers = timers;
+        res
     }
 
     /// Kick–drift–kick leapfrog ([`crate::scene::Integrator::Kdk`]): from layer n with its
@@ -743,25 +763,24 @@ impl CpuEngine {
             }
             self.drift(state, tau, None, None);
         });
-        timers.time("grid rebuild + sort", || self.regrid(state))?;
-        // Predicted energy e* = e^{n+1/2} + τ/2 ė^n sets the pressure of the new layer.
-        let e_half = state.gas.e.clone();
-        if let Some(dedt) = &f.dedt {
-            Self::energy_step(state, dedt, half, None);
-        }
-        timers.time("gas density + EOS", || {
-            self.gas_density_eos(state, Some(tau))
-        })?;
-        self.dust_density_fresh = false;
-        if self.pipe.dust_density_each_step {
-            timers.time("dust density", || self.refresh_dust_density(state));
-        }
         self.timers = timers;
+        // The sort reorders the gas: the opening forces follow it for the predictor.
+        let mut acc_n = Vec::new();
+        let mut e_half = None;
+        self.new_layer(state, tau, |st, perm| {
+            acc_n = perm.iter().map(|&p| f.acc[p as usize]).collect();
+            // Predicted energy e* = e^{n+1/2} + τ/2 ė^n sets the pressure of the new layer.
+            e_half = st.gas.e.clone();
+            if let Some(dedt) = &f.dedt {
+                let dedt: Vec<f64> = perm.iter().map(|&p| dedt[p as usize]).collect();
+                Self::energy_step(st, &dedt, half, None);
+            }
+        })?;
         // Predicted velocities v* (drag included: for stiff drag the undragged prediction would
         // be off by O(1)), for the energy rate and the viscosity of the new layer.
         let v_half = state.gas.ph.v.clone();
         let u_half: Vec<Vec<[f64; 3]>> = state.dust.iter().map(|d| d.v.clone()).collect();
-        self.kick(state, &f.acc, half, None);
+        self.kick(state, &acc_n, half, None);
         let mut timers = std::mem::take(&mut self.timers);
         let rows = timers.time("gas forces", || self.force_rows(state));
         let f1 = Forces::from_rows(&rows, self.pipe.energy);
