@@ -551,3 +551,163 @@ pub fn scan_exclusive(chunk: &mut [u32], mut offset: u32) -> u32 {
     }
     offset
 }
+
+// ---------------------------------------------------------------------------------------------
+// Kernel coupling (docs/method.md §K): the IDIC cell solve with the gas particles as the cells.
+// Every particle q (gas or dust) spreads itself over the gas particles a around it with the
+// weights w_qa = W(r_qa, h_a)/S_q, S_q = Σ_b W(r_qb, h_b): a partition of unity, so the deposit
+// and the return of the increments conserve momentum exactly, and a uniform increment reaches
+// every particle unchanged. Gas and dust are smoothed by the same operator at the same point, so
+// the relative velocity the drag sees is a property of the flow, not of where particles sit.
+// ---------------------------------------------------------------------------------------------
+
+/// The gas kernel of particle b: one shared kernel (fixed h, `k.len() == 1`) or one per particle.
+#[inline(always)]
+pub fn kernel_of<R: Real>(k: &[KernelAt<R>], b: usize) -> KernelAt<R> {
+    if k.len() == 1 {
+        k[0]
+    } else {
+        k[b]
+    }
+}
+
+/// S(x) = Σ_b W(|x − x_b|, h_b) over the free gas particles b: the normaliser of the weights
+/// of a particle at x (0: no gas within reach, the particle does not couple).
+#[inline(always)]
+pub fn gas_weight_sum_at<R: Real>(
+    gas: &Sorted<'_, R>,
+    k: &[KernelAt<R>],
+    gas_fixed: &[bool],
+    x: Vec3<R>,
+) -> R {
+    let mut s = R::ZERO;
+    for_neighbours(gas.geom, &gas.look, gas.x, x, |b, _, r2| {
+        if !is_fixed(gas_fixed, b) {
+            s += kernel_of(k, b).w(r2.sqrt());
+        }
+    });
+    s
+}
+
+/// What one phase deposits on gas particle a: Σ w m, Σ w m ṽ, and the mass-weighted sums of
+/// the density and of sqrt(p/ρ) (gas) that the stopping-time laws read.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Deposit<R> {
+    pub mass: R,
+    pub mom: Vec3<R>,
+    pub rho: R,
+    pub cs: R,
+}
+
+/// Deposit of one phase (positions `q.x`, normalisers `s`, masses, velocities `vel(j)`,
+/// densities `rho`, optional `cs(j)`) on the gas particle at `xa` with kernel `ka`. Particles
+/// with `s = 0` or fixed ones deposit nothing.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn deposit_at<R: Real>(
+    q: &Sorted<'_, R>,
+    s: &[R],
+    m: &[R],
+    rho: &[R],
+    fixed: &[bool],
+    xa: Vec3<R>,
+    ka: &KernelAt<R>,
+    vel: impl Fn(usize) -> Vec3<R>,
+    cs: impl Fn(usize) -> R,
+) -> Deposit<R> {
+    let mut d = Deposit {
+        mass: R::ZERO,
+        mom: [R::ZERO; 3],
+        rho: R::ZERO,
+        cs: R::ZERO,
+    };
+    for_neighbours(q.geom, &q.look, q.x, xa, |j, _, r2| {
+        if is_fixed(fixed, j) || s[j] <= R::ZERO {
+            return;
+        }
+        let wm = ka.w(r2.sqrt()) / s[j] * m[j];
+        d.mass += wm;
+        d.mom = axpy(d.mom, wm, vel(j));
+        d.rho += wm * rho[j];
+        d.cs += wm * cs(j);
+    });
+    d
+}
+
+/// The implicit solve on gas particle a from the deposits (method.md §3.3 closed form, with the
+/// cell means replaced by the deposit means): ε_k = M_k/M_g, t_k* from each law with the
+/// mass-weighted mean densities and sound speed (`gamma_root` · mean sqrt(p/ρ)).
+/// `CellCoupling::u_new`/`v_new` are the new means; `old` returns the old means (ṽ, ũ_k).
+#[inline(always)]
+pub fn kernel_couple<R: Real>(
+    gas: &Deposit<R>,
+    dust: &[Deposit<R>],
+    laws: &[StoppingLaw<R>],
+    tau: R,
+    gamma_root: R,
+    old: &mut [Vec3<R>; MAX_FRACTIONS],
+) -> CellCoupling<R> {
+    let nf = dust.len().min(laws.len()).min(MAX_FRACTIONS);
+    let inf = R::from_f64(f64::INFINITY);
+    let mut c = CellCoupling {
+        eps: [R::ZERO; MAX_FRACTIONS],
+        beta: [R::ZERO; MAX_FRACTIONS],
+        t_stop: [inf; MAX_FRACTIONS],
+        u_new: [[R::ZERO; 3]; MAX_FRACTIONS],
+        v_new: [R::ZERO; 3],
+    };
+    if gas.mass <= R::ZERO {
+        return c;
+    }
+    let inv_g = R::ONE / gas.mass;
+    for k in 0..nf {
+        let d = &dust[k];
+        if d.mass <= R::ZERO {
+            continue;
+        }
+        let inv_d = R::ONE / d.mass;
+        old[k] = scale(inv_d, d.mom);
+        let means = CellMeans {
+            rho_dust: d.rho * inv_d,
+            rho_gas: gas.rho * inv_g,
+            cs_gas: gamma_root * gas.cs * inv_g,
+        };
+        c.eps[k] = drag::cell_eps(d.mass, gas.mass);
+        if let Some(t) = laws[k].cell_time(&means) {
+            c.t_stop[k] = t;
+            c.beta[k] = drag::cell_beta(tau, Some(t));
+        }
+    }
+    let v_tilde = scale(inv_g, gas.mom);
+    c.v_new = drag::cell_solve(
+        v_tilde,
+        &old[..nf],
+        &c.eps[..nf],
+        &c.beta[..nf],
+        &mut c.u_new[..nf],
+    );
+    c
+}
+
+/// Σ_a w_qa Δ_a for the particle q at `x` with normaliser `s` (0 when `s` = 0): the share of
+/// the gas particles' increments `delta(a)` (new − old mean) that q receives.
+#[inline(always)]
+pub fn gather_increment_at<R: Real>(
+    gas: &Sorted<'_, R>,
+    k: &[KernelAt<R>],
+    gas_fixed: &[bool],
+    x: Vec3<R>,
+    s: R,
+    delta: impl Fn(usize) -> Vec3<R>,
+) -> Vec3<R> {
+    let mut acc = [R::ZERO; 3];
+    if s <= R::ZERO {
+        return acc;
+    }
+    for_neighbours(gas.geom, &gas.look, gas.x, x, |a, _, r2| {
+        if !is_fixed(gas_fixed, a) {
+            acc = axpy(acc, kernel_of(k, a).w(r2.sqrt()), delta(a));
+        }
+    });
+    scale(R::ONE / s, acc)
+}

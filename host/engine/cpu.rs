@@ -695,6 +695,229 @@ impl CpuEngine {
         })
     }
 
+    /// The gas kernels of the weights: one per gas particle with variable h, else one shared.
+    fn gas_kernels(&self, state: &State) -> Vec<kernel::KernelAt<f64>> {
+        match state.gas.h.as_deref() {
+            Some(hv) if self.pipe.variable_h => hv
+                .par_iter()
+                .map(|&h| kernel::KernelAt::new(h, self.phys.dim))
+                .collect(),
+            _ => vec![kernel::KernelAt::new(self.phys.h, self.phys.dim)],
+        }
+    }
+
+    /// The drag pass with the kernel coupling (docs/method.md §K): every particle spreads its
+    /// mass and ṽ (gas) or ũ (dust) over the gas particles within reach with the weights
+    /// w_qa = W(r_qa, h_a)/S_q; each gas particle solves the closed form of method.md §3.3 on
+    /// those means; each particle gets Σ_a w_qa (new − old mean). Σ_a w_qa = 1, so momentum is
+    /// exchanged exactly and a uniform flow stays uniform. Returns the drag heat per unit gas
+    /// mass when heating is on (each particle's kinetic-energy loss spread with its weights).
+    fn idic_kernel(&self, state: &mut State, v_tilde: &[[f64; 3]], tau: f64) -> Option<Vec<f64>> {
+        let nf = state.dust.len();
+        let k = self.gas_kernels(state);
+        let eos = self.phys.eos;
+        let gamma_root = eos.gamma_root();
+        let needs_gas_state = self.phys.laws.iter().any(|l| l.needs_gas_state());
+        let g = &state.gas;
+        let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
+        let gs = self.sorted(&self.gas_idx, &g.ph.x);
+        let norm = |x: &[[f64; 3]]| -> Vec<f64> {
+            x.par_iter()
+                .map(|&x| kernels::gas_weight_sum_at(&gs, &k, gfixed, x))
+                .collect()
+        };
+        let s_gas = norm(&g.ph.x);
+        let s_dust: Vec<Vec<f64>> = state.dust.iter().map(|d| norm(&d.x)).collect();
+        let dust_sorted: Vec<Sorted<'_, f64>> = state
+            .dust
+            .iter()
+            .zip(&self.dust_idx)
+            .map(|(d, idx)| self.sorted(idx, &d.x))
+            .collect();
+        // Deposits and the solve on every free gas particle: new and old means per phase.
+        let ng = g.ph.len();
+        let solved: Vec<([f64; 3], [f64; 3], Vec<([f64; 3], [f64; 3])>)> = (0..ng)
+            .into_par_iter()
+            .map(|a| {
+                let none = ([0.0; 3], [0.0; 3], vec![([0.0; 3], [0.0; 3]); nf]);
+                if kernels::is_fixed(gfixed, a) {
+                    return none;
+                }
+                let xa = g.ph.x[a];
+                let ka = kernels::kernel_of(&k, a);
+                let gas_dep = kernels::deposit_at(
+                    &gs,
+                    &s_gas,
+                    &g.ph.m,
+                    &g.ph.rho,
+                    gfixed,
+                    xa,
+                    &ka,
+                    |b| v_tilde[b],
+                    |b| {
+                        if needs_gas_state {
+                            eos.isothermal_speed(g.ph.rho[b], g.p[b])
+                        } else {
+                            0.0
+                        }
+                    },
+                );
+                let mut dust_dep = [kernels::Deposit::default(); kernels::MAX_FRACTIONS];
+                for (kf, d) in state.dust.iter().enumerate() {
+                    let dfixed = d.fixed.as_deref().unwrap_or(&[]);
+                    dust_dep[kf] = kernels::deposit_at(
+                        &dust_sorted[kf],
+                        &s_dust[kf],
+                        &d.m,
+                        &d.rho,
+                        dfixed,
+                        xa,
+                        &ka,
+                        |j| d.v[j],
+                        |_| 0.0,
+                    );
+                }
+                let mut old = [[0.0; 3]; kernels::MAX_FRACTIONS];
+                let c = kernels::kernel_couple(
+                    &gas_dep,
+                    &dust_dep[..nf],
+                    &self.phys.laws,
+                    tau,
+                    gamma_root,
+                    &mut old,
+                );
+                let v_old = if gas_dep.mass > 0.0 {
+                    dustsph_device::scale(1.0 / gas_dep.mass, gas_dep.mom)
+                } else {
+                    [0.0; 3]
+                };
+                let fr = (0..nf)
+                    .map(|kf| {
+                        if dust_dep[kf].mass > 0.0 {
+                            (old[kf], c.u_new[kf])
+                        } else {
+                            ([0.0; 3], [0.0; 3])
+                        }
+                    })
+                    .collect();
+                (v_old, c.v_new, fr)
+            })
+            .collect();
+        let dv_gas: Vec<[f64; 3]> = solved
+            .par_iter()
+            .map(|(o, n, _)| dustsph_device::sub(*n, *o))
+            .collect();
+        let v_new: Vec<[f64; 3]> = (0..ng)
+            .into_par_iter()
+            .map(|b| {
+                if kernels::is_fixed(gfixed, b) {
+                    return g.ph.v[b];
+                }
+                let inc = kernels::gather_increment_at(&gs, &k, gfixed, g.ph.x[b], s_gas[b], |a| {
+                    dv_gas[a]
+                });
+                dustsph_device::add(v_tilde[b], inc)
+            })
+            .collect();
+        let mut u_new_all: Vec<Vec<[f64; 3]>> = Vec::with_capacity(nf);
+        for (kf, d) in state.dust.iter().enumerate() {
+            let du: Vec<[f64; 3]> = solved
+                .par_iter()
+                .map(|(_, _, fr)| dustsph_device::sub(fr[kf].1, fr[kf].0))
+                .collect();
+            let dfixed = d.fixed.as_deref();
+            let u_new: Vec<[f64; 3]> = (0..d.len())
+                .into_par_iter()
+                .map(|j| {
+                    if dfixed.is_some_and(|f| f[j]) {
+                        return d.v[j];
+                    }
+                    let inc =
+                        kernels::gather_increment_at(&gs, &k, gfixed, d.x[j], s_dust[kf][j], |a| {
+                            du[a]
+                        });
+                    dustsph_device::add(d.v[j], inc)
+                })
+                .collect();
+            u_new_all.push(u_new);
+        }
+        let heat = self.pipe.heating.then(|| {
+            // Kinetic energy lost by each particle, spread over the gas with its own weights
+            // (Σ_a w_qa = 1: the gas gains exactly what the particles lose).
+            let loss_gas: Vec<f64> = (0..ng)
+                .into_par_iter()
+                .map(|b| {
+                    if kernels::is_fixed(gfixed, b) {
+                        0.0
+                    } else {
+                        drag::kinetic_loss(g.ph.m[b], v_tilde[b], v_new[b])
+                    }
+                })
+                .collect();
+            let loss_dust: Vec<Vec<f64>> = state
+                .dust
+                .iter()
+                .zip(&u_new_all)
+                .map(|(d, un)| {
+                    (0..d.len())
+                        .into_par_iter()
+                        .map(|j| {
+                            if d.is_fixed(j) {
+                                0.0
+                            } else {
+                                drag::kinetic_loss(d.m[j], d.v[j], un[j])
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            let zero = vec![0.0; ng.max(state.dust.iter().map(|d| d.len()).max().unwrap_or(0))];
+            (0..ng)
+                .into_par_iter()
+                .map(|a| {
+                    if kernels::is_fixed(gfixed, a) {
+                        return 0.0;
+                    }
+                    let ka = kernels::kernel_of(&k, a);
+                    let xa = g.ph.x[a];
+                    let mut q = kernels::deposit_at(
+                        &gs,
+                        &s_gas,
+                        &loss_gas,
+                        &zero,
+                        gfixed,
+                        xa,
+                        &ka,
+                        |_| [0.0; 3],
+                        |_| 0.0,
+                    )
+                    .mass;
+                    for (kf, d) in state.dust.iter().enumerate() {
+                        let dfixed = d.fixed.as_deref().unwrap_or(&[]);
+                        q += kernels::deposit_at(
+                            &dust_sorted[kf],
+                            &s_dust[kf],
+                            &loss_dust[kf],
+                            &zero,
+                            dfixed,
+                            xa,
+                            &ka,
+                            |_| [0.0; 3],
+                            |_| 0.0,
+                        )
+                        .mass;
+                    }
+                    q / g.ph.m[a]
+                })
+                .collect()
+        });
+        state.gas.ph.v = v_new;
+        for (d, u) in state.dust.iter_mut().zip(u_new_all) {
+            d.v = u;
+        }
+        heat
+    }
+
     /// Advance one step of size τ from layer n (forces already computed at layer n).
     pub fn advance(&mut self, state: &mut State, f: &Forces, tau: f64) -> Result<(), StepError> {
         if self.pipe.kdk {
@@ -816,18 +1039,38 @@ impl CpuEngine {
         table: Option<CellTable>,
     ) -> Option<Vec<f64>> {
         let g = &state.gas.ph;
+        let (eg, ed) = (self.phys.ext_gas, self.phys.ext_dust);
         let v_tilde: Vec<[f64; 3]> = (0..g.len())
             .into_par_iter()
-            .map(|i| dustsph_device::axpy(g.v[i], dt, acc[i]))
+            .map(|i| dustsph_device::axpy(g.v[i], dt, dustsph_device::add(acc[i], eg)))
             .collect();
+        if ed.iter().any(|a| *a != 0.0) {
+            // ũ = u^n + τB^n (method.md §3.3): the drag pass reads the dust velocities as ũ.
+            for d in &mut state.dust {
+                let fixed = d.fixed.clone();
+                d.v.par_iter_mut().enumerate().for_each(|(j, u)| {
+                    if !fixed.as_ref().is_some_and(|f| f[j]) {
+                        *u = dustsph_device::axpy(*u, dt, ed);
+                    }
+                });
+            }
+        }
         if self.pipe.drag {
             let mut timers = std::mem::take(&mut self.timers);
             let name = if self.pipe.explicit_drag {
                 "explicit drag"
+            } else if self.pipe.kernel_coupling {
+                "idic (kernel coupling)"
             } else {
                 "idic"
             };
-            let h = timers.time(name, || self.idic(state, &v_tilde, dt, table));
+            let h = timers.time(name, || {
+                if self.pipe.kernel_coupling {
+                    self.idic_kernel(state, &v_tilde, dt)
+                } else {
+                    self.idic(state, &v_tilde, dt, table)
+                }
+            });
             self.timers = timers;
             h
         } else {

@@ -9,8 +9,8 @@ pub mod timers;
 
 use crate::grid::Domain;
 use crate::scene::{
-    DensityMethod, DragMethod, EosKind, GradientMethod, Integrator, LawKind, PositionUpdate, Scene,
-    TimeCfg,
+    Coupling, DensityMethod, DragMethod, EosKind, GradientMethod, Integrator, LawKind,
+    PositionUpdate, Scene, TimeCfg,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -29,6 +29,11 @@ pub struct Physics {
     pub heating: bool,
     /// IDIC, or the explicit baseline (same cells, forward Euler, τ ≤ 0.9 t_s).
     pub drag: DragMethod,
+    /// Where the implicit drag takes its local means (grid cells or the gas particles).
+    pub coupling: Coupling,
+    /// Constant external accelerations of the gas and of every dust particle.
+    pub ext_gas: [f64; 3],
+    pub ext_dust: [f64; 3],
     /// Nominal IDIC cell size Δc (periodic axes round it so cells tile the period).
     pub cell_size: f64,
     pub domain: Domain,
@@ -86,6 +91,9 @@ impl Physics {
             laws,
             heating,
             drag: scene.drag.method,
+            coupling: scene.idic.coupling,
+            ext_gas: scene.external.gas,
+            ext_dust: scene.external.dust,
             cell_size: scene.idic.cell * h,
             domain,
             position_update: scene.time.position_update,
@@ -152,6 +160,10 @@ pub struct Pipeline {
     pub iad: bool,
     /// Kick–drift–kick leapfrog instead of the first-order step.
     pub kdk: bool,
+    /// The drag solve on the gas particles with kernel weights (`idic.coupling = "kernel"`).
+    pub kernel_coupling: bool,
+    /// Constant external accelerations are added (`[external]`).
+    pub external: bool,
 }
 
 impl Pipeline {
@@ -167,6 +179,8 @@ impl Pipeline {
             variable_h: p.variable_h.is_some(),
             iad: p.gradient == GradientMethod::Iad,
             kdk: p.integrator == Integrator::Kdk,
+            kernel_coupling: !p.laws.is_empty() && p.coupling == Coupling::Kernel,
+            external: p.ext_gas.iter().chain(&p.ext_dust).any(|a| *a != 0.0),
         }
     }
 
@@ -234,6 +248,11 @@ impl Pipeline {
             s.push("explicit drag time-step limit (τ ≤ 0.9 t_s)");
             s.push("explicit drag cell sums");
             s.push("explicit drag particle velocities (forward Euler; gas, then dust)");
+        } else if self.kernel_coupling {
+            s.push("kernel coupling: weight sums over the gas");
+            s.push("kernel coupling: deposits on the gas particles");
+            s.push("kernel coupling: implicit solve per gas particle");
+            s.push("kernel coupling: increments to gas and dust particles");
         } else if self.drag {
             s.push("IDIC cell sums");
             s.push("IDIC cell solve");

@@ -21,7 +21,15 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
         fixed: None,
     };
     let e = internal_energy(scene, rho, scene.gas.p.unwrap_or(0.0)).map(|e| vec![e; n]);
-    let dust = co_located_dust(scene, &gas, |k| [b.u_dust[k], 0.0, 0.0]);
+    let mut dust = co_located_dust(scene, &gas, |k| [b.u_dust[k], 0.0, 0.0]);
+    // dust_shift: the dust lattice offset by that many spacings along every axis (wrapped).
+    for d in &mut dust {
+        for p in &mut d.x {
+            for c in p.iter_mut().take(dim as usize) {
+                *c = (*c + b.dust_shift * dx).rem_euclid(b.length);
+            }
+        }
+    }
     let mut periodic = [None; 3];
     for p in periodic.iter_mut().take(dim as usize) {
         *p = Some((0.0, b.length));

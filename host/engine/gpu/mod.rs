@@ -382,6 +382,11 @@ impl<L: Launcher> GpuEngine<L> {
                 pipe.kdk,
                 "the leapfrog integrator (time.integrator = \"kdk\")",
             ),
+            (
+                pipe.kernel_coupling,
+                "the kernel coupling (idic.coupling = \"kernel\")",
+            ),
+            (pipe.external, "external accelerations ([external])"),
         ];
         if let Some((_, what)) = cpu_only.iter().find(|c| c.0) {
             return Err(StepError::Unsupported(format!(
