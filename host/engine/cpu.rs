@@ -80,7 +80,13 @@ pub struct CpuEngine {
     /// Explicit drag: the cell table of the current layer built for the time-step limit,
     /// reused by the drag pass (only its gas momentum sums depend on τ and are redone).
     limit_table: Option<CellTable>,
+    /// Kernel coupling: the weight normalisers S of the gas and of every dust fraction at the
+    /// current layer (positions and gas h); cleared whenever either changes.
+    kernel_norms: std::sync::Mutex<Option<KernelNorms>>,
 }
+
+/// S_q = Σ_b W(r_qb, h_b) of every gas particle and every dust particle of each fraction.
+type KernelNorms = (Vec<f64>, Vec<Vec<f64>>);
 
 #[derive(Debug)]
 pub enum StepError {
@@ -121,6 +127,7 @@ impl CpuEngine {
             timers: Timers::default(),
             dust_density_fresh: false,
             limit_table: None,
+            kernel_norms: std::sync::Mutex::new(None),
         };
         eng.regrid(state)?;
         eng.gas_density_eos(state, None)?;
@@ -132,6 +139,7 @@ impl CpuEngine {
     /// Rebuild the grid over the current positions and sort every phase by cell key.
     /// Returns the permutation applied to the gas (new index → old index).
     fn regrid(&mut self, state: &mut State) -> Result<Vec<u32>, StepError> {
+        *self.kernel_norms.get_mut().expect("not poisoned") = None;
         let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
         xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
         self.grid = Grid::build(
@@ -252,6 +260,7 @@ impl CpuEngine {
     /// continuity equation, ρ += τ dρ/dt with the current velocities and positions (`tau`
     /// `None` at start-up and on resume: the state's density is kept as it is).
     fn gas_density_eos(&mut self, state: &mut State, tau: Option<f64>) -> Result<(), StepError> {
+        *self.kernel_norms.get_mut().expect("not poisoned") = None;
         if let Some(hfact) = self.phys.variable_h {
             // On resume the state carries h, Ω and ρ of the last step: keep them as they are.
             let resumed = tau.is_none() && state.gas.h.is_some() && state.gas.omega.is_some();
@@ -726,8 +735,14 @@ impl CpuEngine {
                 .map(|&x| kernels::gas_weight_sum_at(&gs, &k, gfixed, x))
                 .collect()
         };
-        let s_gas = norm(&g.ph.x);
-        let s_dust: Vec<Vec<f64>> = state.dust.iter().map(|d| norm(&d.x)).collect();
+        let mut cache = self.kernel_norms.lock().expect("not poisoned");
+        let (s_gas, s_dust) = cache.get_or_insert_with(|| {
+            (
+                norm(&g.ph.x),
+                state.dust.iter().map(|d| norm(&d.x)).collect(),
+            )
+        });
+        let (s_gas, s_dust): (&[f64], &[Vec<f64>]) = (s_gas, s_dust);
         let dust_sorted: Vec<Sorted<'_, f64>> = state
             .dust
             .iter()
@@ -747,7 +762,7 @@ impl CpuEngine {
                 let ka = kernels::kernel_of(&k, a);
                 let gas_dep = kernels::deposit_at(
                     &gs,
-                    &s_gas,
+                    s_gas,
                     &g.ph.m,
                     &g.ph.rho,
                     gfixed,
