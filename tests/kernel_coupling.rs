@@ -60,7 +60,10 @@ fn uniform_box_equals_the_drag_ode_at_any_dust_offset() {
             let disc = final_error(&s, 1, f).linf;
             let exact = final_error(&s, 0, f).linf;
             assert!(disc < 1e-12, "shift {shift}, {f}: {disc:e} vs the oracle");
-            assert!(exact < 1e-3, "shift {shift}, {f}: {exact:e} vs the exact ODE");
+            assert!(
+                exact < 1e-3,
+                "shift {shift}, {f}: {exact:e} vs the exact ODE"
+            );
         }
         for (k, d) in st.dust.iter().enumerate() {
             let (lo, hi) = d
@@ -68,7 +71,10 @@ fn uniform_box_equals_the_drag_ode_at_any_dust_offset() {
                 .iter()
                 .fold((f64::MAX, f64::MIN), |(a, b), &r| (a.min(r), b.max(r)));
             let spread = (hi - lo) / (0.5 * (hi + lo));
-            assert!(spread < 1e-2, "shift {shift}, fraction {k}: ρ_d spread {spread:e}");
+            assert!(
+                spread < 1e-2,
+                "shift {shift}, fraction {k}: ρ_d spread {spread:e}"
+            );
         }
         let drift = s.conservation.momentum_drift_relative;
         assert!(drift < 1e-12, "shift {shift}: momentum drift {drift:e}");
@@ -114,7 +120,10 @@ fn comoving_mode_change(coupling: &str, shift: &str) -> f64 {
         eng.advance(&mut st, &zero, 1e-3).unwrap();
     }
     let p1 = momentum(&st);
-    assert!((0..3).all(|a| (p1[a] - p0[a]).abs() < 1e-15), "{p0:?} → {p1:?}");
+    assert!(
+        (0..3).all(|a| (p1[a] - p0[a]).abs() < 1e-15),
+        "{p0:?} → {p1:?}"
+    );
     let proj = |x: &[[f64; 3]], v: &[[f64; 3]]| {
         2.0 * x
             .iter()
@@ -135,7 +144,10 @@ fn comoving_mode_change(coupling: &str, shift: &str) -> f64 {
 fn a_comoving_mode_survives_stiff_drag() {
     for shift in ["0", "0.5"] {
         let c = comoving_mode_change("kernel", shift);
-        assert!(c < 1e-3, "kernel coupling, shift {shift}: amplitude off by {c:e}");
+        assert!(
+            c < 1e-3,
+            "kernel coupling, shift {shift}: amplitude off by {c:e}"
+        );
     }
     // The nearest cell keeps it only when the phases share cells.
     let c = comoving_mode_change("cell", "0.5");

@@ -505,6 +505,9 @@ impl CpuEngine {
             return Vec::new();
         }
         self.refresh_dust_density(state);
+        if self.pipe.kernel_coupling {
+            return self.kernel_stopping_times(state);
+        }
         let t = self.cell_table(state, &state.gas.ph.v);
         (0..state.dust.len())
             .map(|k| {
@@ -931,6 +934,90 @@ impl CpuEngine {
             d.v = u;
         }
         heat
+    }
+
+    /// Kernel coupling: the stopping time each dust particle feels, Σ_a w_ja t_k,a over the
+    /// gas particles it couples to (+∞ without gas within reach), for output.
+    fn kernel_stopping_times(&self, state: &State) -> Vec<Vec<f64>> {
+        let k = self.gas_kernels(state);
+        let eos = self.phys.eos;
+        let gamma_root = eos.gamma_root();
+        let g = &state.gas;
+        let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
+        let gs = self.sorted(&self.gas_idx, &g.ph.x);
+        let norm = |x: &[[f64; 3]]| -> Vec<f64> {
+            x.par_iter()
+                .map(|&x| kernels::gas_weight_sum_at(&gs, &k, gfixed, x))
+                .collect()
+        };
+        let s_gas = norm(&g.ph.x);
+        let zero_v = |_| [0.0; 3];
+        let gas_dep: Vec<kernels::Deposit<f64>> = (0..g.ph.len())
+            .into_par_iter()
+            .map(|a| {
+                let ka = kernels::kernel_of(&k, a);
+                kernels::deposit_at(
+                    &gs,
+                    &s_gas,
+                    &g.ph.m,
+                    &g.ph.rho,
+                    gfixed,
+                    g.ph.x[a],
+                    &ka,
+                    zero_v,
+                    |b| eos.isothermal_speed(g.ph.rho[b], g.p[b]),
+                )
+            })
+            .collect();
+        state
+            .dust
+            .iter()
+            .enumerate()
+            .map(|(kf, d)| {
+                let ds = self.sorted(&self.dust_idx[kf], &d.x);
+                let dfixed = d.fixed.as_deref().unwrap_or(&[]);
+                let s_d = norm(&d.x);
+                let law = self.phys.laws[kf];
+                let t_gas: Vec<f64> = (0..g.ph.len())
+                    .into_par_iter()
+                    .map(|a| {
+                        let ka = kernels::kernel_of(&k, a);
+                        let dd = kernels::deposit_at(
+                            &ds,
+                            &s_d,
+                            &d.m,
+                            &d.rho,
+                            dfixed,
+                            g.ph.x[a],
+                            &ka,
+                            zero_v,
+                            |_| 0.0,
+                        );
+                        let gd = &gas_dep[a];
+                        if dd.mass <= 0.0 || gd.mass <= 0.0 {
+                            return f64::INFINITY;
+                        }
+                        let means = drag::CellMeans {
+                            rho_dust: dd.rho / dd.mass,
+                            rho_gas: gd.rho / gd.mass,
+                            cs_gas: gamma_root * gd.cs / gd.mass,
+                        };
+                        law.cell_time(&means).unwrap_or(f64::INFINITY)
+                    })
+                    .collect();
+                (0..d.len())
+                    .into_par_iter()
+                    .map(|j| {
+                        if s_d[j] <= 0.0 {
+                            return f64::INFINITY;
+                        }
+                        kernels::gather_increment_at(&gs, &k, gfixed, d.x[j], s_d[j], |a| {
+                            [t_gas[a], 0.0, 0.0]
+                        })[0]
+                    })
+                    .collect()
+            })
+            .collect()
     }
 
     /// Advance one step of size τ from layer n (forces already computed at layer n).
