@@ -100,6 +100,9 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
         laws: vec![StoppingLaw::Epstein { s_rho: 1e-3 }],
         heating: false,
         drag: DragMethod::Idic,
+        coupling: dustsph::scene::Coupling::Cell,
+        ext_gas: [0.0; 3],
+        ext_dust: [0.0; 3],
         cell_size: 0.5 * h,
         domain: Domain {
             dim: 1,
@@ -187,6 +190,9 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
         laws: vec![StoppingLaw::ConstantTime { t_stop: 1e-9 }],
         heating: false,
         drag: DragMethod::Idic,
+        coupling: dustsph::scene::Coupling::Cell,
+        ext_gas: [0.0; 3],
+        ext_dust: [0.0; 3],
         cell_size: 0.5 * h,
         domain: Domain {
             dim: 1,
