@@ -571,6 +571,26 @@ pub fn kernel_of<R: Real>(k: &[KernelAt<R>], b: usize) -> KernelAt<R> {
     }
 }
 
+/// The raw coupling weights of a particle at x: `f(a, W(|x − x_a|, h_a))` for every free gas
+/// particle a within reach. Their sum is the normaliser S of [`gas_weight_sum_at`].
+#[inline(always)]
+pub fn coupling_row_at<R: Real>(
+    gas: &Sorted<'_, R>,
+    k: &[KernelAt<R>],
+    gas_fixed: &[bool],
+    x: Vec3<R>,
+    mut f: impl FnMut(usize, R),
+) {
+    for_neighbours(gas.geom, &gas.look, gas.x, x, |b, _, r2| {
+        if !is_fixed(gas_fixed, b) {
+            let w = kernel_of(k, b).w(r2.sqrt());
+            if w > R::ZERO {
+                f(b, w);
+            }
+        }
+    });
+}
+
 /// S(x) = Σ_b W(|x − x_b|, h_b) over the free gas particles b: the normaliser of the weights
 /// of a particle at x (0: no gas within reach, the particle does not couple).
 #[inline(always)]
@@ -581,11 +601,7 @@ pub fn gas_weight_sum_at<R: Real>(
     x: Vec3<R>,
 ) -> R {
     let mut s = R::ZERO;
-    for_neighbours(gas.geom, &gas.look, gas.x, x, |b, _, r2| {
-        if !is_fixed(gas_fixed, b) {
-            s += kernel_of(k, b).w(r2.sqrt());
-        }
-    });
+    coupling_row_at(gas, k, gas_fixed, x, |_, w| s += w);
     s
 }
 
@@ -597,6 +613,17 @@ pub struct Deposit<R> {
     pub mom: Vec3<R>,
     pub rho: R,
     pub cs: R,
+}
+
+impl<R: Real> Deposit<R> {
+    /// Add one particle's share: `wm` = w_qa m_q, its velocity, density and sqrt(p/ρ).
+    #[inline(always)]
+    pub fn add(&mut self, wm: R, vel: Vec3<R>, rho: R, cs: R) {
+        self.mass += wm;
+        self.mom = axpy(self.mom, wm, vel);
+        self.rho += wm * rho;
+        self.cs += wm * cs;
+    }
 }
 
 /// Deposit of one phase (positions `q.x`, normalisers `s`, masses, velocities `vel(j)`,
@@ -625,11 +652,7 @@ pub fn deposit_at<R: Real>(
         if is_fixed(fixed, j) || s[j] <= R::ZERO {
             return;
         }
-        let wm = ka.w(r2.sqrt()) / s[j] * m[j];
-        d.mass += wm;
-        d.mom = axpy(d.mom, wm, vel(j));
-        d.rho += wm * rho[j];
-        d.cs += wm * cs(j);
+        d.add(ka.w(r2.sqrt()) / s[j] * m[j], vel(j), rho[j], cs(j));
     });
     d
 }
@@ -704,10 +727,6 @@ pub fn gather_increment_at<R: Real>(
     if s <= R::ZERO {
         return acc;
     }
-    for_neighbours(gas.geom, &gas.look, gas.x, x, |a, _, r2| {
-        if !is_fixed(gas_fixed, a) {
-            acc = axpy(acc, kernel_of(k, a).w(r2.sqrt()), delta(a));
-        }
-    });
+    coupling_row_at(gas, k, gas_fixed, x, |a, w| acc = axpy(acc, w, delta(a)));
     scale(R::ONE / s, acc)
 }

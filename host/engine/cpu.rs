@@ -80,13 +80,32 @@ pub struct CpuEngine {
     /// Explicit drag: the cell table of the current layer built for the time-step limit,
     /// reused by the drag pass (only its gas momentum sums depend on τ and are redone).
     limit_table: Option<CellTable>,
-    /// Kernel coupling: the weight normalisers S of the gas and of every dust fraction at the
-    /// current layer (positions and gas h); cleared whenever either changes.
-    kernel_norms: std::sync::Mutex<Option<KernelNorms>>,
+    /// Kernel coupling: the weights of the gas and of every dust fraction at the current layer
+    /// (positions and gas h); cleared whenever either changes.
+    kernel_weights: std::sync::Mutex<Option<KernelWeights>>,
 }
 
-/// S_q = Σ_b W(r_qb, h_b) of every gas particle and every dust particle of each fraction.
-type KernelNorms = (Vec<f64>, Vec<Vec<f64>>);
+/// The kernel-coupling weights w_qa of one phase at one layer (docs/method.md §K): each
+/// particle q's gas partners a (rows by q) and the same pairs by gas particle (rows by a).
+#[derive(Debug, Default)]
+struct CouplingWeights {
+    by_q_ptr: Vec<usize>,
+    by_q: Vec<(u32, f64)>,
+    by_a_ptr: Vec<usize>,
+    by_a: Vec<(u32, f64)>,
+}
+
+impl CouplingWeights {
+    fn row_q(&self, q: usize) -> &[(u32, f64)] {
+        &self.by_q[self.by_q_ptr[q]..self.by_q_ptr[q + 1]]
+    }
+    fn row_a(&self, a: usize) -> &[(u32, f64)] {
+        &self.by_a[self.by_a_ptr[a]..self.by_a_ptr[a + 1]]
+    }
+}
+
+/// The weights of the gas and of every dust fraction.
+type KernelWeights = (CouplingWeights, Vec<CouplingWeights>);
 
 #[derive(Debug)]
 pub enum StepError {
@@ -127,7 +146,7 @@ impl CpuEngine {
             timers: Timers::default(),
             dust_density_fresh: false,
             limit_table: None,
-            kernel_norms: std::sync::Mutex::new(None),
+            kernel_weights: std::sync::Mutex::new(None),
         };
         eng.regrid(state)?;
         eng.gas_density_eos(state, None)?;
@@ -139,7 +158,7 @@ impl CpuEngine {
     /// Rebuild the grid over the current positions and sort every phase by cell key.
     /// Returns the permutation applied to the gas (new index → old index).
     fn regrid(&mut self, state: &mut State) -> Result<Vec<u32>, StepError> {
-        *self.kernel_norms.get_mut().expect("not poisoned") = None;
+        *self.kernel_weights.get_mut().expect("not poisoned") = None;
         let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
         xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
         self.grid = Grid::build(
@@ -260,7 +279,7 @@ impl CpuEngine {
     /// continuity equation, ρ += τ dρ/dt with the current velocities and positions (`tau`
     /// `None` at start-up and on resume: the state's density is kept as it is).
     fn gas_density_eos(&mut self, state: &mut State, tau: Option<f64>) -> Result<(), StepError> {
-        *self.kernel_norms.get_mut().expect("not poisoned") = None;
+        *self.kernel_weights.get_mut().expect("not poisoned") = None;
         if let Some(hfact) = self.phys.variable_h {
             // On resume the state carries h, Ω and ρ of the last step: keep them as they are.
             let resumed = tau.is_none() && state.gas.h.is_some() && state.gas.omega.is_some();
@@ -718,82 +737,118 @@ impl CpuEngine {
         }
     }
 
+    /// The kernel-coupling weights of one phase at positions `x` over the gas of this layer.
+    fn coupling_weights(
+        &self,
+        gs: &Sorted<'_, f64>,
+        k: &[kernel::KernelAt<f64>],
+        gfixed: &[bool],
+        x: &[[f64; 3]],
+        fixed: Option<&[bool]>,
+        n_gas: usize,
+    ) -> CouplingWeights {
+        let rows: Vec<Vec<(u32, f64)>> = x
+            .par_iter()
+            .enumerate()
+            .map(|(q, &xq)| {
+                if fixed.is_some_and(|f| f[q]) {
+                    return Vec::new();
+                }
+                let mut row = Vec::with_capacity(96);
+                kernels::coupling_row_at(gs, k, gfixed, xq, |a, w| row.push((a as u32, w)));
+                let s: f64 = row.iter().map(|e| e.1).sum();
+                for e in &mut row {
+                    e.1 /= s;
+                }
+                row
+            })
+            .collect();
+        let mut by_q_ptr = Vec::with_capacity(rows.len() + 1);
+        by_q_ptr.push(0);
+        for r in &rows {
+            by_q_ptr.push(by_q_ptr.last().unwrap() + r.len());
+        }
+        let by_q: Vec<(u32, f64)> = rows.into_iter().flatten().collect();
+        // The same pairs ordered by gas particle (counting sort; q ascending within a row).
+        let mut by_a_ptr = vec![0usize; n_gas + 1];
+        for e in &by_q {
+            by_a_ptr[e.0 as usize + 1] += 1;
+        }
+        for a in 0..n_gas {
+            by_a_ptr[a + 1] += by_a_ptr[a];
+        }
+        let mut fill = by_a_ptr.clone();
+        let mut by_a = vec![(0u32, 0.0); by_q.len()];
+        for q in 0..x.len() {
+            for &(a, w) in &by_q[by_q_ptr[q]..by_q_ptr[q + 1]] {
+                by_a[fill[a as usize]] = (q as u32, w);
+                fill[a as usize] += 1;
+            }
+        }
+        CouplingWeights {
+            by_q_ptr,
+            by_q,
+            by_a_ptr,
+            by_a,
+        }
+    }
+
     /// The drag pass with the kernel coupling (docs/method.md §K): every particle spreads its
     /// mass and ṽ (gas) or ũ (dust) over the gas particles within reach with the weights
     /// w_qa = W(r_qa, h_a)/S_q; each gas particle solves the closed form of method.md §3.3 on
     /// those means; each particle gets Σ_a w_qa (new − old mean). Σ_a w_qa = 1, so momentum is
     /// exchanged exactly and a uniform flow stays uniform. Returns the drag heat per unit gas
     /// mass when heating is on (each particle's kinetic-energy loss spread with its weights).
+    /// The weights are found by one neighbour walk per phase and layer and kept until the
+    /// positions or the gas h change.
     fn idic_kernel(&self, state: &mut State, v_tilde: &[[f64; 3]], tau: f64) -> Option<Vec<f64>> {
         let nf = state.dust.len();
-        let k = self.gas_kernels(state);
         let eos = self.phys.eos;
         let gamma_root = eos.gamma_root();
         let needs_gas_state = self.phys.laws.iter().any(|l| l.needs_gas_state());
         let g = &state.gas;
-        let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
-        let gs = self.sorted(&self.gas_idx, &g.ph.x);
-        let norm = |x: &[[f64; 3]]| -> Vec<f64> {
-            x.par_iter()
-                .map(|&x| kernels::gas_weight_sum_at(&gs, &k, gfixed, x))
-                .collect()
-        };
-        let mut cache = self.kernel_norms.lock().expect("not poisoned");
-        let (s_gas, s_dust) = cache.get_or_insert_with(|| {
-            (
-                norm(&g.ph.x),
-                state.dust.iter().map(|d| norm(&d.x)).collect(),
-            )
-        });
-        let (s_gas, s_dust): (&[f64], &[Vec<f64>]) = (s_gas, s_dust);
-        let dust_sorted: Vec<Sorted<'_, f64>> = state
-            .dust
-            .iter()
-            .zip(&self.dust_idx)
-            .map(|(d, idx)| self.sorted(idx, &d.x))
-            .collect();
-        // Deposits and the solve on every free gas particle: new and old means per phase.
         let ng = g.ph.len();
-        let solved: Vec<([f64; 3], [f64; 3], Vec<([f64; 3], [f64; 3])>)> = (0..ng)
+        let mut cache = self.kernel_weights.lock().expect("not poisoned");
+        let (wg, wd) = &*cache.get_or_insert_with(|| {
+            let k = self.gas_kernels(state);
+            let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
+            let gs = self.sorted(&self.gas_idx, &g.ph.x);
+            let wg = self.coupling_weights(&gs, &k, gfixed, &g.ph.x, g.ph.fixed.as_deref(), ng);
+            let wd = state
+                .dust
+                .iter()
+                .map(|d| self.coupling_weights(&gs, &k, gfixed, &d.x, d.fixed.as_deref(), ng))
+                .collect();
+            (wg, wd)
+        });
+        let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
+        let cs_of = |b: usize| {
+            if needs_gas_state {
+                eos.isothermal_speed(g.ph.rho[b], g.p[b])
+            } else {
+                0.0
+            }
+        };
+        // Deposits and the solve on every free gas particle: (old, new) means per phase.
+        type Means = ([f64; 3], [f64; 3]);
+        let solved: Vec<(Means, [Means; kernels::MAX_FRACTIONS])> = (0..ng)
             .into_par_iter()
             .map(|a| {
-                let none = ([0.0; 3], [0.0; 3], vec![([0.0; 3], [0.0; 3]); nf]);
+                let mut fr = [([0.0; 3], [0.0; 3]); kernels::MAX_FRACTIONS];
                 if kernels::is_fixed(gfixed, a) {
-                    return none;
+                    return (([0.0; 3], [0.0; 3]), fr);
                 }
-                let xa = g.ph.x[a];
-                let ka = kernels::kernel_of(&k, a);
-                let gas_dep = kernels::deposit_at(
-                    &gs,
-                    s_gas,
-                    &g.ph.m,
-                    &g.ph.rho,
-                    gfixed,
-                    xa,
-                    &ka,
-                    |b| v_tilde[b],
-                    |b| {
-                        if needs_gas_state {
-                            eos.isothermal_speed(g.ph.rho[b], g.p[b])
-                        } else {
-                            0.0
-                        }
-                    },
-                );
+                let mut gas_dep = kernels::Deposit::default();
+                for &(b, w) in wg.row_a(a) {
+                    let b = b as usize;
+                    gas_dep.add(w * g.ph.m[b], v_tilde[b], g.ph.rho[b], cs_of(b));
+                }
                 let mut dust_dep = [kernels::Deposit::default(); kernels::MAX_FRACTIONS];
                 for (kf, d) in state.dust.iter().enumerate() {
-                    let dfixed = d.fixed.as_deref().unwrap_or(&[]);
-                    dust_dep[kf] = kernels::deposit_at(
-                        &dust_sorted[kf],
-                        &s_dust[kf],
-                        &d.m,
-                        &d.rho,
-                        dfixed,
-                        xa,
-                        &ka,
-                        |j| d.v[j],
-                        |_| 0.0,
-                    );
+                    for &(j, w) in wd[kf].row_a(a) {
+                        let j = j as usize;
+                        dust_dep[kf].add(w * d.m[j], d.v[j], d.rho[j], 0.0);
+                    }
                 }
                 let mut old = [[0.0; 3]; kernels::MAX_FRACTIONS];
                 let c = kernels::kernel_couple(
@@ -804,61 +859,60 @@ impl CpuEngine {
                     gamma_root,
                     &mut old,
                 );
+                for kf in 0..nf {
+                    if dust_dep[kf].mass > 0.0 {
+                        fr[kf] = (old[kf], c.u_new[kf]);
+                    }
+                }
                 let v_old = if gas_dep.mass > 0.0 {
                     dustsph_device::scale(1.0 / gas_dep.mass, gas_dep.mom)
                 } else {
                     [0.0; 3]
                 };
-                let fr = (0..nf)
-                    .map(|kf| {
-                        if dust_dep[kf].mass > 0.0 {
-                            (old[kf], c.u_new[kf])
-                        } else {
-                            ([0.0; 3], [0.0; 3])
-                        }
-                    })
-                    .collect();
-                (v_old, c.v_new, fr)
+                ((v_old, c.v_new), fr)
             })
             .collect();
-        let dv_gas: Vec<[f64; 3]> = solved
-            .par_iter()
-            .map(|(o, n, _)| dustsph_device::sub(*n, *o))
-            .collect();
+        // Σ_a w_qa Δ_a over the particle's row.
+        let gather = |w: &CouplingWeights, q: usize, delta: &dyn Fn(usize) -> [f64; 3]| {
+            let mut acc = [0.0; 3];
+            for &(a, wq) in w.row_q(q) {
+                acc = dustsph_device::axpy(acc, wq, delta(a as usize));
+            }
+            acc
+        };
         let v_new: Vec<[f64; 3]> = (0..ng)
             .into_par_iter()
             .map(|b| {
                 if kernels::is_fixed(gfixed, b) {
                     return g.ph.v[b];
                 }
-                let inc = kernels::gather_increment_at(&gs, &k, gfixed, g.ph.x[b], s_gas[b], |a| {
-                    dv_gas[a]
+                let inc = gather(wg, b, &|a| {
+                    let (o, n) = solved[a].0;
+                    dustsph_device::sub(n, o)
                 });
                 dustsph_device::add(v_tilde[b], inc)
             })
             .collect();
-        let mut u_new_all: Vec<Vec<[f64; 3]>> = Vec::with_capacity(nf);
-        for (kf, d) in state.dust.iter().enumerate() {
-            let du: Vec<[f64; 3]> = solved
-                .par_iter()
-                .map(|(_, _, fr)| dustsph_device::sub(fr[kf].1, fr[kf].0))
-                .collect();
-            let dfixed = d.fixed.as_deref();
-            let u_new: Vec<[f64; 3]> = (0..d.len())
-                .into_par_iter()
-                .map(|j| {
-                    if dfixed.is_some_and(|f| f[j]) {
-                        return d.v[j];
-                    }
-                    let inc =
-                        kernels::gather_increment_at(&gs, &k, gfixed, d.x[j], s_dust[kf][j], |a| {
-                            du[a]
+        let u_new_all: Vec<Vec<[f64; 3]>> = state
+            .dust
+            .iter()
+            .enumerate()
+            .map(|(kf, d)| {
+                (0..d.len())
+                    .into_par_iter()
+                    .map(|j| {
+                        if d.is_fixed(j) {
+                            return d.v[j];
+                        }
+                        let inc = gather(&wd[kf], j, &|a| {
+                            let (o, n) = solved[a].1[kf];
+                            dustsph_device::sub(n, o)
                         });
-                    dustsph_device::add(d.v[j], inc)
-                })
-                .collect();
-            u_new_all.push(u_new);
-        }
+                        dustsph_device::add(d.v[j], inc)
+                    })
+                    .collect()
+            })
+            .collect();
         let heat = self.pipe.heating.then(|| {
             // Kinetic energy lost by each particle, spread over the gas with its own weights
             // (Σ_a w_qa = 1: the gas gains exactly what the particles lose).
@@ -889,46 +943,29 @@ impl CpuEngine {
                         .collect()
                 })
                 .collect();
-            let zero = vec![0.0; ng.max(state.dust.iter().map(|d| d.len()).max().unwrap_or(0))];
             (0..ng)
                 .into_par_iter()
                 .map(|a| {
                     if kernels::is_fixed(gfixed, a) {
                         return 0.0;
                     }
-                    let ka = kernels::kernel_of(&k, a);
-                    let xa = g.ph.x[a];
-                    let mut q = kernels::deposit_at(
-                        &gs,
-                        &s_gas,
-                        &loss_gas,
-                        &zero,
-                        gfixed,
-                        xa,
-                        &ka,
-                        |_| [0.0; 3],
-                        |_| 0.0,
-                    )
-                    .mass;
-                    for (kf, d) in state.dust.iter().enumerate() {
-                        let dfixed = d.fixed.as_deref().unwrap_or(&[]);
-                        q += kernels::deposit_at(
-                            &dust_sorted[kf],
-                            &s_dust[kf],
-                            &loss_dust[kf],
-                            &zero,
-                            dfixed,
-                            xa,
-                            &ka,
-                            |_| [0.0; 3],
-                            |_| 0.0,
-                        )
-                        .mass;
+                    let mut q: f64 = wg
+                        .row_a(a)
+                        .iter()
+                        .map(|&(b, w)| w * loss_gas[b as usize])
+                        .sum();
+                    for (kf, l) in loss_dust.iter().enumerate() {
+                        q += wd[kf]
+                            .row_a(a)
+                            .iter()
+                            .map(|&(j, w)| w * l[j as usize])
+                            .sum::<f64>();
                     }
                     q / g.ph.m[a]
                 })
                 .collect()
         });
+        drop(cache);
         state.gas.ph.v = v_new;
         for (d, u) in state.dust.iter_mut().zip(u_new_all) {
             d.v = u;
