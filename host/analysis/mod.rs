@@ -223,6 +223,7 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
                 fields,
             });
         }
+        Problem::Dustysettle => out.push(settle_errors(scene, state)),
         Problem::Dustyshock => {
             let s = scene.dustyshock.as_ref().expect("validated");
             let eps_k: Vec<f64> = scene
@@ -276,6 +277,96 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
         }
     }
     out
+}
+
+/// DUSTYSETTLE against the hydrostatic column with dust at its terminal velocity
+/// ([`crate::exact::settle`]), over the particles in the middle 60% of the column: ρ_g and the
+/// dust velocities relative to their exact values (u_dk: (u − u_term)/|u_term|), the gas
+/// velocity in units of the largest terminal speed in the column.
+fn settle_errors(scene: &Scene, state: &State) -> ExactErrors {
+    use crate::exact::settle::Law;
+    let col = crate::setup::dustysettle::column(scene);
+    let c = scene.dustysettle.as_ref().expect("validated");
+    let d = scene.dust.as_ref().expect("validated");
+    let laws: Vec<Law> = d
+        .fractions
+        .iter()
+        .map(|f| match d.law {
+            LawKind::ConstantT => Law::ConstantT(f.t_stop.or(d.t_stop).unwrap_or(f64::INFINITY)),
+            LawKind::ConstantK => Law::ConstantK(f.k.unwrap_or(0.0)),
+            LawKind::Epstein => Law::Epstein(f.s_rho.unwrap_or(f64::INFINITY)),
+        })
+        .collect();
+    let h = crate::setup::dustysettle::smoothing(scene).0;
+    // Away from the walls: the middle 60% of the column (sound from the walls needs 0.2 L/c_s
+    // to get there) and at least 4h from either end.
+    let (lo, hi) = (
+        (0.2 * c.height).max(4.0 * h),
+        (0.8 * c.height).min(c.height - 4.0 * h),
+    );
+    let inside = |x: f64| x > lo && x < hi;
+    let mut fields = Vec::new();
+    let g = &state.gas.ph;
+    let idx: Vec<usize> = (0..g.len())
+        .filter(|&i| !g.is_fixed(i) && inside(g.x[i][0]))
+        .collect();
+    let m: Vec<f64> = idx.iter().map(|&i| g.m[i]).collect();
+    let rho: Vec<f64> = idx
+        .iter()
+        .map(|&i| g.rho[i] / col.rho_gas(g.x[i][0]) - 1.0)
+        .collect();
+    let u_max = (0..laws.len())
+        .map(|k| col.u_terminal(k, laws[k], c.height).abs())
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let v: Vec<f64> = idx.iter().map(|&i| g.v[i][0] / u_max).collect();
+    fields.push(FieldError {
+        field: "rho_g".into(),
+        norms: Norms::of(&rho, &m),
+    });
+    fields.push(FieldError {
+        field: "v_g".into(),
+        norms: Norms::of(&v, &m),
+    });
+    // The gas velocity at a point by linear interpolation between the gas particles around it
+    // (1D): the drift u − v is what the drag sets, whatever small motion the gas column has.
+    let mut line: Vec<(f64, f64)> = (0..g.len()).map(|i| (g.x[i][0], g.v[i][0])).collect();
+    line.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let v_gas_at = |x: f64| {
+        let i = line.partition_point(|p| p.0 <= x).clamp(1, line.len() - 1);
+        let ((x0, v0), (x1, v1)) = (line[i - 1], line[i]);
+        v0 + (v1 - v0) * (x - x0) / (x1 - x0)
+    };
+    for (k, ph) in state.dust.iter().enumerate() {
+        let idx: Vec<usize> = (0..ph.len()).filter(|&j| inside(ph.x[j][0])).collect();
+        let m: Vec<f64> = idx.iter().map(|&j| ph.m[j]).collect();
+        let ex: Vec<f64> = idx
+            .iter()
+            .map(|&j| col.u_terminal(k, laws[k], ph.x[j][0]))
+            .collect();
+        let u: Vec<f64> = idx
+            .iter()
+            .zip(&ex)
+            .map(|(&j, e)| (ph.v[j][0] - e) / e.abs())
+            .collect();
+        let w: Vec<f64> = idx
+            .iter()
+            .zip(&ex)
+            .map(|(&j, e)| (ph.v[j][0] - v_gas_at(ph.x[j][0]) - e) / e.abs())
+            .collect();
+        fields.push(FieldError {
+            field: format!("u_d{k}"),
+            norms: Norms::of(&u, &m),
+        });
+        fields.push(FieldError {
+            field: format!("drift_d{k}"),
+            norms: Norms::of(&w, &m),
+        });
+    }
+    ExactErrors {
+        t: state.t,
+        reference: "hydrostatic isothermal column, dust at its terminal velocity −g t_k(x); relative errors over the middle 60% of the column (and ≥ 4h from the walls): u_dk = (u − u_term)/|u_term|, drift_dk = (u − v_gas(x) − u_term)/|u_term| with v_gas interpolated; v_g in units of the largest terminal speed".into(),
+        fields,
+    }
 }
 
 /// Zones of the 1D reference: 2000 is converged to ~3e-5 in ρ (far below SPH errors).

@@ -7,6 +7,7 @@ pub mod dustybox;
 pub mod dustywave;
 pub mod linalg;
 pub mod riemann;
+pub mod settle;
 
 pub use complex::C;
 pub use dustybox::DustyBox;

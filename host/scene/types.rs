@@ -66,6 +66,8 @@ pub struct Scene {
     pub dustyshock: Option<ShockCfg>,
     #[serde(default)]
     pub dustyball: Option<BallCfg>,
+    #[serde(default)]
+    pub dustysettle: Option<SettleCfg>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
@@ -75,6 +77,7 @@ pub enum Problem {
     Dustywave,
     Dustyshock,
     Dustyball,
+    Dustysettle,
 }
 
 impl Problem {
@@ -84,6 +87,7 @@ impl Problem {
             Problem::Dustywave => "dustywave",
             Problem::Dustyshock => "dustyshock",
             Problem::Dustyball => "dustyball",
+            Problem::Dustysettle => "dustysettle",
         }
     }
 }
@@ -430,6 +434,20 @@ pub struct ShockCfg {
     pub right: ShockState,
 }
 
+/// Dust settling through an isothermal gas column in hydrostatic equilibrium under the
+/// constant `[external]` acceleration (docs/method.md §S). 1D: the column runs along x from
+/// x = 0 (bottom) to `height`, closed by fixed gas particles beyond both ends.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SettleCfg {
+    #[serde(default = "one")]
+    pub height: f64,
+    /// Dust placed this many gas spacings (in mass coordinate) above the gas particles
+    /// (0: each dust particle on a gas particle).
+    #[serde(default)]
+    pub dust_shift: f64,
+}
+
 /// The seed's ball (method.md §6.1): uniform gas and dust at rest in a ball, vacuum outside.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -460,7 +478,7 @@ impl Scene {
             ));
         }
         match s.problem {
-            Problem::Dustyshock if s.dim != 1 => {
+            Problem::Dustyshock | Problem::Dustysettle if s.dim != 1 => {
                 return Err((
                     "scene.dim".into(),
                     format!(
@@ -477,6 +495,7 @@ impl Scene {
             (Problem::Dustywave, self.dustywave.is_some()),
             (Problem::Dustyshock, self.dustyshock.is_some()),
             (Problem::Dustyball, self.dustyball.is_some()),
+            (Problem::Dustysettle, self.dustysettle.is_some()),
         ];
         for (p, present) in sections {
             if p == s.problem && !present {
@@ -814,6 +833,43 @@ impl Scene {
                 finite(&format!("dustybox.u_dust.{i}"), u)?;
             }
             finite("dustybox.dust_shift", b.dust_shift)?;
+        }
+        if let Some(c) = &self.dustysettle {
+            positive("dustysettle.height", c.height)?;
+            finite("dustysettle.dust_shift", c.dust_shift)?;
+            if !(0.0..1.0).contains(&c.dust_shift) {
+                return Err((
+                    "dustysettle.dust_shift".into(),
+                    format!("must be in [0, 1) gas spacings (got {})", num(c.dust_shift)),
+                ));
+            }
+            if self.gas.eos != EosKind::Isothermal {
+                return Err((
+                    "gas.eos".into(),
+                    "dustysettle is an isothermal column: eos must be \"isothermal\"".into(),
+                ));
+            }
+            if self.dust.is_none() {
+                return Err((
+                    "dust".into(),
+                    "dustysettle needs a [dust] section with at least one fraction".into(),
+                ));
+            }
+            let g = -self.external.gas[0];
+            if !(g > 0.0) {
+                return Err((
+                    "external.gas".into(),
+                    "dustysettle needs gravity along −x: external.gas = [-g, 0, 0] with g > 0"
+                        .into(),
+                ));
+            }
+            if self.external.dust != self.external.gas {
+                return Err((
+                    "external.dust".into(),
+                    "dustysettle: gas and dust fall under the same gravity (external.dust = external.gas)"
+                        .into(),
+                ));
+            }
         }
         if let Some(w) = &self.dustywave {
             positive("dustywave.length", w.length)?;

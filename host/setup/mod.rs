@@ -1,6 +1,7 @@
 //! Scene → initial particles. One file per problem; each builds the [`Setup`] the engine starts from.
 mod dustyball;
 mod dustybox;
+pub mod dustysettle;
 mod dustyshock;
 pub mod dustywave;
 
@@ -65,6 +66,7 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
         Problem::Dustywave => dustywave::build(scene),
         Problem::Dustyshock => dustyshock::build(scene),
         Problem::Dustyball => dustyball::build(scene),
+        Problem::Dustysettle => dustysettle::build(scene),
     }
 }
 
