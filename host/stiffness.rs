@@ -24,6 +24,7 @@ use std::path::Path;
 const WAVE: &str = include_str!("../configs/dustywave.toml");
 const BOX: &str = include_str!("../configs/dustybox.toml");
 const BALL: &str = include_str!("../configs/dusty_ball.toml");
+const PHANTOM_WAVE: &str = include_str!("../configs/dustywave_phantom.toml");
 
 /// Largest allowed max_t |P(t) − P(0)| / S, with S = max_t Σ m|v|, or Σ m c_s (c_s the largest
 /// initial gas sound speed) when everything is at rest to round-off (max_t Σ m|v| < 1e-8 Σ m c_s).
@@ -213,6 +214,65 @@ pub fn cases() -> Vec<Case> {
         false,
         dusty_box(&[25.0; 4], &[1e-8; 4], -1e8, 1e8),
     );
+    // Dust off the gas at ≈57 neighbours (3D, hfact 1.2), with the kernel coupling
+    // (docs/method.md §K): the regime the nearest cell cannot couple.
+    let placed = |mut k: Kind, shift: &str| {
+        if let Kind::Scene { sets, .. } = &mut k {
+            sets.extend([
+                "scene.dim=3".to_string(),
+                "sph.n=16".to_string(),
+                "sph.hfact=1.2".to_string(),
+                format!("dustybox.dust_shift={shift}"),
+                "idic.coupling=\"kernel\"".to_string(),
+            ]);
+        }
+        k
+    };
+    add(
+        "placement (3D, ≈57 nb)",
+        "box 3D N=4, Σε=1, t_stop 1e-8…1e-5 (τ/t_stop ≤ 1e6), dust offset 0.5 Δ, kernel coupling"
+            .into(),
+        true,
+        placed(
+            dusty_box(&[0.25; 4], &[1e-8, 1e-7, 1e-6, 1e-5], 0.0, 1.0),
+            "0.5",
+        ),
+    );
+    add(
+        "placement (3D, ≈57 nb)",
+        "box 3D N=16, Σε=1, t_stop 1e-7…1e-1, dust offset 0.25 Δ, kernel coupling".into(),
+        false,
+        placed(
+            dusty_box(&[1.0 / 16.0; 16], &six_decades(16), 0.0, 1.0),
+            "0.25",
+        ),
+    );
+    add(
+        "placement (3D, ≈57 nb)",
+        "box 3D N=1, ε=100, t_stop=1e-8, slip 1e6, dust offset 0.5 Δ, kernel coupling".into(),
+        false,
+        placed(dusty_box(&[100.0], &[1e-8], 0.0, 1e6), "0.5"),
+    );
+    for k in ["1e5", "1e7"] {
+        add(
+            "placement (3D, ≈57 nb)",
+            format!(
+                "Phantom wave 3D n=32, K={k} (τ/t_stop ≈ {}), dust offset 0.5 Δ, kernel coupling",
+                if k == "1e5" { "1e3" } else { "1e5" }
+            ),
+            false,
+            Kind::Scene {
+                base: PHANTOM_WAVE,
+                sets: vec![
+                    "sph.n=32".into(),
+                    "time.output_dt=".into(),
+                    "dustywave.dust_shift=0.5".into(),
+                    "idic.coupling=\"kernel\"".into(),
+                    format!("dust.fractions.0.k={k}"),
+                ],
+            },
+        );
+    }
     add(
         "cells",
         "slab into vacuum: dust-only, gas-only and one-particle cells; particles leave the initial domain".into(),
@@ -574,7 +634,11 @@ pub fn markdown(reports: &[CaseReport], full: bool, command: &str) -> String {
          `configs/dustybox.toml` (n = 64, τ = 0.01) to t = 0.5. Slab: gas on [−0.5, 0.5] expanding \
          into vacuum, a dust slab on [0, 1] moving out at 0.5 (t_stop = 1e-3; dust-only cells), seven \
          lone dust particles 0.15 apart moving at −2 (t_stop = 1e-6; one-particle cells), τ = 1e-3, \
-         t = 0.5. Ball: `configs/dusty_ball.toml` at n = 8, h = 2Δ.\n"
+         t = 0.5. Ball: `configs/dusty_ball.toml` at n = 8, h = 2Δ. Placement: the box in 3D at \
+         n = 16 per axis, hfact 1.2 (≈57 neighbours), every dust lattice offset from the gas lattice \
+         along each axis, and Phantom's 3D wave (`configs/dustywave_phantom.toml`, n = 32, \
+         adiabatic, variable h, IAD, leapfrog) with its dust offset by half a spacing; all with the \
+         kernel coupling (`idic.coupling = \"kernel\"`, docs/method.md §K).\n"
     );
     let _ = writeln!(
         s,
