@@ -522,7 +522,10 @@ pub fn run_case(case: &Case) -> CaseReport {
         rep.failures
             .push(format!("momentum drift {drift:.2e} > {MOMENTUM_TOL:e}"));
     }
-    eng.refresh_dust_density(&mut state);
+    if let Err(e) = eng.refresh_dust_density(&mut state) {
+        rep.failures.push(format!("dust density: {e}"));
+        return rep;
+    }
     let min_rho = state
         .dust
         .iter()

@@ -650,7 +650,9 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
     if let (Some(a), Some(b)) = (cpu0, thread_cpu_seconds()) {
         out.step_cpu = b - a;
     }
-    eng.refresh_dust_density(&mut state);
+    if let Err(e) = eng.refresh_dust_density(&mut state) {
+        return fail(out, e.to_string());
+    }
     out.errors = analysis::exact_errors(scene, &state, scene.time.dt);
     let p1 = state.total_momentum();
     let dp = ((0..3).map(|d| (p1[d] - p0[d]).powi(2)).sum::<f64>()).sqrt();

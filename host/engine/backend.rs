@@ -168,10 +168,7 @@ impl Backend {
     /// Dust densities (for output) and the host state brought up to date.
     pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
         match self {
-            Backend::Cpu(e) => {
-                e.refresh_dust_density(state);
-                Ok(())
-            }
+            Backend::Cpu(e) => e.refresh_dust_density(state),
             Backend::Cuda(e) => Ok(e.refresh_dust_density(state)?),
             Backend::Emulated(e) => Ok(e.refresh_dust_density(state)?),
         }
@@ -179,7 +176,7 @@ impl Backend {
 
     pub fn dust_stopping_times(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, StepError> {
         match self {
-            Backend::Cpu(e) => Ok(e.dust_stopping_times(state)),
+            Backend::Cpu(e) => e.dust_stopping_times(state),
             Backend::Cuda(e) => Ok(e.dust_stopping_times(state)?),
             Backend::Emulated(e) => Ok(e.dust_stopping_times(state)?),
         }

@@ -150,7 +150,7 @@ impl CpuEngine {
         };
         eng.regrid(state)?;
         eng.gas_density_eos(state, None)?;
-        eng.refresh_dust_density(state);
+        eng.refresh_dust_density(state)?;
         eng.check(state)?;
         Ok(eng)
     }
@@ -193,19 +193,39 @@ impl CpuEngine {
     }
 
     /// Variable h: solve h_a, ρ_a, Ω_a of every gas particle by Newton–Raphson from the
-    /// current h (the reference h at the start). A particle whose h would outgrow the search
-    /// radius widens the grid's reach (same cells and order) and the solve is repeated.
+    /// current h (the reference h at the start).
     fn solve_gas_h(&mut self, state: &mut State, hfact: f64) -> Result<(), StepError> {
-        const TOL: f64 = 1e-4; // Phantom's tolh
-        let dim = self.phys.dim;
         let n = state.gas.ph.len();
         let h0 = state.gas.h.take().unwrap_or_else(|| vec![self.phys.h; n]);
+        let out = self.solve_h(&state.gas.ph, None, &h0, hfact, state.step, "gas")?;
+        let g = &mut state.gas;
+        g.ph.rho = out.iter().map(|o| o.rho).collect();
+        g.h = Some(out.iter().map(|o| o.h).collect());
+        g.omega = Some(out.iter().map(|o| o.omega).collect());
+        Ok(())
+    }
+
+    /// h, ρ and Ω of every particle of one phase (`dust` = its fraction; `None`: the gas) from
+    /// the guesses `h0` (Newton–Raphson, [`kernels::solve_h_at`]). A particle whose h would
+    /// outgrow the search radius widens the grid's reach (same cells and order) and the solve
+    /// is repeated.
+    fn solve_h(
+        &mut self,
+        ph: &Phase,
+        dust: Option<usize>,
+        h0: &[f64],
+        hfact: f64,
+        step: u64,
+        what: &str,
+    ) -> Result<Vec<kernels::HSolve<f64>>, StepError> {
+        const TOL: f64 = 1e-4; // Phantom's tolh
+        let dim = self.phys.dim;
         for _attempt in 0..40 {
-            let ph = &state.gas.ph;
-            let s = self.sorted(&self.gas_idx, &ph.x);
+            let idx = dust.map_or(&self.gas_idx, |k| &self.dust_idx[k]);
+            let s = self.sorted(idx, &ph.x);
             let fixed = ph.fixed.as_deref().unwrap_or(&[]);
             let h_max = self.grid.geom.support / kernel::SUPPORT;
-            let out: Vec<kernels::HSolve<f64>> = (0..n)
+            let out: Vec<kernels::HSolve<f64>> = (0..ph.len())
                 .into_par_iter()
                 .map(|i| {
                     kernels::solve_h_at(
@@ -220,19 +240,14 @@ impl CpuEngine {
                     continue;
                 }
                 return Err(StepError::Blowup(format!(
-                    "step {}: variable h did not converge for gas particle id {} (h = {:e})",
-                    state.step, ph.id[i], out[i].h
+                    "step {step}: variable h did not converge for {what} particle id {} (h = {:e})",
+                    ph.id[i], out[i].h
                 )));
             }
-            let g = &mut state.gas;
-            g.ph.rho = out.iter().map(|o| o.rho).collect();
-            g.h = Some(out.iter().map(|o| o.h).collect());
-            g.omega = Some(out.iter().map(|o| o.omega).collect());
-            return Ok(());
+            return Ok(out);
         }
         Err(StepError::Blowup(format!(
-            "step {}: variable h outgrew every search radius",
-            state.step
+            "step {step}: variable h of the {what} outgrew every search radius"
         )))
     }
 
@@ -323,14 +338,29 @@ impl CpuEngine {
     }
 
     /// Dust densities for output (and for constant-K drag, which refreshes them every step).
-    pub fn refresh_dust_density(&mut self, state: &mut State) {
+    /// With variable h (`sph.variable_h`) every dust particle gets its own h as the gas does,
+    /// ρ = m (hfact/h)^d, solved afresh from the reference h (so a resumed run is bit-identical).
+    pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
         if self.dust_density_fresh {
-            return;
+            return Ok(());
         }
-        for (k, d) in state.dust.iter_mut().enumerate() {
-            d.rho = self.density(&self.dust_idx[k], d);
+        for k in 0..state.dust.len() {
+            let rho = match self.phys.variable_h {
+                Some(hfact) => {
+                    let d = &state.dust[k];
+                    let h0 = vec![self.phys.h; d.len()];
+                    let what = format!("dust fraction {k}");
+                    self.solve_h(d, Some(k), &h0, hfact, state.step, &what)?
+                        .iter()
+                        .map(|o| o.rho)
+                        .collect()
+                }
+                None => self.density(&self.dust_idx[k], &state.dust[k]),
+            };
+            state.dust[k].rho = rho;
         }
         self.dust_density_fresh = true;
+        Ok(())
     }
 
     /// Mean number of gas neighbours within the support (self excluded), for benchmarks.
@@ -519,23 +549,23 @@ impl CpuEngine {
     }
 
     /// Stopping time of every dust particle (its cell's t_k*; +∞ where uncoupled), for output.
-    pub fn dust_stopping_times(&mut self, state: &mut State) -> Vec<Vec<f64>> {
+    pub fn dust_stopping_times(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, StepError> {
         if state.dust.is_empty() {
-            return Vec::new();
+            return Ok(Vec::new());
         }
-        self.refresh_dust_density(state);
+        self.refresh_dust_density(state)?;
         if self.pipe.kernel_coupling {
-            return self.kernel_stopping_times(state);
+            return Ok(self.kernel_stopping_times(state));
         }
         let t = self.cell_table(state, &state.gas.ph.v);
-        (0..state.dust.len())
+        Ok((0..state.dust.len())
             .map(|k| {
                 let idx = &self.dust_idx[k];
                 (0..state.dust[k].len())
                     .map(|j| t.t_stop[t.dust_map[k][idx.cell_of[j] as usize] as usize * t.nf + k])
                     .collect()
             })
-            .collect()
+            .collect())
     }
 
     /// Explicit drag only: the largest step the drag allows at the current layer,
@@ -1101,7 +1131,7 @@ impl CpuEngine {
             })?;
             self.dust_density_fresh = false;
             if self.pipe.dust_density_each_step {
-                timers.time("dust density", || self.refresh_dust_density(state));
+                timers.time("dust density", || self.refresh_dust_density(state))?;
             }
             Ok(())
         })();
