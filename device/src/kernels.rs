@@ -448,6 +448,33 @@ pub fn cell_couple<R: Real>(
     gamma_root: R,
 ) -> CellCoupling<R> {
     let nf = dust.len().min(laws.len()).min(MAX_FRACTIONS);
+    let mut u_tilde = [[R::ZERO; 3]; MAX_FRACTIONS];
+    for k in 0..nf {
+        if dust[k].mass > R::ZERO {
+            u_tilde[k] = scale(R::ONE / dust[k].mass, dust[k].mom);
+        }
+    }
+    let v_tilde = if gas.mass > R::ZERO {
+        scale(R::ONE / gas.mass, gas.mom)
+    } else {
+        [R::ZERO; 3]
+    };
+    solve_coupling(v_tilde, &u_tilde[..nf], tau, |k| {
+        fraction_coupling(gas, &dust[k], &laws[k], gamma_root)
+    })
+}
+
+/// The implicit solve of one cell (or gas particle) from its means ṽ, ũ_k and, per fraction,
+/// `coupling(k)` = (ε_k, t_k*) (`None`: the fraction does not couple there; t `None`: the law
+/// cannot couple): fills ε, β = τ/t*, t* (+∞ where uncoupled) and the new means.
+#[inline(always)]
+fn solve_coupling<R: Real>(
+    v_tilde: Vec3<R>,
+    u_tilde: &[Vec3<R>],
+    tau: R,
+    coupling: impl Fn(usize) -> Option<(R, Option<R>)>,
+) -> CellCoupling<R> {
+    let nf = u_tilde.len().min(MAX_FRACTIONS);
     let inf = R::from_f64(f64::INFINITY);
     let mut c = CellCoupling {
         eps: [R::ZERO; MAX_FRACTIONS],
@@ -456,13 +483,8 @@ pub fn cell_couple<R: Real>(
         u_new: [[R::ZERO; 3]; MAX_FRACTIONS],
         v_new: [R::ZERO; 3],
     };
-    let mut u_tilde = [[R::ZERO; 3]; MAX_FRACTIONS];
     for k in 0..nf {
-        let d = &dust[k];
-        if d.mass > R::ZERO {
-            u_tilde[k] = scale(R::ONE / d.mass, d.mom);
-        }
-        if let Some((eps, t)) = fraction_coupling(gas, d, &laws[k], gamma_root) {
+        if let Some((eps, t)) = coupling(k) {
             c.eps[k] = eps;
             if let Some(t) = t {
                 c.t_stop[k] = t;
@@ -470,11 +492,6 @@ pub fn cell_couple<R: Real>(
             }
         }
     }
-    let v_tilde = if gas.mass > R::ZERO {
-        scale(R::ONE / gas.mass, gas.mom)
-    } else {
-        [R::ZERO; 3]
-    };
     c.v_new = drag::cell_solve(
         v_tilde,
         &u_tilde[..nf],
@@ -660,7 +677,7 @@ pub fn deposit_at<R: Real>(
 /// The implicit solve on gas particle a from the deposits (method.md §3.3 closed form, with the
 /// cell means replaced by the deposit means): ε_k = M_k/M_g, t_k* from each law with the
 /// mass-weighted mean densities and sound speed (`gamma_root` · mean sqrt(p/ρ)).
-/// `CellCoupling::u_new`/`v_new` are the new means; `old` returns the old means (ṽ, ũ_k).
+/// `CellCoupling::u_new`/`v_new` are the new means; `old` returns the old means (ũ_k).
 #[inline(always)]
 pub fn kernel_couple<R: Real>(
     gas: &Deposit<R>,
@@ -671,45 +688,27 @@ pub fn kernel_couple<R: Real>(
     old: &mut [Vec3<R>; MAX_FRACTIONS],
 ) -> CellCoupling<R> {
     let nf = dust.len().min(laws.len()).min(MAX_FRACTIONS);
-    let inf = R::from_f64(f64::INFINITY);
-    let mut c = CellCoupling {
-        eps: [R::ZERO; MAX_FRACTIONS],
-        beta: [R::ZERO; MAX_FRACTIONS],
-        t_stop: [inf; MAX_FRACTIONS],
-        u_new: [[R::ZERO; 3]; MAX_FRACTIONS],
-        v_new: [R::ZERO; 3],
-    };
     if gas.mass <= R::ZERO {
-        return c;
+        return solve_coupling([R::ZERO; 3], &[], tau, |_| None);
     }
     let inv_g = R::ONE / gas.mass;
     for k in 0..nf {
+        if dust[k].mass > R::ZERO {
+            old[k] = scale(R::ONE / dust[k].mass, dust[k].mom);
+        }
+    }
+    solve_coupling(scale(inv_g, gas.mom), &old[..nf], tau, |k| {
         let d = &dust[k];
         if d.mass <= R::ZERO {
-            continue;
+            return None;
         }
-        let inv_d = R::ONE / d.mass;
-        old[k] = scale(inv_d, d.mom);
         let means = CellMeans {
-            rho_dust: d.rho * inv_d,
+            rho_dust: d.rho / d.mass,
             rho_gas: gas.rho * inv_g,
             cs_gas: gamma_root * gas.cs * inv_g,
         };
-        c.eps[k] = drag::cell_eps(d.mass, gas.mass);
-        if let Some(t) = laws[k].cell_time(&means) {
-            c.t_stop[k] = t;
-            c.beta[k] = drag::cell_beta(tau, Some(t));
-        }
-    }
-    let v_tilde = scale(inv_g, gas.mom);
-    c.v_new = drag::cell_solve(
-        v_tilde,
-        &old[..nf],
-        &c.eps[..nf],
-        &c.beta[..nf],
-        &mut c.u_new[..nf],
-    );
-    c
+        Some((drag::cell_eps(d.mass, gas.mass), laws[k].cell_time(&means)))
+    })
 }
 
 /// Σ_a w_qa Δ_a for the particle q at `x` with normaliser `s` (0 when `s` = 0): the share of
