@@ -145,6 +145,8 @@ fn gpu_engine_names_the_cpu_only_options_it_refuses() {
     for (set, key) in [
         ("sph.gradient=\"iad\"", "sph.gradient"),
         ("time.integrator=\"kdk\"", "time.integrator"),
+        ("idic.coupling=\"kernel\"", "idic.coupling"),
+        ("external.gas=[1.0, 0.0, 0.0]", "[external]"),
     ] {
         let sets = vec![set.to_string(), "sph.n=32".to_string()];
         let loaded = dustsph::scene::load(&common::config("dustywave"), &sets).unwrap();

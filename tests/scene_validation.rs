@@ -19,6 +19,8 @@ fn every_scene_in_configs_is_valid() {
         "dustyshock",
         "dustywave_phantom",
         "dustywave_phantom_poly",
+        "dustysettle",
+        "dusty_ball",
     ] {
         load(&config(s), &[]).unwrap_or_else(|e| panic!("{e}"));
     }
@@ -85,9 +87,36 @@ fn impossible_values_name_their_key_and_file() {
             "time.position_update=\"old\"",
             "time.position_update",
         ),
+        // The kernel coupling, external accelerations and the settling column.
+        (
+            "dustybox",
+            "drag.method=\"explicit\"\u{0}idic.coupling=\"kernel\"",
+            "idic.coupling",
+        ),
+        ("dustybox", "external.gas=[0.0, 1.0, 0.0]", "external.gas"),
+        ("dustybox", "dustybox.dust_shift=nan", "dustybox.dust_shift"),
+        (
+            "dustysettle",
+            "external.gas=[1.0, 0.0, 0.0]",
+            "external.gas",
+        ),
+        (
+            "dustysettle",
+            "external.dust=[0.0, 0.0, 0.0]",
+            "external.dust",
+        ),
+        (
+            "dustysettle",
+            "dustysettle.dust_shift=1.5",
+            "dustysettle.dust_shift",
+        ),
+        ("dustysettle", "dustysettle.height=-1", "dustysettle.height"),
+        ("dustysettle", "scene.dim=3", "scene.dim"),
     ];
     for (scene, set, key) in cases.iter().chain(more) {
-        let e = err(scene, &[set]);
+        // A NUL separates several overrides of one case.
+        let sets: Vec<&str> = set.split('\u{0}').collect();
+        let e = err(scene, &sets);
         assert_eq!(e.key.as_deref(), Some(*key), "{scene} --set {set}: {e}");
         let msg = e.to_string();
         assert!(
@@ -155,4 +184,12 @@ fn set_up_errors_name_the_key_and_write_nothing() {
     assert!(matches!(e, dustsph::run::RunError::Input(_)), "{e}");
     assert!(e.to_string().contains("dustybox.length"), "{e}");
     assert!(!out.exists());
+}
+
+#[test]
+fn an_unknown_coupling_is_refused_naming_the_key() {
+    let e = err("dustybox", &["idic.coupling=\"pic\""]);
+    assert!(e.to_string().contains("idic"), "{e}");
+    let e = err("dustybox", &["external.wind=[1.0, 0.0, 0.0]"]);
+    assert!(e.to_string().contains("wind"), "{e}");
 }

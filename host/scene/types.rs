@@ -856,7 +856,7 @@ impl Scene {
                 ));
             }
             let g = -self.external.gas[0];
-            if !(g > 0.0) {
+            if g.is_nan() || g <= 0.0 {
                 return Err((
                     "external.gas".into(),
                     "dustysettle needs gravity along −x: external.gas = [-g, 0, 0] with g > 0"

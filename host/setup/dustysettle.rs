@@ -48,7 +48,7 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     }
     let wall = dustsph_device::kernel::SUPPORT * h + top_spacing;
     let (m_lo, m_hi) = (col.mass_below(-wall), col.mass_below(len + wall));
-    if !(m_hi < col.rho0 * col.scale_height()) || !m_lo.is_finite() {
+    if m_hi.is_nan() || m_hi >= col.rho0 * col.scale_height() || !m_lo.is_finite() {
         return Err(SetupError {
             key: "dustysettle.height".into(),
             msg: "the column is too tall for its scale height".into(),
