@@ -82,6 +82,28 @@ fn uniform_box_equals_the_drag_ode_at_any_dust_offset() {
 }
 
 #[test]
+fn close_packed_box_with_offset_dust_equals_the_drag_ode() {
+    // Phantom's lattice (fcc) for the box: every gas particle sees the same dust around it.
+    let sets = with(&[
+        "dustybox.lattice=\"closepacked\"",
+        "dustybox.dust_shift=0.5",
+        "idic.coupling=\"kernel\"",
+    ]);
+    let refs: Vec<&str> = sets.iter().map(|s| s.as_str()).collect();
+    let (s, st) = run_scene("dustybox", &refs);
+    assert_eq!(
+        st.gas.ph.len(),
+        16 * 18 * 18,
+        "16 per row, 18 rows and layers (3 × 6)"
+    );
+    for f in ["v_g", "u_d0", "u_d1", "u_d2", "u_d3"] {
+        let disc = final_error(&s, 1, f).linf;
+        assert!(disc < 1e-12, "{f}: {disc:e} vs the oracle");
+    }
+    assert!(s.conservation.momentum_drift_relative < 1e-12);
+}
+
+#[test]
 fn the_nearest_cell_fails_the_same_offset_box() {
     // Why the kernel coupling exists: with the dust offset by half a spacing at ≈57
     // neighbours, cells rarely hold both phases and the source report's IDIC is far off.

@@ -370,6 +370,15 @@ pub struct BoxCfg {
     /// (0: each dust particle sits on a gas particle).
     #[serde(default)]
     pub dust_shift: f64,
+    /// 2D/3D lattice: cubic (default) or close-packed (hexagonal rows / fcc, Phantom's); the
+    /// close-packed box keeps `length` along x and the nearest whole number of rows (even in
+    /// 2D, a multiple of 6 in 3D) across, so its sides along y and z differ slightly.
+    #[serde(default = "cubic")]
+    pub lattice: Lattice,
+}
+
+fn cubic() -> Lattice {
+    Lattice::Cubic
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]

@@ -1,5 +1,6 @@
 //! DUSTYBOX (method.md §7.1): uniform periodic box; gas and dust start with different velocities.
 use super::*;
+use crate::scene::Lattice;
 
 pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let b = scene.dustybox.as_ref().expect("validated");
@@ -7,11 +8,40 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let rho = scene.gas.rho.expect("validated");
     let n_axis = ((scene.sph.n as f64 * b.length).round() as usize).max(2);
     let dx = b.length / n_axis as f64;
-    let h = smoothing_length(scene, dx);
-    check_periodic_fits(b.length, h, "dustybox.length")?;
-    let x = lattice(dim, n_axis, b.length);
-    let vol = dx.powi(dim as i32);
+    let (x, len) = match (b.lattice, dim) {
+        (Lattice::Closepacked, 2 | 3) => {
+            // Rows Δ√3/2 apart (2D: an even count) or layers Δ√(2/3) apart (3D: a multiple of
+            // 6, so that both the row alternation and the ABC stacking are periodic).
+            let (row, step) = if dim == 2 {
+                (dx * 0.75f64.sqrt(), 2)
+            } else {
+                (dx * 6f64.sqrt() / 3.0, 6)
+            };
+            let layers = ((b.length / row / step as f64).round() as usize).max(1) * step;
+            dustywave::lattice(dim, Lattice::Closepacked, n_axis, b.length, layers)
+        }
+        _ => (
+            lattice(dim, n_axis, b.length),
+            [
+                b.length,
+                if dim >= 2 { b.length } else { 1.0 },
+                if dim >= 3 { b.length } else { 1.0 },
+            ],
+        ),
+    };
     let n = x.len();
+    // h = hfact × the mean spacing (V/N)^(1/d); Δx exactly for the cubic lattice.
+    let (spacing, vol) = if b.lattice == Lattice::Cubic || dim == 1 {
+        (dx, dx.powi(dim as i32))
+    } else {
+        let volume: f64 = len[..dim as usize].iter().product();
+        let v = volume / n as f64;
+        (v.powf(1.0 / dim as f64), v)
+    };
+    let h = smoothing_length(scene, spacing);
+    for l in &len[..dim as usize] {
+        check_periodic_fits(*l, h, "dustybox.length")?;
+    }
     let gas = Phase {
         x,
         v: vec![[b.v_gas, 0.0, 0.0]; n],
@@ -25,14 +55,14 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     // dust_shift: the dust lattice offset by that many spacings along every axis (wrapped).
     for d in &mut dust {
         for p in &mut d.x {
-            for c in p.iter_mut().take(dim as usize) {
-                *c = (*c + b.dust_shift * dx).rem_euclid(b.length);
+            for (c, l) in p.iter_mut().zip(&len).take(dim as usize) {
+                *c = (*c + b.dust_shift * dx).rem_euclid(*l);
             }
         }
     }
     let mut periodic = [None; 3];
-    for p in periodic.iter_mut().take(dim as usize) {
-        *p = Some((0.0, b.length));
+    for (p, l) in periodic.iter_mut().zip(len).take(dim as usize) {
+        *p = Some((0.0, l));
     }
     Ok(Setup::at_start(
         gas_phase(gas, e),
