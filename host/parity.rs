@@ -173,4 +173,62 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         &["sph.n=6", "sph.h=0.3"],
         8,
     ),
+    // The kernel coupling (docs/method.md §K) on every scene kind.
+    (
+        "kernel coupling: dustybox 3D, dust offset 0.5, external accelerations",
+        "configs/dustybox.toml",
+        &[
+            "scene.dim=3",
+            "sph.n=8",
+            "sph.hfact=1.2",
+            "dustybox.dust_shift=0.5",
+            "idic.coupling=kernel",
+            "external.gas=[1.0, 0.5, 0.0]",
+            "external.dust=[0.0, 0.0, -2.0]",
+        ],
+        10,
+    ),
+    (
+        "kernel coupling: dustywave N=4, dust offset 0.5",
+        "configs/dustywave.toml",
+        &[
+            "sph.n=64",
+            "idic.coupling=kernel",
+            "dustywave.dust_shift=0.5",
+        ],
+        20,
+    ),
+    (
+        "kernel coupling: dustywave adiabatic, constant K",
+        "configs/dustywave.toml",
+        &[
+            "sph.n=64",
+            "gas.eos=adiabatic",
+            "gas.cs=",
+            "gas.gamma=1.4",
+            "gas.p=1.0",
+            "dust.law=constant_k",
+            "dust.fractions=[{eps=1.0, k=5.0}, {eps=0.5, k=50.0}]",
+            "idic.coupling=kernel",
+        ],
+        15,
+    ),
+    (
+        "kernel coupling: dustyshock (walls, AV)",
+        "configs/dustyshock.toml",
+        &["sph.n=200", "idic.coupling=kernel", "dust.heating=false"],
+        20,
+    ),
+    (
+        "kernel coupling: small ball 3D (Epstein)",
+        "configs/dusty_ball.toml",
+        &["sph.n=6", "sph.h=0.3", "idic.coupling=kernel"],
+        8,
+    ),
+    (
+        "kernel coupling: dustysettle (walls, gravity, Epstein)",
+        "configs/dustysettle.toml",
+        &["sph.n=100", "sph.gradient=standard"],
+        10,
+    ),
 ];

@@ -56,6 +56,36 @@ fn small_ball_gpu_kernels_match_cpu_bit_for_bit() {
     case(4);
 }
 
+#[test]
+fn kernel_coupling_box_3d_offset_with_external_matches_cpu_bit_for_bit() {
+    case(5);
+}
+
+#[test]
+fn kernel_coupling_wave_offset_matches_cpu_bit_for_bit() {
+    case(6);
+}
+
+#[test]
+fn kernel_coupling_adiabatic_constant_k_wave_matches_cpu_bit_for_bit() {
+    case(7);
+}
+
+#[test]
+fn kernel_coupling_shock_matches_cpu_bit_for_bit() {
+    case(8);
+}
+
+#[test]
+fn kernel_coupling_ball_matches_cpu_bit_for_bit() {
+    case(9);
+}
+
+#[test]
+fn kernel_coupling_settle_matches_cpu_bit_for_bit() {
+    case(10);
+}
+
 /// Byte size of the single parameter of each entry point in the PTX.
 fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
     let mut out = Vec::new();
@@ -115,6 +145,11 @@ fn ptx_entry_points_take_the_host_argument_structs() {
         ("dustsph_drift", size_of::<th::DriftArgs>()),
         ("dustsph_energy", size_of::<th::EnergyArgs>()),
         ("dustsph_check", size_of::<th::CheckArgs>()),
+        ("dustsph_dust_accel", size_of::<th::DustAccelArgs>()),
+        ("dustsph_coupling_norm", size_of::<th::NormArgs>()),
+        ("dustsph_coupling_solve", size_of::<th::CoupleArgs>()),
+        ("dustsph_coupling_return", size_of::<th::ReturnArgs>()),
+        ("dustsph_coupling_tstop", size_of::<th::ReturnArgs>()),
     ];
     let got = entry_param_sizes(gpu::PTX);
     assert_eq!(got.len(), KERNELS.len(), "entry points in the PTX: {got:?}");
@@ -145,10 +180,13 @@ fn gpu_engine_names_the_cpu_only_options_it_refuses() {
     for (set, key) in [
         ("sph.gradient=\"iad\"", "sph.gradient"),
         ("time.integrator=\"kdk\"", "time.integrator"),
-        ("idic.coupling=\"kernel\"", "idic.coupling"),
-        ("external.gas=[1.0, 0.0, 0.0]", "[external]"),
+        (
+            "idic.coupling=\"kernel\"\u{0}time.position_update=\"old\"",
+            "time.position_update",
+        ),
     ] {
-        let sets = vec![set.to_string(), "sph.n=32".to_string()];
+        let mut sets: Vec<String> = set.split('\u{0}').map(String::from).collect();
+        sets.push("sph.n=32".to_string());
         let loaded = dustsph::scene::load(&common::config("dustywave"), &sets).unwrap();
         let su = dustsph::setup::build(&loaded.scene).unwrap();
         let mut state = su.state;

@@ -643,9 +643,31 @@ impl<R: Real> Deposit<R> {
     }
 }
 
-/// Deposit of one phase (positions `q.x`, normalisers `s`, masses, velocities `vel(j)`,
-/// densities `rho`, optional `cs(j)`) on the gas particle at `xa` with kernel `ka`. Particles
-/// with `s = 0` or fixed ones deposit nothing.
+/// The weights w_ja = W(r_ja, h_a)/S_j of the particles j of one phase (positions `q.x`,
+/// normalisers `s`) around the gas particle at `xa` with kernel `ka`: `f(j, w_ja)` in the
+/// neighbour walk's order. Particles with `s = 0` or fixed ones have none.
+#[inline(always)]
+pub fn deposit_row_at<R: Real>(
+    q: &Sorted<'_, R>,
+    s: &[R],
+    fixed: &[bool],
+    xa: Vec3<R>,
+    ka: &KernelAt<R>,
+    mut f: impl FnMut(usize, R),
+) {
+    for_neighbours(q.geom, &q.look, q.x, xa, |j, _, r2| {
+        if is_fixed(fixed, j) || s[j] <= R::ZERO {
+            return;
+        }
+        let w = ka.w(r2.sqrt()) / s[j];
+        if w > R::ZERO {
+            f(j, w);
+        }
+    });
+}
+
+/// Deposit of one phase on the gas particle at `xa` ([`deposit_row_at`]'s weights): masses,
+/// velocities `vel(j)`, densities `rho`, sqrt(p/ρ) `cs(j)`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn deposit_at<R: Real>(
@@ -665,11 +687,8 @@ pub fn deposit_at<R: Real>(
         rho: R::ZERO,
         cs: R::ZERO,
     };
-    for_neighbours(q.geom, &q.look, q.x, xa, |j, _, r2| {
-        if is_fixed(fixed, j) || s[j] <= R::ZERO {
-            return;
-        }
-        d.add(ka.w(r2.sqrt()) / s[j] * m[j], vel(j), rho[j], cs(j));
+    deposit_row_at(q, s, fixed, xa, ka, |j, w| {
+        d.add(w * m[j], vel(j), rho[j], cs(j))
     });
     d
 }
@@ -726,6 +745,8 @@ pub fn gather_increment_at<R: Real>(
     if s <= R::ZERO {
         return acc;
     }
-    coupling_row_at(gas, k, gas_fixed, x, |a, w| acc = axpy(acc, w, delta(a)));
-    scale(R::ONE / s, acc)
+    coupling_row_at(gas, k, gas_fixed, x, |a, w| {
+        acc = axpy(acc, w / s, delta(a))
+    });
+    acc
 }

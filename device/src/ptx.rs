@@ -48,4 +48,9 @@ kernels! {
     dustsph_drift => drift, DriftArgs;
     dustsph_energy => energy, EnergyArgs;
     dustsph_check => check, CheckArgs;
+    dustsph_dust_accel => dust_accel, DustAccelArgs;
+    dustsph_coupling_norm => coupling_norm, NormArgs;
+    dustsph_coupling_solve => coupling_solve, CoupleArgs;
+    dustsph_coupling_return => coupling_return, ReturnArgs;
+    dustsph_coupling_tstop => coupling_tstop, ReturnArgs;
 }

@@ -82,6 +82,9 @@ pub struct StepParams {
     pub nf: u32,
     pub needs_gas_state: u32,
     pub laws: [LawParam; MAX_FRACTIONS],
+    /// Constant external accelerations of the gas (added to A^n) and of the dust (B^n).
+    pub ext_gas: V3,
+    pub ext_dust: V3,
 }
 
 impl StepParams {
@@ -103,6 +106,16 @@ impl StepParams {
             beta: self.beta,
             nu2_factor: self.nu2_factor,
         })
+    }
+
+    /// The stopping-time laws of the fractions.
+    #[inline(always)]
+    pub fn stopping_laws(&self) -> [StoppingLaw<f64>; MAX_FRACTIONS] {
+        let mut l = [StoppingLaw::ConstantTime { t_stop: 0.0 }; MAX_FRACTIONS];
+        for (l, p) in l.iter_mut().zip(&self.laws).take(self.nf as usize) {
+            *l = p.law();
+        }
+        l
     }
 
     #[inline(always)]
@@ -624,7 +637,7 @@ pub unsafe fn gas_kick(t: usize, a: &KickArgs) {
     if kernels::is_fixed(g.fixed(), t) {
         return;
     }
-    let vt = crate::axpy(v, a.p.tau, *a.acc.add(t));
+    let vt = crate::axpy(v, a.p.tau, crate::add(*a.acc.add(t), a.p.ext_gas));
     let vn = if a.drag != 0 {
         let nf = a.p.nf as usize;
         let c = cell_of(g, &a.p, &a.cells, t) * nf;
@@ -777,4 +790,225 @@ pub unsafe fn check(t: usize, a: &CheckArgs) {
     if !ok {
         AtomicU32::from_ptr(a.bad).fetch_min(t as u32, Ordering::Relaxed);
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// External dust acceleration and the kernel coupling (docs/method.md §K).
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct DustAccelArgs {
+    pub ph: PhaseBufs,
+    pub p: StepParams,
+}
+
+/// ũ = u + τB of dust particle t (B = `ext_dust`; fixed particles keep u): the drag pass then
+/// reads the dust velocities as ũ, as on the CPU.
+pub unsafe fn dust_accel(t: usize, a: &DustAccelArgs) {
+    let d = &a.ph;
+    if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
+        return;
+    }
+    *d.v.add(t) = crate::axpy(*d.v.add(t), a.p.tau, a.p.ext_dust);
+}
+
+/// Per-particle buffers of the kernel coupling.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CouplingBufs {
+    /// S of every gas / dust particle (0: fixed or no gas within reach).
+    pub s_gas: *mut f64,
+    pub s_dust: *mut f64,
+    /// Per gas particle: new − old mean of the gas, and of fraction k at a·nf + k.
+    pub dv: *mut V3,
+    pub du: *mut V3,
+    /// Per gas particle and fraction (a·nf + k): t_k* of its means (+∞ where uncoupled).
+    pub t_stop: *mut f64,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct NormArgs {
+    pub gas: PhaseBufs,
+    /// The phase whose normalisers are computed (the gas itself, or the dust).
+    pub ph: PhaseBufs,
+    pub s: *mut f64,
+    pub p: StepParams,
+}
+
+/// S_t = Σ_b W(r_tb, h) over the free gas, for particle t of `ph` (0 when fixed).
+pub unsafe fn coupling_norm(t: usize, a: &NormArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let s = if kernels::is_fixed(ph.fixed(), t) {
+        0.0
+    } else {
+        let k = [crate::kernel::KernelAt::new(a.p.h, a.p.dim)];
+        kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), &k, a.gas.fixed(), ph.x()[t])
+    };
+    *a.s.add(t) = s;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CoupleArgs {
+    pub gas: PhaseBufs,
+    pub dust: PhaseBufs,
+    /// A^n of the gas (ṽ = v + τ(A + ext_gas)).
+    pub acc: *const V3,
+    pub pres: *const f64,
+    pub cb: CouplingBufs,
+    pub p: StepParams,
+}
+
+/// Gas particle t: the deposits of the gas and of every fraction on it, the implicit solve,
+/// and the increments of its means (and its t_k*).
+pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
+    let g = &a.gas;
+    if t >= g.len() {
+        return;
+    }
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let zero = [0.0; 3];
+    if kernels::is_fixed(g.fixed(), t) {
+        *a.cb.dv.add(t) = zero;
+        for f in 0..nf {
+            *a.cb.du.add(t * nf + f) = zero;
+            *a.cb.t_stop.add(t * nf + f) = f64::INFINITY;
+        }
+        return;
+    }
+    let k = crate::kernel::KernelAt::new(p.h, p.dim);
+    let eos = p.eos();
+    let needs_state = p.needs_gas_state != 0;
+    let (v, rho) = (g.v(), g.rho());
+    let acc = sl(a.acc, g.len());
+    let pres = sl(a.pres, g.len());
+    let xa = g.x()[t];
+    let gas_dep = kernels::deposit_at(
+        &g.sorted(p, 0),
+        sl(a.cb.s_gas, g.len()),
+        g.m(),
+        rho,
+        g.fixed(),
+        xa,
+        &k,
+        |b| crate::axpy(v[b], p.tau, crate::add(acc[b], p.ext_gas)),
+        |b| {
+            if needs_state {
+                eos.isothermal_speed(rho[b], pres[b])
+            } else {
+                0.0
+            }
+        },
+    );
+    let d = &a.dust;
+    let s_dust = sl(a.cb.s_dust, d.len());
+    let u = d.v();
+    let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
+    for (f, dep) in dust_dep.iter_mut().enumerate().take(nf) {
+        *dep = kernels::deposit_at(
+            &d.sorted(p, f),
+            s_dust,
+            d.m(),
+            d.rho(),
+            d.fixed(),
+            xa,
+            &k,
+            |j| u[j],
+            |_| 0.0,
+        );
+    }
+    let laws = p.stopping_laws();
+    let mut old = [zero; MAX_FRACTIONS];
+    let c = kernels::kernel_couple(
+        &gas_dep,
+        &dust_dep[..nf],
+        &laws[..nf],
+        p.tau,
+        eos.gamma_root(),
+        &mut old,
+    );
+    let v_old = if gas_dep.mass > 0.0 {
+        crate::scale(1.0 / gas_dep.mass, gas_dep.mom)
+    } else {
+        zero
+    };
+    *a.cb.dv.add(t) = crate::sub(c.v_new, v_old);
+    for f in 0..nf {
+        *a.cb.du.add(t * nf + f) = if dust_dep[f].mass > 0.0 {
+            crate::sub(c.u_new[f], old[f])
+        } else {
+            zero
+        };
+        *a.cb.t_stop.add(t * nf + f) = c.t_stop[f];
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct ReturnArgs {
+    pub gas: PhaseBufs,
+    /// The phase that receives its increments (the gas itself, or the dust).
+    pub ph: PhaseBufs,
+    /// A^n for the gas (its base velocity is ṽ = v + τ(A + ext_gas)); null for the dust (ũ).
+    pub acc: *const V3,
+    /// 1: `ph` is the gas.
+    pub is_gas: u32,
+    pub cb: CouplingBufs,
+    /// For [`coupling_tstop`]: the stopping time of every particle of `ph`.
+    pub out: *mut f64,
+    pub p: StepParams,
+}
+
+/// Particle t of `ph` gets its base velocity plus Σ_a w_ta Δ_a.
+pub unsafe fn coupling_return(t: usize, a: &ReturnArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() || kernels::is_fixed(ph.fixed(), t) {
+        return;
+    }
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let v = *ph.v.add(t);
+    let (base, s, f) = if a.is_gas != 0 {
+        let acc = crate::add(*a.acc.add(t), p.ext_gas);
+        (crate::axpy(v, p.tau, acc), *a.cb.s_gas.add(t), 0)
+    } else {
+        (v, *a.cb.s_dust.add(t), ph.group_of(t))
+    };
+    let k = [crate::kernel::KernelAt::new(p.h, p.dim)];
+    let is_gas = a.is_gas != 0;
+    let inc =
+        kernels::gather_increment_at(&a.gas.sorted(p, 0), &k, a.gas.fixed(), ph.x()[t], s, |g| {
+            if is_gas {
+                *a.cb.dv.add(g)
+            } else {
+                *a.cb.du.add(g * nf + f)
+            }
+        });
+    *ph.v.add(t) = crate::add(base, inc);
+}
+
+/// The stopping time dust particle t feels: Σ_a w_ta t_k,a (+∞ without gas within reach).
+pub unsafe fn coupling_tstop(t: usize, a: &ReturnArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let s = *a.cb.s_dust.add(t);
+    let out = if s <= 0.0 {
+        f64::INFINITY
+    } else {
+        let f = ph.group_of(t);
+        let k = [crate::kernel::KernelAt::new(p.h, p.dim)];
+        kernels::gather_increment_at(&a.gas.sorted(p, 0), &k, a.gas.fixed(), ph.x()[t], s, |g| {
+            [*a.cb.t_stop.add(g * nf + f), 0.0, 0.0]
+        })[0]
+    };
+    *a.out.add(t) = out;
 }

@@ -104,6 +104,9 @@ impl CouplingWeights {
     }
 }
 
+/// Fills the weight row of one particle.
+type RowFill<'a> = dyn Fn(usize, &mut Vec<(u32, f64)>) + Sync + 'a;
+
 /// The weights of the gas and of every dust fraction.
 type KernelWeights = (CouplingWeights, Vec<CouplingWeights>);
 
@@ -767,54 +770,64 @@ impl CpuEngine {
         }
     }
 
-    /// The kernel-coupling weights of one phase at positions `x` over the gas of this layer.
+    /// The kernel-coupling weights of one phase (`q`: its neighbour-walk view, `fixed`) over the
+    /// gas of this layer: each particle's row by a walk over the gas from it (this gives S_q),
+    /// each gas particle's row by a walk over the phase from it — both in the walk order of the
+    /// GPU kernels, whose sums they reproduce bit for bit.
+    #[allow(clippy::too_many_arguments)]
     fn coupling_weights(
         &self,
         gs: &Sorted<'_, f64>,
         k: &[kernel::KernelAt<f64>],
         gfixed: &[bool],
-        x: &[[f64; 3]],
+        q: &Sorted<'_, f64>,
         fixed: Option<&[bool]>,
         n_gas: usize,
     ) -> CouplingWeights {
-        let rows: Vec<Vec<(u32, f64)>> = x
-            .par_iter()
-            .enumerate()
-            .map(|(q, &xq)| {
-                if fixed.is_some_and(|f| f[q]) {
-                    return Vec::new();
+        let rows = |n: usize, row: &RowFill| {
+            let rows: Vec<Vec<(u32, f64)>> = (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    let mut r = Vec::with_capacity(96);
+                    row(i, &mut r);
+                    r
+                })
+                .collect();
+            let mut ptr = Vec::with_capacity(n + 1);
+            ptr.push(0);
+            for r in &rows {
+                ptr.push(ptr.last().unwrap() + r.len());
+            }
+            (ptr, rows.into_iter().flatten().collect::<Vec<_>>())
+        };
+        let (by_q_ptr, mut by_q) = rows(q.x.len(), &|i, r| {
+            if !fixed.is_some_and(|f| f[i]) {
+                kernels::coupling_row_at(gs, k, gfixed, q.x[i], |a, w| r.push((a as u32, w)));
+            }
+        });
+        // S_q = Σ W in walk order (what kernels::gas_weight_sum_at returns), then w = W/S.
+        let s: Vec<f64> = (0..q.x.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut s = 0.0;
+                for e in &by_q[by_q_ptr[i]..by_q_ptr[i + 1]] {
+                    s += e.1;
                 }
-                let mut row = Vec::with_capacity(96);
-                kernels::coupling_row_at(gs, k, gfixed, xq, |a, w| row.push((a as u32, w)));
-                let s: f64 = row.iter().map(|e| e.1).sum();
-                for e in &mut row {
-                    e.1 /= s;
-                }
-                row
+                s
             })
             .collect();
-        let mut by_q_ptr = Vec::with_capacity(rows.len() + 1);
-        by_q_ptr.push(0);
-        for r in &rows {
-            by_q_ptr.push(by_q_ptr.last().unwrap() + r.len());
-        }
-        let by_q: Vec<(u32, f64)> = rows.into_iter().flatten().collect();
-        // The same pairs ordered by gas particle (counting sort; q ascending within a row).
-        let mut by_a_ptr = vec![0usize; n_gas + 1];
-        for e in &by_q {
-            by_a_ptr[e.0 as usize + 1] += 1;
-        }
-        for a in 0..n_gas {
-            by_a_ptr[a + 1] += by_a_ptr[a];
-        }
-        let mut fill = by_a_ptr.clone();
-        let mut by_a = vec![(0u32, 0.0); by_q.len()];
-        for q in 0..x.len() {
-            for &(a, w) in &by_q[by_q_ptr[q]..by_q_ptr[q + 1]] {
-                by_a[fill[a as usize]] = (q as u32, w);
-                fill[a as usize] += 1;
+        for i in 0..q.x.len() {
+            for e in &mut by_q[by_q_ptr[i]..by_q_ptr[i + 1]] {
+                e.1 /= s[i];
             }
         }
+        let qfixed = fixed.unwrap_or(&[]);
+        let (by_a_ptr, by_a) = rows(n_gas, &|a, r| {
+            if !kernels::is_fixed(gfixed, a) {
+                let ka = kernels::kernel_of(k, a);
+                kernels::deposit_row_at(q, &s, qfixed, gs.x[a], &ka, |j, w| r.push((j as u32, w)));
+            }
+        });
         CouplingWeights {
             by_q_ptr,
             by_q,
@@ -843,11 +856,15 @@ impl CpuEngine {
             let k = self.gas_kernels(state);
             let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
             let gs = self.sorted(&self.gas_idx, &g.ph.x);
-            let wg = self.coupling_weights(&gs, &k, gfixed, &g.ph.x, g.ph.fixed.as_deref(), ng);
+            let wg = self.coupling_weights(&gs, &k, gfixed, &gs, g.ph.fixed.as_deref(), ng);
             let wd = state
                 .dust
                 .iter()
-                .map(|d| self.coupling_weights(&gs, &k, gfixed, &d.x, d.fixed.as_deref(), ng))
+                .zip(&self.dust_idx)
+                .map(|(d, idx)| {
+                    let ds = self.sorted(idx, &d.x);
+                    self.coupling_weights(&gs, &k, gfixed, &ds, d.fixed.as_deref(), ng)
+                })
                 .collect();
             (wg, wd)
         });
@@ -1004,7 +1021,8 @@ impl CpuEngine {
     }
 
     /// Kernel coupling: the stopping time each dust particle feels, Σ_a w_ja t_k,a over the
-    /// gas particles it couples to (+∞ without gas within reach), for output.
+    /// gas particles it couples to (+∞ without gas within reach), for output. The same
+    /// functions as the GPU's `coupling_solve` / `coupling_tstop` kernels.
     fn kernel_stopping_times(&self, state: &State) -> Vec<Vec<f64>> {
         let k = self.gas_kernels(state);
         let eos = self.phys.eos;
@@ -1012,74 +1030,88 @@ impl CpuEngine {
         let g = &state.gas;
         let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
         let gs = self.sorted(&self.gas_idx, &g.ph.x);
-        let norm = |x: &[[f64; 3]]| -> Vec<f64> {
-            x.par_iter()
-                .map(|&x| kernels::gas_weight_sum_at(&gs, &k, gfixed, x))
+        // S of every free particle (0 for fixed ones, which do not couple).
+        let norm = |ph: &Phase| -> Vec<f64> {
+            (0..ph.len())
+                .into_par_iter()
+                .map(|i| {
+                    if ph.is_fixed(i) {
+                        0.0
+                    } else {
+                        kernels::gas_weight_sum_at(&gs, &k, gfixed, ph.x[i])
+                    }
+                })
                 .collect()
         };
-        let s_gas = norm(&g.ph.x);
-        let zero_v = |_| [0.0; 3];
-        let gas_dep: Vec<kernels::Deposit<f64>> = (0..g.ph.len())
+        let s_gas = norm(&g.ph);
+        let s_dust: Vec<Vec<f64>> = state.dust.iter().map(norm).collect();
+        let ds: Vec<Sorted<'_, f64>> = state
+            .dust
+            .iter()
+            .zip(&self.dust_idx)
+            .map(|(d, idx)| self.sorted(idx, &d.x))
+            .collect();
+        let nf = state.dust.len();
+        let t_gas: Vec<[f64; kernels::MAX_FRACTIONS]> = (0..g.ph.len())
             .into_par_iter()
             .map(|a| {
+                let inf = [f64::INFINITY; kernels::MAX_FRACTIONS];
+                if kernels::is_fixed(gfixed, a) {
+                    return inf;
+                }
                 let ka = kernels::kernel_of(&k, a);
-                kernels::deposit_at(
+                let xa = g.ph.x[a];
+                let gd = kernels::deposit_at(
                     &gs,
                     &s_gas,
                     &g.ph.m,
                     &g.ph.rho,
                     gfixed,
-                    g.ph.x[a],
+                    xa,
                     &ka,
-                    zero_v,
+                    |b| g.ph.v[b],
                     |b| eos.isothermal_speed(g.ph.rho[b], g.p[b]),
-                )
+                );
+                let mut dd = [kernels::Deposit::default(); kernels::MAX_FRACTIONS];
+                for (f, d) in state.dust.iter().enumerate() {
+                    let dfixed = d.fixed.as_deref().unwrap_or(&[]);
+                    dd[f] = kernels::deposit_at(
+                        &ds[f],
+                        &s_dust[f],
+                        &d.m,
+                        &d.rho,
+                        dfixed,
+                        xa,
+                        &ka,
+                        |j| d.v[j],
+                        |_| 0.0,
+                    );
+                }
+                let mut old = [[0.0; 3]; kernels::MAX_FRACTIONS];
+                let c = kernels::kernel_couple(
+                    &gd,
+                    &dd[..nf],
+                    &self.phys.laws,
+                    0.0,
+                    gamma_root,
+                    &mut old,
+                );
+                c.t_stop
             })
             .collect();
         state
             .dust
             .iter()
             .enumerate()
-            .map(|(kf, d)| {
-                let ds = self.sorted(&self.dust_idx[kf], &d.x);
-                let dfixed = d.fixed.as_deref().unwrap_or(&[]);
-                let s_d = norm(&d.x);
-                let law = self.phys.laws[kf];
-                let t_gas: Vec<f64> = (0..g.ph.len())
-                    .into_par_iter()
-                    .map(|a| {
-                        let ka = kernels::kernel_of(&k, a);
-                        let dd = kernels::deposit_at(
-                            &ds,
-                            &s_d,
-                            &d.m,
-                            &d.rho,
-                            dfixed,
-                            g.ph.x[a],
-                            &ka,
-                            zero_v,
-                            |_| 0.0,
-                        );
-                        let gd = &gas_dep[a];
-                        if dd.mass <= 0.0 || gd.mass <= 0.0 {
-                            return f64::INFINITY;
-                        }
-                        let means = drag::CellMeans {
-                            rho_dust: dd.rho / dd.mass,
-                            rho_gas: gd.rho / gd.mass,
-                            cs_gas: gamma_root * gd.cs / gd.mass,
-                        };
-                        law.cell_time(&means).unwrap_or(f64::INFINITY)
-                    })
-                    .collect();
+            .map(|(f, d)| {
                 (0..d.len())
                     .into_par_iter()
                     .map(|j| {
-                        if s_d[j] <= 0.0 {
+                        if s_dust[f][j] <= 0.0 {
                             return f64::INFINITY;
                         }
-                        kernels::gather_increment_at(&gs, &k, gfixed, d.x[j], s_d[j], |a| {
-                            [t_gas[a], 0.0, 0.0]
+                        kernels::gather_increment_at(&gs, &k, gfixed, d.x[j], s_dust[f][j], |a| {
+                            [t_gas[a][f], 0.0, 0.0]
                         })[0]
                     })
                     .collect()

@@ -153,6 +153,11 @@ pub const KERNELS: &[&str] = &[
     "dustsph_drift",
     "dustsph_energy",
     "dustsph_check",
+    "dustsph_dust_accel",
+    "dustsph_coupling_norm",
+    "dustsph_coupling_solve",
+    "dustsph_coupling_return",
+    "dustsph_coupling_tstop",
 ];
 
 /// An NVIDIA GPU through the CUDA driver (loaded at run time), one stream.

@@ -296,6 +296,28 @@ impl<L: Launcher> DevPhase<L> {
     }
 }
 
+/// The kernel coupling's buffers (docs/method.md §K): normalisers of every particle, the
+/// increments and stopping times of every gas particle's means.
+struct DevCoupling<L: Launcher> {
+    s_gas: Buf<L, f64>,
+    s_dust: Buf<L, f64>,
+    dv: Buf<L, V3>,
+    du: Buf<L, V3>,
+    t_stop: Buf<L, f64>,
+}
+
+impl<L: Launcher> DevCoupling<L> {
+    fn bufs(&self, d: &Dev<L>) -> th::CouplingBufs {
+        th::CouplingBufs {
+            s_gas: d.ptr(&self.s_gas),
+            s_dust: d.ptr(&self.s_dust),
+            dv: d.ptr(&self.dv),
+            du: d.ptr(&self.du),
+            t_stop: d.ptr(&self.t_stop),
+        }
+    }
+}
+
 /// Per union cell results of the IDIC cell step.
 struct DevCells<L: Launcher> {
     uidx: Buf<L, u32>,
@@ -340,6 +362,8 @@ pub struct GpuEngine<L: Launcher> {
     zero_acc: Buf<L, V3>,
     dedt: Option<Buf<L, f64>>,
     cells: DevCells<L>,
+    /// Kernel coupling (`idic.coupling = "kernel"`): its per-particle buffers.
+    coupling: Option<DevCoupling<L>>,
     sums: Buf<L, u32>,
     limits: Buf<L, u64>,
     bounds: Buf<L, u64>,
@@ -383,10 +407,15 @@ impl<L: Launcher> GpuEngine<L> {
                 "the leapfrog integrator (time.integrator = \"kdk\")",
             ),
             (
-                pipe.kernel_coupling,
-                "the kernel coupling (idic.coupling = \"kernel\")",
+                // The GPU drifts before the drag pass under the old update; the kernel coupling
+                // needs the positions of layer n.
+                pipe.kernel_coupling && phys.position_update == PositionUpdate::Old,
+                "the authors' position update with the kernel coupling (time.position_update = \"old\" with idic.coupling = \"kernel\")",
             ),
-            (pipe.external, "external accelerations ([external])"),
+            (
+                pipe.kernel_coupling && pipe.heating,
+                "drag heating with the kernel coupling (dust.heating with idic.coupling = \"kernel\")",
+            ),
         ];
         if let Some((_, what)) = cpu_only.iter().find(|c| c.0) {
             return Err(StepError::Unsupported(format!(
@@ -418,6 +447,8 @@ impl<L: Launcher> GpuEngine<L> {
             nf: nf as u32,
             needs_gas_state: phys.laws.iter().any(|l| l.needs_gas_state()) as u32,
             laws,
+            ext_gas: phys.ext_gas,
+            ext_dust: phys.ext_dust,
         };
         let heating = pipe.heating;
         let gas = DevPhase::new(&d, &[&state.gas.ph], heating)?;
@@ -443,6 +474,17 @@ impl<L: Launcher> GpuEngine<L> {
                 t_stop: d.buf(cap * nf.max(1))?,
                 u_new: d.buf(cap * nf.max(1))?,
                 heat: d.buf(cap)?,
+            },
+            coupling: if pipe.kernel_coupling {
+                Some(DevCoupling {
+                    s_gas: d.buf(ng.max(1))?,
+                    s_dust: d.buf(dust.n.max(1))?,
+                    dv: d.buf(ng.max(1))?,
+                    du: d.buf((ng * nf).max(1))?,
+                    t_stop: d.buf((ng * nf).max(1))?,
+                })
+            } else {
+                None
             },
             sums: d.buf(1)?,
             limits: d.buf(2)?,
@@ -612,6 +654,62 @@ impl<L: Launcher> GpuEngine<L> {
         d.run("dustsph_cell_step", self.cells.ukey.len, &ca, th::cell_step)
     }
 
+    /// The kernel coupling's normalisers at the current positions.
+    fn coupling_norms(&self) -> Result<(), GpuError> {
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        for (ph, s) in [(&self.gas, &c.s_gas), (&self.dust, &c.s_dust)] {
+            let a = th::NormArgs {
+                gas: self.gas.bufs(d),
+                ph: ph.bufs(d),
+                s: d.ptr(s),
+                p: self.params(0.0),
+            };
+            d.run("dustsph_coupling_norm", ph.n, &a, th::coupling_norm)?;
+        }
+        Ok(())
+    }
+
+    /// The drag pass with the kernel coupling: normalisers, the solve on every gas particle,
+    /// the increments back to the gas (from ṽ) and the dust (from ũ).
+    fn kernel_coupling(&mut self, tau: f64) -> Result<(), GpuError> {
+        self.coupling_norms()?;
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        let p = self.params(tau);
+        let ca = th::CoupleArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            acc: d.ptr(&self.acc),
+            pres: d.ptr(&self.pres),
+            cb: c.bufs(d),
+            p,
+        };
+        d.run(
+            "dustsph_coupling_solve",
+            self.gas.n,
+            &ca,
+            th::coupling_solve,
+        )?;
+        for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
+            let ra = th::ReturnArgs {
+                gas: self.gas.bufs(d),
+                ph: ph.bufs(d),
+                acc: if gas {
+                    d.ptr(&self.acc)
+                } else {
+                    std::ptr::null_mut()
+                },
+                is_gas: gas as u32,
+                cb: c.bufs(d),
+                out: std::ptr::null_mut(),
+                p,
+            };
+            d.run("dustsph_coupling_return", ph.n, &ra, th::coupling_return)?;
+        }
+        Ok(())
+    }
+
     fn drift(&self, ph: &DevPhase<L>, tau: f64) -> Result<(), GpuError> {
         let a = th::DriftArgs {
             ph: ph.bufs(&self.d),
@@ -631,12 +729,26 @@ impl<L: Launcher> GpuEngine<L> {
             })?;
         }
         let drag = self.pipe.drag;
-        if drag {
+        if self.phys.ext_dust.iter().any(|a| *a != 0.0) && self.dust.n > 0 {
+            let a = th::DustAccelArgs {
+                ph: self.dust.bufs(&self.d),
+                p: self.params(tau),
+            };
+            self.d
+                .run("dustsph_dust_accel", self.dust.n, &a, th::dust_accel)?;
+        }
+        if drag && self.coupling.is_some() {
+            timers.time("idic (kernel coupling)", || self.kernel_coupling(tau))?;
+        } else if drag {
             timers.time("idic", || self.cell_step(tau, false))?;
         }
         let d = &self.d;
         let p = self.params(tau);
+        let kernel = self.coupling.is_some();
         timers.time("idic", || -> Result<(), GpuError> {
+            if drag && kernel {
+                return Ok(());
+            }
             let ga = th::KickArgs {
                 ph: self.gas.bufs(d),
                 acc: d.ptr(&self.acc),
@@ -729,6 +841,9 @@ impl<L: Launcher> GpuEngine<L> {
             return Ok(Vec::new());
         }
         self.refresh_dust_density(state)?;
+        if self.coupling.is_some() {
+            return self.kernel_stopping_times();
+        }
         self.cell_step(0.0, true)?;
         let d = &self.d;
         let total = self.grid.total_cells() as usize;
@@ -742,6 +857,49 @@ impl<L: Launcher> GpuEngine<L> {
                     .map(|j| ts[uidx[keys[j] as usize % (total + 1)] as usize * nf + g])
                     .collect()
             })
+            .collect())
+    }
+
+    /// Kernel coupling: the stopping time each dust particle feels (the CPU's
+    /// `kernel_stopping_times`, kernel for kernel).
+    fn kernel_stopping_times(&mut self) -> Result<Vec<Vec<f64>>, GpuError> {
+        self.coupling_norms()?;
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        let p = self.params(0.0);
+        let ca = th::CoupleArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            acc: d.ptr(&self.zero_acc),
+            pres: d.ptr(&self.pres),
+            cb: c.bufs(d),
+            p,
+        };
+        d.run(
+            "dustsph_coupling_solve",
+            self.gas.n,
+            &ca,
+            th::coupling_solve,
+        )?;
+        let out: Buf<L, f64> = d.buf(self.dust.n.max(1))?;
+        let ra = th::ReturnArgs {
+            gas: self.gas.bufs(d),
+            ph: self.dust.bufs(d),
+            acc: std::ptr::null_mut(),
+            is_gas: 0,
+            cb: c.bufs(d),
+            out: d.ptr(&out),
+            p,
+        };
+        d.run(
+            "dustsph_coupling_tstop",
+            self.dust.n,
+            &ra,
+            th::coupling_tstop,
+        )?;
+        let ts = d.get(&out, self.dust.n)?;
+        Ok((0..self.dust.groups)
+            .map(|g| ts[self.dust.off[g] as usize..self.dust.off[g + 1] as usize].to_vec())
             .collect())
     }
 
