@@ -104,9 +104,6 @@ impl CouplingWeights {
     }
 }
 
-/// Fills the weight row of one particle.
-type RowFill<'a> = dyn Fn(usize, &mut Vec<(u32, f64)>) + Sync + 'a;
-
 /// The weights of the gas and of every dust fraction.
 type KernelWeights = (CouplingWeights, Vec<CouplingWeights>);
 
@@ -784,50 +781,51 @@ impl CpuEngine {
         fixed: Option<&[bool]>,
         n_gas: usize,
     ) -> CouplingWeights {
-        let rows = |n: usize, row: &RowFill| {
-            let rows: Vec<Vec<(u32, f64)>> = (0..n)
-                .into_par_iter()
-                .map(|i| {
-                    let mut r = Vec::with_capacity(96);
-                    row(i, &mut r);
-                    r
-                })
-                .collect();
-            let mut ptr = Vec::with_capacity(n + 1);
+        let flatten = |rows: Vec<Vec<(u32, f64)>>| {
+            let mut ptr = Vec::with_capacity(rows.len() + 1);
             ptr.push(0);
             for r in &rows {
                 ptr.push(ptr.last().unwrap() + r.len());
             }
             (ptr, rows.into_iter().flatten().collect::<Vec<_>>())
         };
-        let (by_q_ptr, mut by_q) = rows(q.x.len(), &|i, r| {
-            if !fixed.is_some_and(|f| f[i]) {
-                kernels::coupling_row_at(gs, k, gfixed, q.x[i], |a, w| r.push((a as u32, w)));
-            }
-        });
-        // S_q = Σ W in walk order (what kernels::gas_weight_sum_at returns), then w = W/S.
-        let s: Vec<f64> = (0..q.x.len())
+        // One walk over the gas per particle: its raw weights W, S_q = Σ W in walk order (as
+        // kernels::gas_weight_sum_at sums them), then w = W/S.
+        let (rows_q, s): (Vec<Vec<(u32, f64)>>, Vec<f64>) = (0..q.x.len())
             .into_par_iter()
             .map(|i| {
+                let mut r = Vec::new();
                 let mut s = 0.0;
-                for e in &by_q[by_q_ptr[i]..by_q_ptr[i + 1]] {
-                    s += e.1;
+                if !fixed.is_some_and(|f| f[i]) {
+                    r.reserve(96);
+                    kernels::coupling_row_at(gs, k, gfixed, q.x[i], |a, w| {
+                        r.push((a as u32, w));
+                        s += w;
+                    });
+                    for e in &mut r {
+                        e.1 /= s;
+                    }
                 }
-                s
+                (r, s)
+            })
+            .unzip();
+        let (by_q_ptr, by_q) = flatten(rows_q);
+        let qfixed = fixed.unwrap_or(&[]);
+        let rows_a: Vec<Vec<(u32, f64)>> = (0..n_gas)
+            .into_par_iter()
+            .map(|a| {
+                let mut r = Vec::new();
+                if !kernels::is_fixed(gfixed, a) {
+                    r.reserve(96);
+                    let ka = kernels::kernel_of(k, a);
+                    kernels::deposit_row_at(q, &s, qfixed, gs.x[a], &ka, |j, w| {
+                        r.push((j as u32, w))
+                    });
+                }
+                r
             })
             .collect();
-        for i in 0..q.x.len() {
-            for e in &mut by_q[by_q_ptr[i]..by_q_ptr[i + 1]] {
-                e.1 /= s[i];
-            }
-        }
-        let qfixed = fixed.unwrap_or(&[]);
-        let (by_a_ptr, by_a) = rows(n_gas, &|a, r| {
-            if !kernels::is_fixed(gfixed, a) {
-                let ka = kernels::kernel_of(k, a);
-                kernels::deposit_row_at(q, &s, qfixed, gs.x[a], &ka, |j, w| r.push((j as u32, w)));
-            }
-        });
+        let (by_a_ptr, by_a) = flatten(rows_a);
         CouplingWeights {
             by_q_ptr,
             by_q,
