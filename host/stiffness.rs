@@ -381,6 +381,7 @@ fn slab() -> (Physics, State, f64, f64) {
         heating: false,
         drag: DragMethod::Idic,
         coupling: crate::scene::Coupling::Cell,
+        deposit_scatter: false,
         ext_gas: [0.0; 3],
         ext_dust: [0.0; 3],
         cell_size: 0.5 * h,

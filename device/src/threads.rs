@@ -863,8 +863,8 @@ pub struct CoupleArgs {
     pub p: StepParams,
 }
 
-/// Gas particle t: the deposits of the gas and of every fraction on it, the implicit solve,
-/// and the increments of its means (and its t_k*).
+/// Gas particle t: the deposits of the gas and of every fraction on it (gathered by walking
+/// their cells), the implicit solve, and the increments of its means (and its t_k*).
 pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
     let g = &a.gas;
     if t >= g.len() {
@@ -872,43 +872,26 @@ pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
     }
     let p = &a.p;
     let nf = p.nf as usize;
-    let zero = [0.0; 3];
+    let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
     if kernels::is_fixed(g.fixed(), t) {
-        *a.cb.dv.add(t) = zero;
-        for f in 0..nf {
-            *a.cb.du.add(t * nf + f) = zero;
-            *a.cb.t_stop.add(t * nf + f) = f64::INFINITY;
-        }
-        return;
+        return coupling_finish(t, a, &kernels::Deposit::default(), &dust_dep);
     }
     let k = crate::kernel::KernelAt::new(p.h, p.dim);
-    let eos = p.eos();
-    let needs_state = p.needs_gas_state != 0;
-    let (v, rho) = (g.v(), g.rho());
-    let acc = sl(a.acc, g.len());
-    let pres = sl(a.pres, g.len());
     let xa = g.x()[t];
     let gas_dep = kernels::deposit_at(
         &g.sorted(p, 0),
         sl(a.cb.s_gas, g.len()),
         g.m(),
-        rho,
+        g.rho(),
         g.fixed(),
         xa,
         &k,
-        |b| crate::axpy(v[b], p.tau, crate::add(acc[b], p.ext_gas)),
-        |b| {
-            if needs_state {
-                eos.isothermal_speed(rho[b], pres[b])
-            } else {
-                0.0
-            }
-        },
+        |b| gas_base_velocity(a, b),
+        |b| gas_sound(a, b),
     );
     let d = &a.dust;
     let s_dust = sl(a.cb.s_dust, d.len());
     let u = d.v();
-    let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
     for (f, dep) in dust_dep.iter_mut().enumerate().take(nf) {
         *dep = kernels::deposit_at(
             &d.sorted(p, f),
@@ -922,14 +905,50 @@ pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
             |_| 0.0,
         );
     }
+    coupling_finish(t, a, &gas_dep, &dust_dep);
+}
+
+/// ṽ_b = v_b + τ(A_b + ext_gas) of gas particle b.
+#[inline(always)]
+unsafe fn gas_base_velocity(a: &CoupleArgs, b: usize) -> V3 {
+    crate::axpy(
+        *a.gas.v.add(b),
+        a.p.tau,
+        crate::add(*a.acc.add(b), a.p.ext_gas),
+    )
+}
+
+/// sqrt(p/ρ) of gas particle b where a stopping-time law needs it, else 0.
+#[inline(always)]
+unsafe fn gas_sound(a: &CoupleArgs, b: usize) -> f64 {
+    if a.p.needs_gas_state != 0 {
+        let rho = *a.gas.rho.add(b);
+        a.p.eos().isothermal_speed(rho, *a.pres.add(b))
+    } else {
+        0.0
+    }
+}
+
+/// The implicit solve of gas particle t from its deposits; writes the increments of its means
+/// and its t_k* (zeros and +∞ for a fixed particle, whose deposits are empty).
+#[inline(always)]
+unsafe fn coupling_finish(
+    t: usize,
+    a: &CoupleArgs,
+    gas_dep: &kernels::Deposit<f64>,
+    dust_dep: &[kernels::Deposit<f64>; MAX_FRACTIONS],
+) {
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let zero = [0.0; 3];
     let laws = p.stopping_laws();
     let mut old = [zero; MAX_FRACTIONS];
     let c = kernels::kernel_couple(
-        &gas_dep,
+        gas_dep,
         &dust_dep[..nf],
         &laws[..nf],
         p.tau,
-        eos.gamma_root(),
+        p.eos().gamma_root(),
         &mut old,
     );
     let v_old = if gas_dep.mass > 0.0 {
@@ -937,7 +956,11 @@ pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
     } else {
         zero
     };
-    *a.cb.dv.add(t) = crate::sub(c.v_new, v_old);
+    *a.cb.dv.add(t) = if gas_dep.mass > 0.0 {
+        crate::sub(c.v_new, v_old)
+    } else {
+        zero
+    };
     for f in 0..nf {
         *a.cb.du.add(t * nf + f) = if dust_dep[f].mass > 0.0 {
             crate::sub(c.u_new[f], old[f])
@@ -946,6 +969,98 @@ pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
         };
         *a.cb.t_stop.add(t * nf + f) = c.t_stop[f];
     }
+}
+
+/// Slots of one phase's deposit on one gas particle in the scatter form's sums: Σ w m,
+/// Σ w m ṽ (3), Σ w m ρ, Σ w m sqrt(p/ρ).
+pub const DEPOSIT_SLOTS: usize = 6;
+
+/// Atomic f64 add (compare-and-swap on the bits: the same code for the GPU and its emulation).
+#[inline(always)]
+unsafe fn atomic_add_f64(p: *mut f64, v: f64) {
+    let a = AtomicU64::from_ptr(p as *mut u64);
+    let mut old = a.load(Ordering::Relaxed);
+    loop {
+        let new = (f64::from_bits(old) + v).to_bits();
+        match a.compare_exchange_weak(old, new, Ordering::Relaxed, Ordering::Relaxed) {
+            Ok(_) => return,
+            Err(x) => old = x,
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct ScatterDepositArgs {
+    pub couple: CoupleArgs,
+    /// The depositing phase (the gas, or the dust), and 1 when it is the gas.
+    pub ph: PhaseBufs,
+    pub is_gas: u32,
+    /// Per gas particle a, phase slot s (0 gas, 1 + k fraction k): DEPOSIT_SLOTS sums at
+    /// (a·(1 + nf) + s)·DEPOSIT_SLOTS; zeroed before the launch.
+    pub sums: *mut f64,
+}
+
+/// Scatter form of the deposits (the design card's atomicAdd): particle t adds its share to
+/// each gas particle within reach. The sums' order is the hardware's: not bit-reproducible.
+pub unsafe fn coupling_scatter(t: usize, a: &ScatterDepositArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() || kernels::is_fixed(ph.fixed(), t) {
+        return;
+    }
+    let c = &a.couple;
+    let p = &c.p;
+    let gas = a.is_gas != 0;
+    let s = if gas {
+        *c.cb.s_gas.add(t)
+    } else {
+        *c.cb.s_dust.add(t)
+    };
+    if s <= 0.0 {
+        return;
+    }
+    let (vel, cs, slot) = if gas {
+        (gas_base_velocity(c, t), gas_sound(c, t), 0)
+    } else {
+        (*ph.v.add(t), 0.0, 1 + ph.group_of(t))
+    };
+    let (m, rho) = (*ph.m.add(t), *ph.rho.add(t));
+    let stride = 1 + p.nf as usize;
+    let k = [crate::kernel::KernelAt::new(p.h, p.dim)];
+    kernels::coupling_row_at(&c.gas.sorted(p, 0), &k, c.gas.fixed(), ph.x()[t], |g, w| {
+        let wm = w / s * m;
+        let o = a.sums.add((g * stride + slot) * DEPOSIT_SLOTS);
+        atomic_add_f64(o, wm);
+        for (d, v) in vel.iter().enumerate() {
+            atomic_add_f64(o.add(1 + d), wm * v);
+        }
+        atomic_add_f64(o.add(4), wm * rho);
+        atomic_add_f64(o.add(5), wm * cs);
+    });
+}
+
+/// The solve of gas particle t from the scatter form's sums.
+pub unsafe fn coupling_solve_sums(t: usize, a: &ScatterDepositArgs) {
+    let c = &a.couple;
+    if t >= c.gas.len() {
+        return;
+    }
+    let nf = c.p.nf as usize;
+    let stride = 1 + nf;
+    let dep = |slot: usize| {
+        let o = a.sums.add((t * stride + slot) * DEPOSIT_SLOTS);
+        kernels::Deposit {
+            mass: *o,
+            mom: [*o.add(1), *o.add(2), *o.add(3)],
+            rho: *o.add(4),
+            cs: *o.add(5),
+        }
+    };
+    let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
+    for (f, d) in dust_dep.iter_mut().enumerate().take(nf) {
+        *d = dep(1 + f);
+    }
+    coupling_finish(t, c, &dep(0), &dust_dep);
 }
 
 #[repr(C)]

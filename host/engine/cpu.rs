@@ -80,32 +80,14 @@ pub struct CpuEngine {
     /// Explicit drag: the cell table of the current layer built for the time-step limit,
     /// reused by the drag pass (only its gas momentum sums depend on τ and are redone).
     limit_table: Option<CellTable>,
-    /// Kernel coupling: the weights of the gas and of every dust fraction at the current layer
-    /// (positions and gas h); cleared whenever either changes.
-    kernel_weights: std::sync::Mutex<Option<KernelWeights>>,
+    /// Kernel coupling: the normalisers of the gas and of every dust fraction at the current
+    /// layer (positions and gas h); cleared whenever either changes.
+    kernel_norms: std::sync::Mutex<Option<KernelNorms>>,
 }
 
-/// The kernel-coupling weights w_qa of one phase at one layer (docs/method.md §K): each
-/// particle q's gas partners a (rows by q) and the same pairs by gas particle (rows by a).
-#[derive(Debug, Default)]
-struct CouplingWeights {
-    by_q_ptr: Vec<usize>,
-    by_q: Vec<(u32, f64)>,
-    by_a_ptr: Vec<usize>,
-    by_a: Vec<(u32, f64)>,
-}
-
-impl CouplingWeights {
-    fn row_q(&self, q: usize) -> &[(u32, f64)] {
-        &self.by_q[self.by_q_ptr[q]..self.by_q_ptr[q + 1]]
-    }
-    fn row_a(&self, a: usize) -> &[(u32, f64)] {
-        &self.by_a[self.by_a_ptr[a]..self.by_a_ptr[a + 1]]
-    }
-}
-
-/// The weights of the gas and of every dust fraction.
-type KernelWeights = (CouplingWeights, Vec<CouplingWeights>);
+/// Kernel coupling: S_q = Σ_b W(r_qb, h_b) of every gas particle and every dust particle of
+/// each fraction (0 for fixed particles), at one layer.
+type KernelNorms = (Vec<f64>, Vec<Vec<f64>>);
 
 #[derive(Debug)]
 pub enum StepError {
@@ -146,7 +128,7 @@ impl CpuEngine {
             timers: Timers::default(),
             dust_density_fresh: false,
             limit_table: None,
-            kernel_weights: std::sync::Mutex::new(None),
+            kernel_norms: std::sync::Mutex::new(None),
         };
         eng.regrid(state)?;
         eng.gas_density_eos(state, None)?;
@@ -158,7 +140,7 @@ impl CpuEngine {
     /// Rebuild the grid over the current positions and sort every phase by cell key.
     /// Returns the permutation applied to the gas (new index → old index).
     fn regrid(&mut self, state: &mut State) -> Result<Vec<u32>, StepError> {
-        *self.kernel_weights.get_mut().expect("not poisoned") = None;
+        *self.kernel_norms.get_mut().expect("not poisoned") = None;
         let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
         xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
         self.grid = Grid::build(
@@ -294,7 +276,7 @@ impl CpuEngine {
     /// continuity equation, ρ += τ dρ/dt with the current velocities and positions (`tau`
     /// `None` at start-up and on resume: the state's density is kept as it is).
     fn gas_density_eos(&mut self, state: &mut State, tau: Option<f64>) -> Result<(), StepError> {
-        *self.kernel_weights.get_mut().expect("not poisoned") = None;
+        *self.kernel_norms.get_mut().expect("not poisoned") = None;
         if let Some(hfact) = self.phys.variable_h {
             // On resume the state carries h, Ω and ρ of the last step: keep them as they are.
             let resumed = tau.is_none() && state.gas.h.is_some() && state.gas.omega.is_some();
@@ -767,71 +749,23 @@ impl CpuEngine {
         }
     }
 
-    /// The kernel-coupling weights of one phase (`q`: its neighbour-walk view, `fixed`) over the
-    /// gas of this layer: each particle's row by a walk over the gas from it (this gives S_q),
-    /// each gas particle's row by a walk over the phase from it — both in the walk order of the
-    /// GPU kernels, whose sums they reproduce bit for bit.
-    #[allow(clippy::too_many_arguments)]
-    fn coupling_weights(
-        &self,
+    /// S of every free particle of a phase over the gas (0 for fixed ones, which do not couple).
+    fn coupling_norms(
         gs: &Sorted<'_, f64>,
         k: &[kernel::KernelAt<f64>],
         gfixed: &[bool],
-        q: &Sorted<'_, f64>,
-        fixed: Option<&[bool]>,
-        n_gas: usize,
-    ) -> CouplingWeights {
-        let flatten = |rows: Vec<Vec<(u32, f64)>>| {
-            let mut ptr = Vec::with_capacity(rows.len() + 1);
-            ptr.push(0);
-            for r in &rows {
-                ptr.push(ptr.last().unwrap() + r.len());
-            }
-            (ptr, rows.into_iter().flatten().collect::<Vec<_>>())
-        };
-        // One walk over the gas per particle: its raw weights W, S_q = Σ W in walk order (as
-        // kernels::gas_weight_sum_at sums them), then w = W/S.
-        let (rows_q, s): (Vec<Vec<(u32, f64)>>, Vec<f64>) = (0..q.x.len())
+        ph: &Phase,
+    ) -> Vec<f64> {
+        (0..ph.len())
             .into_par_iter()
             .map(|i| {
-                let mut r = Vec::new();
-                let mut s = 0.0;
-                if !fixed.is_some_and(|f| f[i]) {
-                    r.reserve(96);
-                    kernels::coupling_row_at(gs, k, gfixed, q.x[i], |a, w| {
-                        r.push((a as u32, w));
-                        s += w;
-                    });
-                    for e in &mut r {
-                        e.1 /= s;
-                    }
+                if ph.is_fixed(i) {
+                    0.0
+                } else {
+                    kernels::gas_weight_sum_at(gs, k, gfixed, ph.x[i])
                 }
-                (r, s)
             })
-            .unzip();
-        let (by_q_ptr, by_q) = flatten(rows_q);
-        let qfixed = fixed.unwrap_or(&[]);
-        let rows_a: Vec<Vec<(u32, f64)>> = (0..n_gas)
-            .into_par_iter()
-            .map(|a| {
-                let mut r = Vec::new();
-                if !kernels::is_fixed(gfixed, a) {
-                    r.reserve(96);
-                    let ka = kernels::kernel_of(k, a);
-                    kernels::deposit_row_at(q, &s, qfixed, gs.x[a], &ka, |j, w| {
-                        r.push((j as u32, w))
-                    });
-                }
-                r
-            })
-            .collect();
-        let (by_a_ptr, by_a) = flatten(rows_a);
-        CouplingWeights {
-            by_q_ptr,
-            by_q,
-            by_a_ptr,
-            by_a,
-        }
+            .collect()
     }
 
     /// The drag pass with the kernel coupling (docs/method.md §K): every particle spreads its
@@ -840,62 +774,81 @@ impl CpuEngine {
     /// those means; each particle gets Σ_a w_qa (new − old mean). Σ_a w_qa = 1, so momentum is
     /// exchanged exactly and a uniform flow stays uniform. Returns the drag heat per unit gas
     /// mass when heating is on (each particle's kinetic-energy loss spread with its weights).
-    /// The weights are found by one neighbour walk per phase and layer and kept until the
-    /// positions or the gas h change.
+    /// The same per-particle functions, in the same order, as the GPU kernels
+    /// (`threads::coupling_solve`, `coupling_return`): the two agree bit for bit. The
+    /// normalisers S are kept while the positions and h do not change.
     fn idic_kernel(&self, state: &mut State, v_tilde: &[[f64; 3]], tau: f64) -> Option<Vec<f64>> {
         let nf = state.dust.len();
+        let k = self.gas_kernels(state);
         let eos = self.phys.eos;
         let gamma_root = eos.gamma_root();
         let needs_gas_state = self.phys.laws.iter().any(|l| l.needs_gas_state());
         let g = &state.gas;
         let ng = g.ph.len();
-        let mut cache = self.kernel_weights.lock().expect("not poisoned");
-        let (wg, wd) = &*cache.get_or_insert_with(|| {
-            let k = self.gas_kernels(state);
-            let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
-            let gs = self.sorted(&self.gas_idx, &g.ph.x);
-            let wg = self.coupling_weights(&gs, &k, gfixed, &gs, g.ph.fixed.as_deref(), ng);
-            let wd = state
-                .dust
-                .iter()
-                .zip(&self.dust_idx)
-                .map(|(d, idx)| {
-                    let ds = self.sorted(idx, &d.x);
-                    self.coupling_weights(&gs, &k, gfixed, &ds, d.fixed.as_deref(), ng)
-                })
-                .collect();
-            (wg, wd)
-        });
         let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
-        let cs_of = |b: usize| {
-            if needs_gas_state {
-                eos.isothermal_speed(g.ph.rho[b], g.p[b])
-            } else {
-                0.0
-            }
-        };
-        // Deposits and the solve on every free gas particle: (old, new) means per phase.
-        type Means = ([f64; 3], [f64; 3]);
-        let solved: Vec<(Means, [Means; kernels::MAX_FRACTIONS])> = (0..ng)
+        let gs = self.sorted(&self.gas_idx, &g.ph.x);
+        let mut cache = self.kernel_norms.lock().expect("not poisoned");
+        let (s_gas, s_dust) = &*cache.get_or_insert_with(|| {
+            (
+                Self::coupling_norms(&gs, &k, gfixed, &g.ph),
+                state
+                    .dust
+                    .iter()
+                    .map(|d| Self::coupling_norms(&gs, &k, gfixed, d))
+                    .collect(),
+            )
+        });
+        let ds: Vec<Sorted<'_, f64>> = state
+            .dust
+            .iter()
+            .zip(&self.dust_idx)
+            .map(|(d, idx)| self.sorted(idx, &d.x))
+            .collect();
+        let zero = [0.0; 3];
+        // Deposits and the solve on every free gas particle: the increments of its means.
+        type Incs = ([f64; 3], [[f64; 3]; kernels::MAX_FRACTIONS]);
+        let incs: Vec<Incs> = (0..ng)
             .into_par_iter()
             .map(|a| {
-                let mut fr = [([0.0; 3], [0.0; 3]); kernels::MAX_FRACTIONS];
+                let mut du = [zero; kernels::MAX_FRACTIONS];
                 if kernels::is_fixed(gfixed, a) {
-                    return (([0.0; 3], [0.0; 3]), fr);
+                    return (zero, du);
                 }
-                let mut gas_dep = kernels::Deposit::default();
-                for &(b, w) in wg.row_a(a) {
-                    let b = b as usize;
-                    gas_dep.add(w * g.ph.m[b], v_tilde[b], g.ph.rho[b], cs_of(b));
-                }
+                let xa = g.ph.x[a];
+                let ka = kernels::kernel_of(&k, a);
+                let gas_dep = kernels::deposit_at(
+                    &gs,
+                    s_gas,
+                    &g.ph.m,
+                    &g.ph.rho,
+                    gfixed,
+                    xa,
+                    &ka,
+                    |b| v_tilde[b],
+                    |b| {
+                        if needs_gas_state {
+                            eos.isothermal_speed(g.ph.rho[b], g.p[b])
+                        } else {
+                            0.0
+                        }
+                    },
+                );
                 let mut dust_dep = [kernels::Deposit::default(); kernels::MAX_FRACTIONS];
-                for (kf, d) in state.dust.iter().enumerate() {
-                    for &(j, w) in wd[kf].row_a(a) {
-                        let j = j as usize;
-                        dust_dep[kf].add(w * d.m[j], d.v[j], d.rho[j], 0.0);
-                    }
+                for (f, d) in state.dust.iter().enumerate() {
+                    let dfixed = d.fixed.as_deref().unwrap_or(&[]);
+                    dust_dep[f] = kernels::deposit_at(
+                        &ds[f],
+                        &s_dust[f],
+                        &d.m,
+                        &d.rho,
+                        dfixed,
+                        xa,
+                        &ka,
+                        |j| d.v[j],
+                        |_| 0.0,
+                    );
                 }
-                let mut old = [[0.0; 3]; kernels::MAX_FRACTIONS];
+                let mut old = [zero; kernels::MAX_FRACTIONS];
                 let c = kernels::kernel_couple(
                     &gas_dep,
                     &dust_dep[..nf],
@@ -904,36 +857,28 @@ impl CpuEngine {
                     gamma_root,
                     &mut old,
                 );
-                for kf in 0..nf {
-                    if dust_dep[kf].mass > 0.0 {
-                        fr[kf] = (old[kf], c.u_new[kf]);
+                let dv = if gas_dep.mass > 0.0 {
+                    let v_old = dustsph_device::scale(1.0 / gas_dep.mass, gas_dep.mom);
+                    dustsph_device::sub(c.v_new, v_old)
+                } else {
+                    zero
+                };
+                for f in 0..nf {
+                    if dust_dep[f].mass > 0.0 {
+                        du[f] = dustsph_device::sub(c.u_new[f], old[f]);
                     }
                 }
-                let v_old = if gas_dep.mass > 0.0 {
-                    dustsph_device::scale(1.0 / gas_dep.mass, gas_dep.mom)
-                } else {
-                    [0.0; 3]
-                };
-                ((v_old, c.v_new), fr)
+                (dv, du)
             })
             .collect();
-        // Σ_a w_qa Δ_a over the particle's row.
-        let gather = |w: &CouplingWeights, q: usize, delta: &dyn Fn(usize) -> [f64; 3]| {
-            let mut acc = [0.0; 3];
-            for &(a, wq) in w.row_q(q) {
-                acc = dustsph_device::axpy(acc, wq, delta(a as usize));
-            }
-            acc
-        };
         let v_new: Vec<[f64; 3]> = (0..ng)
             .into_par_iter()
             .map(|b| {
                 if kernels::is_fixed(gfixed, b) {
                     return g.ph.v[b];
                 }
-                let inc = gather(wg, b, &|a| {
-                    let (o, n) = solved[a].0;
-                    dustsph_device::sub(n, o)
+                let inc = kernels::gather_increment_at(&gs, &k, gfixed, g.ph.x[b], s_gas[b], |a| {
+                    incs[a].0
                 });
                 dustsph_device::add(v_tilde[b], inc)
             })
@@ -942,17 +887,21 @@ impl CpuEngine {
             .dust
             .iter()
             .enumerate()
-            .map(|(kf, d)| {
+            .map(|(f, d)| {
                 (0..d.len())
                     .into_par_iter()
                     .map(|j| {
                         if d.is_fixed(j) {
                             return d.v[j];
                         }
-                        let inc = gather(&wd[kf], j, &|a| {
-                            let (o, n) = solved[a].1[kf];
-                            dustsph_device::sub(n, o)
-                        });
+                        let inc = kernels::gather_increment_at(
+                            &gs,
+                            &k,
+                            gfixed,
+                            d.x[j],
+                            s_dust[f][j],
+                            |a| incs[a].1[f],
+                        );
                         dustsph_device::add(d.v[j], inc)
                     })
                     .collect()
@@ -988,23 +937,43 @@ impl CpuEngine {
                         .collect()
                 })
                 .collect();
+            let big = ng.max(state.dust.iter().map(|d| d.len()).max().unwrap_or(0));
+            let unused = vec![0.0; big];
             (0..ng)
                 .into_par_iter()
                 .map(|a| {
                     if kernels::is_fixed(gfixed, a) {
                         return 0.0;
                     }
-                    let mut q: f64 = wg
-                        .row_a(a)
-                        .iter()
-                        .map(|&(b, w)| w * loss_gas[b as usize])
-                        .sum();
-                    for (kf, l) in loss_dust.iter().enumerate() {
-                        q += wd[kf]
-                            .row_a(a)
-                            .iter()
-                            .map(|&(j, w)| w * l[j as usize])
-                            .sum::<f64>();
+                    let ka = kernels::kernel_of(&k, a);
+                    let xa = g.ph.x[a];
+                    // Σ_q w_qa ΔE_q: the deposit's "mass" slot with the losses as masses.
+                    let mut q = kernels::deposit_at(
+                        &gs,
+                        s_gas,
+                        &loss_gas,
+                        &unused,
+                        gfixed,
+                        xa,
+                        &ka,
+                        |_| zero,
+                        |_| 0.0,
+                    )
+                    .mass;
+                    for (f, d) in state.dust.iter().enumerate() {
+                        let dfixed = d.fixed.as_deref().unwrap_or(&[]);
+                        q += kernels::deposit_at(
+                            &ds[f],
+                            &s_dust[f],
+                            &loss_dust[f],
+                            &unused,
+                            dfixed,
+                            xa,
+                            &ka,
+                            |_| zero,
+                            |_| 0.0,
+                        )
+                        .mass;
                     }
                     q / g.ph.m[a]
                 })
@@ -1028,21 +997,12 @@ impl CpuEngine {
         let g = &state.gas;
         let gfixed = g.ph.fixed.as_deref().unwrap_or(&[]);
         let gs = self.sorted(&self.gas_idx, &g.ph.x);
-        // S of every free particle (0 for fixed ones, which do not couple).
-        let norm = |ph: &Phase| -> Vec<f64> {
-            (0..ph.len())
-                .into_par_iter()
-                .map(|i| {
-                    if ph.is_fixed(i) {
-                        0.0
-                    } else {
-                        kernels::gas_weight_sum_at(&gs, &k, gfixed, ph.x[i])
-                    }
-                })
-                .collect()
-        };
-        let s_gas = norm(&g.ph);
-        let s_dust: Vec<Vec<f64>> = state.dust.iter().map(norm).collect();
+        let s_gas = Self::coupling_norms(&gs, &k, gfixed, &g.ph);
+        let s_dust: Vec<Vec<f64>> = state
+            .dust
+            .iter()
+            .map(|d| Self::coupling_norms(&gs, &k, gfixed, d))
+            .collect();
         let ds: Vec<Sorted<'_, f64>> = state
             .dust
             .iter()

@@ -31,6 +31,8 @@ pub struct Physics {
     pub drag: DragMethod,
     /// Where the implicit drag takes its local means (grid cells or the gas particles).
     pub coupling: Coupling,
+    /// GPU, kernel coupling: deposits summed by atomic scatter instead of the gather.
+    pub deposit_scatter: bool,
     /// Constant external accelerations of the gas and of every dust particle.
     pub ext_gas: [f64; 3],
     pub ext_dust: [f64; 3],
@@ -92,6 +94,7 @@ impl Physics {
             heating,
             drag: scene.drag.method,
             coupling: scene.idic.coupling,
+            deposit_scatter: scene.idic.deposit == crate::scene::DepositForm::Scatter,
             ext_gas: scene.external.gas,
             ext_dust: scene.external.dust,
             cell_size: scene.idic.cell * h,

@@ -230,6 +230,21 @@ pub struct IdicCfg {
     /// How gas and dust meet in the drag solve (docs/method.md §K).
     #[serde(default)]
     pub coupling: Coupling,
+    /// GPU only, kernel coupling: how the deposits on the gas particles are summed.
+    #[serde(default)]
+    pub deposit: DepositForm,
+}
+
+/// How the GPU sums the kernel coupling's deposits.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum DepositForm {
+    /// Each gas particle walks the particles around it: deterministic, bit-identical to the CPU.
+    #[default]
+    Gather,
+    /// Each particle adds its share to the gas particles around it with atomic adds (the
+    /// design card's atomicAdd): the order of the sums is the hardware's.
+    Scatter,
 }
 
 impl Default for IdicCfg {
@@ -237,6 +252,7 @@ impl Default for IdicCfg {
         IdicCfg {
             cell: 0.5,
             coupling: Coupling::default(),
+            deposit: DepositForm::default(),
         }
     }
 }
@@ -554,6 +570,12 @@ impl Scene {
                     ),
                 ));
             }
+        }
+        if self.idic.deposit == DepositForm::Scatter && self.idic.coupling != Coupling::Kernel {
+            return Err((
+                "idic.deposit".into(),
+                "\"scatter\" sums the kernel coupling's deposits; it needs idic.coupling = \"kernel\"".into(),
+            ));
         }
         if self.idic.coupling == Coupling::Kernel && self.drag.method == DragMethod::Explicit {
             return Err((

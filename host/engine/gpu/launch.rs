@@ -158,6 +158,8 @@ pub const KERNELS: &[&str] = &[
     "dustsph_coupling_solve",
     "dustsph_coupling_return",
     "dustsph_coupling_tstop",
+    "dustsph_coupling_scatter",
+    "dustsph_coupling_solve_sums",
 ];
 
 /// An NVIDIA GPU through the CUDA driver (loaded at run time), one stream.

@@ -299,6 +299,8 @@ impl<L: Launcher> DevPhase<L> {
 /// The kernel coupling's buffers (docs/method.md §K): normalisers of every particle, the
 /// increments and stopping times of every gas particle's means.
 struct DevCoupling<L: Launcher> {
+    /// Scatter form: the deposit sums of every gas particle (`th::DEPOSIT_SLOTS` per phase).
+    sums: Option<Buf<L, f64>>,
     s_gas: Buf<L, f64>,
     s_dust: Buf<L, f64>,
     dv: Buf<L, V3>,
@@ -477,6 +479,11 @@ impl<L: Launcher> GpuEngine<L> {
             },
             coupling: if pipe.kernel_coupling {
                 Some(DevCoupling {
+                    sums: if phys.deposit_scatter {
+                        Some(d.buf((ng * (1 + nf) * th::DEPOSIT_SLOTS).max(1))?)
+                    } else {
+                        None
+                    },
                     s_gas: d.buf(ng.max(1))?,
                     s_dust: d.buf(dust.n.max(1))?,
                     dv: d.buf(ng.max(1))?,
@@ -674,7 +681,12 @@ impl<L: Launcher> GpuEngine<L> {
     /// the increments back to the gas (from ṽ) and the dust (from ũ).
     fn kernel_coupling(&mut self, tau: f64) -> Result<(), GpuError> {
         self.coupling_norms()?;
+        let ng = self.gas.n;
+        let nf = self.dust.groups;
         let d = &self.d;
+        if let Some(sums) = &mut self.coupling.as_mut().expect("kernel coupling").sums {
+            d.zeroed(sums, ng * (1 + nf) * th::DEPOSIT_SLOTS)?;
+        }
         let c = self.coupling.as_ref().expect("kernel coupling");
         let p = self.params(tau);
         let ca = th::CoupleArgs {
@@ -685,12 +697,32 @@ impl<L: Launcher> GpuEngine<L> {
             cb: c.bufs(d),
             p,
         };
-        d.run(
-            "dustsph_coupling_solve",
-            self.gas.n,
-            &ca,
-            th::coupling_solve,
-        )?;
+        match &c.sums {
+            Some(sums) => {
+                for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
+                    let sa = th::ScatterDepositArgs {
+                        couple: ca,
+                        ph: ph.bufs(d),
+                        is_gas: gas as u32,
+                        sums: d.ptr(sums),
+                    };
+                    d.run("dustsph_coupling_scatter", ph.n, &sa, th::coupling_scatter)?;
+                }
+                let sa = th::ScatterDepositArgs {
+                    couple: ca,
+                    ph: self.gas.bufs(d),
+                    is_gas: 1,
+                    sums: d.ptr(sums),
+                };
+                d.run(
+                    "dustsph_coupling_solve_sums",
+                    ng,
+                    &sa,
+                    th::coupling_solve_sums,
+                )?;
+            }
+            None => d.run("dustsph_coupling_solve", ng, &ca, th::coupling_solve)?,
+        }
         for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
             let ra = th::ReturnArgs {
                 gas: self.gas.bufs(d),
