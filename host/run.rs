@@ -189,6 +189,9 @@ fn write_snapshot(
     io::write_xdmf_view(path, &view).map_err(|e| RunError::Io(e.to_string()))
 }
 
+/// Share of dust particles without gas in their IDIC cell above which a run with the
+/// nearest-cell coupling warns (their drag is off).
+const UNCOUPLED_WARNING: f64 = 0.05;
 /// The driver's progress: everything besides the particles that a resumed run must know.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 struct Progress {
@@ -362,6 +365,19 @@ impl Runner {
             setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
         let mut state = state.unwrap_or(su.state);
         let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
+        if phys.coupling == crate::scene::Coupling::Cell {
+            if let Some(f) = crate::engine::dust_without_gas_in_cell(&phys, &state) {
+                if f > UNCOUPLED_WARNING {
+                    eprintln!(
+                        "dustsph: warning: {:.0}% of the dust particles share no IDIC cell with a gas \
+                         particle, so the nearest-cell coupling (idic.coupling = \"cell\") leaves \
+                         their drag off; idic.coupling = \"kernel\" couples them wherever they sit \
+                         (docs/method.md §K)",
+                        100.0 * f
+                    );
+                }
+            }
+        }
         // The initial grid and densities come from the scene alone: a failure here is bad input.
         let asked = device;
         let (device, note) = backend::select(device).map_err(RunError::Input)?;

@@ -215,3 +215,15 @@ fn stiff_drift_reaches_the_terminal_velocity_without_scatter() {
     let (err, _) = terminal_drift("cell", 1e-6, 20);
     assert!(err.abs() > 1.0, "nearest cell: drift off by only {err:e}");
 }
+
+#[test]
+fn a_run_can_tell_when_the_nearest_cell_leaves_dust_uncoupled() {
+    // What `dustsph run` warns about: dust without gas in its IDIC cell has no drag.
+    let share = |shift: &str| {
+        let (phys, st) = setup(&with(&[&format!("dustybox.dust_shift={shift}")]));
+        dustsph::engine::dust_without_gas_in_cell(&phys, &st).unwrap()
+    };
+    assert_eq!(share("0"), 0.0);
+    let off = share("0.5");
+    assert!(off > 0.5, "offset dust: only {off} without gas in its cell");
+}

@@ -112,6 +112,32 @@ impl Physics {
     }
 }
 
+/// The nearest-cell coupling's blind spot (method.md §3.5): the share of dust particles (all
+/// fractions) whose IDIC cell holds no gas particle, so that their drag is off. `None` without
+/// dust, or when the grid cannot be built (the run then stops with its own error).
+pub fn dust_without_gas_in_cell(phys: &Physics, state: &crate::particles::State) -> Option<f64> {
+    use crate::grid::{CellIndex, Grid};
+    if state.dust.is_empty() {
+        return None;
+    }
+    let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
+    xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
+    let grid = Grid::build(&phys.domain, phys.cell_size, phys.support(), &xs).ok()?;
+    let (_, gas) = CellIndex::sort(&grid, &state.gas.ph.x);
+    let (mut alone, mut total) = (0usize, 0usize);
+    for d in &state.dust {
+        let (_, dust) = CellIndex::sort(&grid, &d.x);
+        for (c, key) in dust.keys.iter().enumerate() {
+            let n = dust.cell_range(c).len();
+            total += n;
+            if gas.keys.binary_search(key).is_err() {
+                alone += n;
+            }
+        }
+    }
+    (total > 0).then(|| alone as f64 / total as f64)
+}
+
 /// Time-step limits from the forces: (CFL with factor 1, force limit with factor 1).
 /// dt = cfl · min(both); the drag never limits the step.
 pub fn dt_limits(h: f64, f: &cpu::Forces) -> (f64, f64) {
