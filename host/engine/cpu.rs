@@ -749,6 +749,32 @@ impl CpuEngine {
         }
     }
 
+    /// The deposits of every dust fraction (u, ρ) on the gas particle at `xa` with kernel `ka`.
+    fn dust_deposits(
+        state: &State,
+        ds: &[Sorted<'_, f64>],
+        s_dust: &[Vec<f64>],
+        xa: [f64; 3],
+        ka: &kernel::KernelAt<f64>,
+    ) -> [kernels::Deposit<f64>; kernels::MAX_FRACTIONS] {
+        let mut dep = [kernels::Deposit::default(); kernels::MAX_FRACTIONS];
+        for (f, d) in state.dust.iter().enumerate() {
+            let dfixed = d.fixed.as_deref().unwrap_or(&[]);
+            dep[f] = kernels::deposit_at(
+                &ds[f],
+                &s_dust[f],
+                &d.m,
+                &d.rho,
+                dfixed,
+                xa,
+                ka,
+                |j| d.v[j],
+                |_| 0.0,
+            );
+        }
+        dep
+    }
+
     /// S of every free particle of a phase over the gas (0 for fixed ones, which do not couple).
     fn coupling_norms(
         gs: &Sorted<'_, f64>,
@@ -833,21 +859,7 @@ impl CpuEngine {
                         }
                     },
                 );
-                let mut dust_dep = [kernels::Deposit::default(); kernels::MAX_FRACTIONS];
-                for (f, d) in state.dust.iter().enumerate() {
-                    let dfixed = d.fixed.as_deref().unwrap_or(&[]);
-                    dust_dep[f] = kernels::deposit_at(
-                        &ds[f],
-                        &s_dust[f],
-                        &d.m,
-                        &d.rho,
-                        dfixed,
-                        xa,
-                        &ka,
-                        |j| d.v[j],
-                        |_| 0.0,
-                    );
-                }
+                let dust_dep = Self::dust_deposits(state, &ds, s_dust, xa, &ka);
                 let mut old = [zero; kernels::MAX_FRACTIONS];
                 let c = kernels::kernel_couple(
                     &gas_dep,
@@ -1030,21 +1042,7 @@ impl CpuEngine {
                     |b| g.ph.v[b],
                     |b| eos.isothermal_speed(g.ph.rho[b], g.p[b]),
                 );
-                let mut dd = [kernels::Deposit::default(); kernels::MAX_FRACTIONS];
-                for (f, d) in state.dust.iter().enumerate() {
-                    let dfixed = d.fixed.as_deref().unwrap_or(&[]);
-                    dd[f] = kernels::deposit_at(
-                        &ds[f],
-                        &s_dust[f],
-                        &d.m,
-                        &d.rho,
-                        dfixed,
-                        xa,
-                        &ka,
-                        |j| d.v[j],
-                        |_| 0.0,
-                    );
-                }
+                let dd = Self::dust_deposits(state, &ds, &s_dust, xa, &ka);
                 let mut old = [[0.0; 3]; kernels::MAX_FRACTIONS];
                 let c = kernels::kernel_couple(
                     &gd,
