@@ -273,6 +273,9 @@ impl Pipeline {
             return s;
         }
         force_pass(&mut s);
+        if self.external {
+            s.push("external accelerations (gas A^n, dust B^n)");
+        }
         if self.explicit_drag {
             s.push("explicit drag time-step limit (τ ≤ 0.9 t_s)");
             s.push("explicit drag cell sums");
