@@ -10,7 +10,7 @@ use std::sync::Arc;
 #[derive(Parser)]
 #[command(
     name = "dustsph",
-    version,
+    version = concat!(env!("CARGO_PKG_VERSION"), " (git ", env!("DUSTSPH_GIT"), ")"),
     about = "Gas + polydisperse dust by SPH-IDIC"
 )]
 struct Cli {
