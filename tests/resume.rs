@@ -77,6 +77,24 @@ fn resumed_variable_h_wave_is_bit_identical() {
 }
 
 #[test]
+fn resumed_kernel_coupling_runs_are_bit_identical() {
+    // The kernel coupling with external gravity, walls and IAD (its normalisers are rebuilt
+    // from the positions on resume), and with offset dust, the leapfrog, variable h and the
+    // variable-h dust densities of the Phantom wave.
+    resume_is_bit_exact("dustysettle", &["sph.n=200"], 8);
+    resume_is_bit_exact(
+        "dustywave_phantom",
+        &[
+            "sph.n=16",
+            "dustywave.layers=6",
+            "dustywave.dust_shift=0.5",
+            "idic.coupling=\"kernel\"",
+        ],
+        10,
+    );
+}
+
+#[test]
 fn resumed_shock_tube_is_bit_identical() {
     // Viscosity, drag heating, fixed walls, CFL time step.
     resume_is_bit_exact("dustyshock", &["sph.n=400"], 30);
