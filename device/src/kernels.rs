@@ -9,7 +9,7 @@ use crate::eos::Eos;
 use crate::grid::{for_neighbours, CellLookup, GridGeom};
 use crate::kernel::KernelAt;
 use crate::sph::{self, GasPair, GasState, Viscosity};
-use crate::{add, axpy, scale, update, Real, Vec3};
+use crate::{add, axpy, scale, sub, update, Real, Vec3};
 
 /// Largest number of dust fractions a scene may have (the GPU cell kernel keeps per-fraction
 /// sums in registers / local memory).
@@ -728,6 +728,45 @@ pub fn kernel_couple<R: Real>(
         };
         Some((drag::cell_eps(d.mass, gas.mass), laws[k].cell_time(&means)))
     })
+}
+
+/// What the solve on one gas particle hands back under the kernel coupling: the increment
+/// (new − old mean) of its gas mean and of each fraction's mean — zero for a phase that
+/// deposited nothing there — and each fraction's t_k* (+∞ where uncoupled).
+#[derive(Clone, Copy, Debug)]
+pub struct KernelIncrements<R> {
+    pub dv: Vec3<R>,
+    pub du: [Vec3<R>; MAX_FRACTIONS],
+    pub t_stop: [R; MAX_FRACTIONS],
+}
+
+/// [`kernel_couple`] turned into the increments the particles receive (CPU and GPU alike).
+#[inline(always)]
+pub fn kernel_increments<R: Real>(
+    gas: &Deposit<R>,
+    dust: &[Deposit<R>],
+    laws: &[StoppingLaw<R>],
+    tau: R,
+    gamma_root: R,
+) -> KernelIncrements<R> {
+    let zero = [R::ZERO; 3];
+    let mut old = [zero; MAX_FRACTIONS];
+    let c = kernel_couple(gas, dust, laws, tau, gamma_root, &mut old);
+    let mut out = KernelIncrements {
+        dv: zero,
+        du: [zero; MAX_FRACTIONS],
+        t_stop: c.t_stop,
+    };
+    if gas.mass > R::ZERO {
+        out.dv = sub(c.v_new, scale(R::ONE / gas.mass, gas.mom));
+    }
+    let nf = dust.len().min(laws.len()).min(MAX_FRACTIONS);
+    for f in 0..nf {
+        if dust[f].mass > R::ZERO {
+            out.du[f] = sub(c.u_new[f], old[f]);
+        }
+    }
+    out
 }
 
 /// Σ_a w_qa Δ_a for the particle q at `x` with normaliser `s` (0 when `s` = 0): the share of

@@ -940,34 +940,18 @@ unsafe fn coupling_finish(
 ) {
     let p = &a.p;
     let nf = p.nf as usize;
-    let zero = [0.0; 3];
     let laws = p.stopping_laws();
-    let mut old = [zero; MAX_FRACTIONS];
-    let c = kernels::kernel_couple(
+    let inc = kernels::kernel_increments(
         gas_dep,
         &dust_dep[..nf],
         &laws[..nf],
         p.tau,
         p.eos().gamma_root(),
-        &mut old,
     );
-    let v_old = if gas_dep.mass > 0.0 {
-        crate::scale(1.0 / gas_dep.mass, gas_dep.mom)
-    } else {
-        zero
-    };
-    *a.cb.dv.add(t) = if gas_dep.mass > 0.0 {
-        crate::sub(c.v_new, v_old)
-    } else {
-        zero
-    };
+    *a.cb.dv.add(t) = inc.dv;
     for f in 0..nf {
-        *a.cb.du.add(t * nf + f) = if dust_dep[f].mass > 0.0 {
-            crate::sub(c.u_new[f], old[f])
-        } else {
-            zero
-        };
-        *a.cb.t_stop.add(t * nf + f) = c.t_stop[f];
+        *a.cb.du.add(t * nf + f) = inc.du[f];
+        *a.cb.t_stop.add(t * nf + f) = inc.t_stop[f];
     }
 }
 

@@ -836,9 +836,8 @@ impl CpuEngine {
         let incs: Vec<Incs> = (0..ng)
             .into_par_iter()
             .map(|a| {
-                let mut du = [zero; kernels::MAX_FRACTIONS];
                 if kernels::is_fixed(gfixed, a) {
-                    return (zero, du);
+                    return (zero, [zero; kernels::MAX_FRACTIONS]);
                 }
                 let xa = g.ph.x[a];
                 let ka = kernels::kernel_of(&k, a);
@@ -860,27 +859,14 @@ impl CpuEngine {
                     },
                 );
                 let dust_dep = Self::dust_deposits(state, &ds, s_dust, xa, &ka);
-                let mut old = [zero; kernels::MAX_FRACTIONS];
-                let c = kernels::kernel_couple(
+                let inc = kernels::kernel_increments(
                     &gas_dep,
                     &dust_dep[..nf],
                     &self.phys.laws,
                     tau,
                     gamma_root,
-                    &mut old,
                 );
-                let dv = if gas_dep.mass > 0.0 {
-                    let v_old = dustsph_device::scale(1.0 / gas_dep.mass, gas_dep.mom);
-                    dustsph_device::sub(c.v_new, v_old)
-                } else {
-                    zero
-                };
-                for f in 0..nf {
-                    if dust_dep[f].mass > 0.0 {
-                        du[f] = dustsph_device::sub(c.u_new[f], old[f]);
-                    }
-                }
-                (dv, du)
+                (inc.dv, inc.du)
             })
             .collect();
         let v_new: Vec<[f64; 3]> = (0..ng)
@@ -1043,16 +1029,7 @@ impl CpuEngine {
                     |b| eos.isothermal_speed(g.ph.rho[b], g.p[b]),
                 );
                 let dd = Self::dust_deposits(state, &ds, &s_dust, xa, &ka);
-                let mut old = [[0.0; 3]; kernels::MAX_FRACTIONS];
-                let c = kernels::kernel_couple(
-                    &gd,
-                    &dd[..nf],
-                    &self.phys.laws,
-                    0.0,
-                    gamma_root,
-                    &mut old,
-                );
-                c.t_stop
+                kernels::kernel_increments(&gd, &dd[..nf], &self.phys.laws, 0.0, gamma_root).t_stop
             })
             .collect();
         state
