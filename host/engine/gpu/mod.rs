@@ -776,43 +776,44 @@ impl<L: Launcher> GpuEngine<L> {
         }
         let d = &self.d;
         let p = self.params(tau);
-        let kernel = self.coupling.is_some();
-        timers.time("idic", || -> Result<(), GpuError> {
-            if drag && kernel {
-                return Ok(());
-            }
-            let ga = th::KickArgs {
-                ph: self.gas.bufs(d),
-                acc: d.ptr(&self.acc),
-                drag: drag as u32,
-                cells: self.cells.bufs(d),
-                loss: d.opt(&self.gas.loss),
-                p,
-            };
-            d.run("dustsph_gas_kick", self.gas.n, &ga, th::gas_kick)?;
-            if drag {
-                let da = th::KickArgs {
-                    ph: self.dust.bufs(d),
-                    acc: std::ptr::null(),
-                    loss: d.opt(&self.dust.loss),
-                    ..ga
+        // The cell coupling's particle updates (or, without dust, the gas kick); the kernel
+        // coupling has updated the velocities already.
+        let cell_kicks = !(drag && self.coupling.is_some());
+        if cell_kicks {
+            timers.time("idic", || -> Result<(), GpuError> {
+                let ga = th::KickArgs {
+                    ph: self.gas.bufs(d),
+                    acc: d.ptr(&self.acc),
+                    drag: drag as u32,
+                    cells: self.cells.bufs(d),
+                    loss: d.opt(&self.gas.loss),
+                    p,
                 };
-                d.run("dustsph_dust_kick", self.dust.n, &da, th::dust_kick)?;
-                if self.pipe.heating {
-                    let ha = th::HeatArgs {
-                        gas: self.gas.bufs(d),
-                        dust: self.dust.bufs(d),
-                        loss_gas: d.opt(&self.gas.loss),
-                        loss_dust: d.opt(&self.dust.loss),
-                        cells: self.cells.bufs(d),
-                        heat: d.ptr(&self.cells.heat),
-                        p,
+                d.run("dustsph_gas_kick", self.gas.n, &ga, th::gas_kick)?;
+                if drag {
+                    let da = th::KickArgs {
+                        ph: self.dust.bufs(d),
+                        acc: std::ptr::null(),
+                        loss: d.opt(&self.dust.loss),
+                        ..ga
                     };
-                    d.run("dustsph_heat", self.cells.ukey.len, &ha, th::heat)?;
+                    d.run("dustsph_dust_kick", self.dust.n, &da, th::dust_kick)?;
+                    if self.pipe.heating {
+                        let ha = th::HeatArgs {
+                            gas: self.gas.bufs(d),
+                            dust: self.dust.bufs(d),
+                            loss_gas: d.opt(&self.gas.loss),
+                            loss_dust: d.opt(&self.dust.loss),
+                            cells: self.cells.bufs(d),
+                            heat: d.ptr(&self.cells.heat),
+                            p,
+                        };
+                        d.run("dustsph_heat", self.cells.ukey.len, &ha, th::heat)?;
+                    }
                 }
-            }
-            Ok(())
-        })?;
+                Ok(())
+            })?;
+        }
         timers.time("positions + energy", || -> Result<(), GpuError> {
             if !old {
                 self.drift(&self.gas, tau)?;
