@@ -2,7 +2,8 @@
 //! CPU or on a device.
 use crate::engine::backend::{self, Backend, DeviceChoice};
 use crate::engine::cpu::CpuEngine;
-use crate::engine::{dt_limits, step_size, Physics};
+use crate::engine::driver::Driver;
+use crate::engine::Physics;
 use crate::scene::Scene;
 use crate::setup;
 use std::time::Instant;
@@ -62,11 +63,12 @@ pub fn bench(
         let used1 = backend::device_memory_used(device);
         let n = state.gas.ph.len() + state.dust.iter().map(|d| d.len()).sum::<usize>();
         let t0 = Instant::now();
+        let driver = Driver::new(&scene.time, phys.h);
         for _ in 0..steps {
-            let f = eng.forces(&state).map_err(|e| e.to_string())?;
-            let (dt_cfl, dt_force) = dt_limits(phys.h, &f);
-            let (dt, _) = step_size(&scene.time, dt_cfl, dt_force, eng.drag_dt_limit(&state));
-            eng.advance(&mut state, &f, dt).map_err(|e| e.to_string())?;
+            // No output times: the bench never lands.
+            driver
+                .step(&mut eng, &mut state, f64::INFINITY)
+                .map_err(|e| e.to_string())?;
         }
         let seconds = t0.elapsed().as_secs_f64();
         Ok(BenchResult {

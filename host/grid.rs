@@ -84,12 +84,18 @@ impl Grid {
             inv: [1.0; 3],
             period: [0.0; 3],
             n: [1; 3],
+            sub: [1; 3],
+            search: [1.0; 3],
             reach: [0; 3],
             support,
             dim: domain.dim,
             periodic: [0; 3],
         };
         let mut total: u128 = 1;
+        // IDIC cells per search cell: search cells of about h (docs/performance.md, "search grid").
+        let sub_target = ((support / SEARCH_CELLS_PER_SUPPORT) / cell_size + 1e-9)
+            .floor()
+            .clamp(1.0, 64.0) as u64;
         for k in 0..dim {
             if let Some((plo, len)) = domain.periodic[k] {
                 let nf = (len / cell_size).floor();
@@ -99,6 +105,11 @@ impl Grid {
                     )));
                 }
                 let n = (nf as u64).max(1);
+                // The search cells must tile the period: the largest divisor of n within reach.
+                g.sub[k] = (1..=sub_target.min(n))
+                    .rev()
+                    .find(|s| n % s == 0)
+                    .unwrap_or(1);
                 g.origin[k] = plo;
                 g.cell[k] = len / n as f64;
                 g.period[k] = len;
@@ -126,12 +137,18 @@ impl Grid {
                         i1 - i0 + 1.0
                     )));
                 }
-                g.origin[k] = i0 * cell_size;
+                // Anchored to the global lattice of search cells, so the partition of space
+                // never changes while the box follows the particles.
+                let s = sub_target as f64;
+                let (b0, b1) = ((i0 / s).floor(), (i1 / s).floor());
+                g.sub[k] = sub_target;
+                g.origin[k] = b0 * s * cell_size;
                 g.cell[k] = cell_size;
-                g.n[k] = (i1 - i0) as u64 + 1;
+                g.n[k] = ((b1 - b0) as u64 + 1) * sub_target;
             }
             g.inv[k] = 1.0 / g.cell[k];
-            g.reach[k] = (support / g.cell[k] - 1e-12).ceil().max(1.0) as u64;
+            g.search[k] = g.sub[k] as f64 * g.cell[k];
+            g.reach[k] = (support / g.search[k] - 1e-12).ceil().max(1.0) as u64;
             total *= g.n[k] as u128;
         }
         if total > (1u128 << 62) {
@@ -149,7 +166,7 @@ impl Grid {
         let mut g = self.geom;
         g.support = support;
         for k in 0..g.dim as usize {
-            g.reach[k] = (support / g.cell[k] - 1e-12).ceil().max(1.0) as u64;
+            g.reach[k] = (support / g.search[k] - 1e-12).ceil().max(1.0) as u64;
         }
         Grid { geom: g }
     }
@@ -164,6 +181,10 @@ impl Grid {
         self.geom.total_cells()
     }
 }
+
+/// Search cells per kernel support (2h): search cells of about h. Measured on the seed ball at
+/// ≈57 neighbours (docs/performance.md): the walk over 0.5h IDIC cells cost 8× the pair work.
+pub const SEARCH_CELLS_PER_SUPPORT: f64 = 2.0;
 
 /// Whether a phase of `n` particles gets a dense start table over a box of `total` cells:
 /// up to 8 cells per particle (+ a floor for small runs), i.e. 32 bytes per particle at most.
@@ -180,9 +201,11 @@ pub struct CellIndex {
     pub start: Vec<u32>,
     /// Cell index (into `keys`) of every particle.
     pub cell_of: Vec<u32>,
-    /// Dense start table over every key of the grid box (first particle with key ≥ k), when
-    /// the box is small enough; makes a row lookup O(1) instead of two binary searches.
+    /// Dense start table over every search cell of the grid box (first particle with key ≥
+    /// `dense_stride`·i), when the box is small enough; makes a row lookup O(1) instead of two
+    /// binary searches.
     dense: Vec<u32>,
+    dense_stride: u64,
 }
 
 impl CellIndex {
@@ -206,11 +229,14 @@ impl CellIndex {
             idx.cell_of.push(idx.keys.len() as u32 - 1);
         }
         idx.start.push(kp.len() as u32);
-        let total = grid.total_cells();
+        let stride = grid.geom.sub.iter().product::<u64>();
+        let total = grid.total_cells() / stride;
+        idx.dense_stride = stride;
         if dense_table_fits(total, kp.len()) {
             let mut dense = Vec::with_capacity(total as usize + 1);
             for (c, &k) in idx.keys.iter().enumerate() {
-                dense.resize(k as usize + 1, idx.start[c]);
+                // Entry i: the first particle of search cell i or later.
+                dense.resize((k / stride) as usize + 1, idx.start[c]);
             }
             dense.resize(total as usize + 1, kp.len() as u32);
             idx.dense = dense;
@@ -234,6 +260,7 @@ impl CellIndex {
             keys: &self.keys,
             start: &self.start,
             dense: &self.dense,
+            dense_stride: self.dense_stride.max(1),
         }
     }
 

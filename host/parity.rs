@@ -1,7 +1,8 @@
 //! Backend parity: a scene stepped on the CPU engine and on a GPU engine (a real device, or its
 //! kernels emulated), every array of every phase compared after every step.
 use crate::engine::backend::{self, Backend, DeviceChoice};
-use crate::engine::{dt_limits, Physics};
+use crate::engine::driver::{Driver, Taken};
+use crate::engine::Physics;
 use crate::particles::{Phase, State};
 use crate::scene::LoadedScene;
 use crate::setup;
@@ -106,20 +107,23 @@ pub fn compare(loaded: &LoadedScene, steps: u64, device: DeviceChoice) -> Result
     let dust_rho = cpu.pipe().dust_density_each_step;
     let mut acc = Acc(Vec::new());
     acc.state(&s_cpu, &s_dev, dust_rho);
+    // Both step with the CPU's plan (never landing), so a difference in the forces cannot
+    // change the step size and hide itself.
+    let driver = Driver::new(&scene.time, phys.h);
     for step in 1..=steps {
-        let fc = cpu.forces(&s_cpu).map_err(err)?;
+        let sc = driver
+            .prepare(&mut cpu, &s_cpu, f64::INFINITY)
+            .map_err(|e| format!("cpu step {step}: {e}"))?;
         let fd = dev.forces(&s_dev).map_err(err)?;
+        let (fc, plan) = (&sc.forces, sc.plan);
         acc.add("max signal speed".into(), &[fc.vsig_max], &[fd.vsig_max]);
         acc.add("max |A|".into(), &[fc.acc_max], &[fd.acc_max]);
-        let (cfl, force) = dt_limits(phys.h, &fc);
-        let dt = match (scene.time.dt, scene.time.cfl) {
-            (Some(dt), _) => dt,
-            (None, Some(c)) => c * cfl.min(force),
-            _ => return Err("the scene sets neither time.dt nor time.cfl".into()),
-        };
-        cpu.advance(&mut s_cpu, &fc, dt)
+        driver
+            .take(&mut cpu, &mut s_cpu, &sc)
             .map_err(|e| format!("cpu step {step}: {e}"))?;
-        dev.advance(&mut s_dev, &fd, dt)
+        let sd = Taken { plan, forces: fd };
+        driver
+            .take(&mut dev, &mut s_dev, &sd)
             .map_err(|e| format!("device step {step}: {e}"))?;
         dev.sync(&mut s_dev).map_err(err)?;
         acc.state(&s_cpu, &s_dev, dust_rho);

@@ -2,7 +2,8 @@
 use crate::analysis::{self, ExactErrors};
 use crate::engine::backend::{self, Backend, DeviceChoice};
 use crate::engine::cpu::StepError;
-use crate::engine::{step_size, Physics};
+use crate::engine::driver::Driver;
+use crate::engine::Physics;
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::particles::State;
 use crate::scene::LoadedScene;
@@ -531,42 +532,18 @@ impl Runner {
                 bar.finish_and_clear();
                 return Ok(Stop::Interrupted);
             }
-            let forces = self
-                .eng
-                .forces(&self.state)
-                .map_err(|e| RunError::Step(e.to_string()))?;
-            let (dt_cfl, dt_force) = crate::engine::dt_limits(h, &forces);
-            let dt_drag = if self.eng.pipe().explicit_drag {
-                let t0 = std::time::Instant::now();
-                let d = self.eng.drag_dt_limit(&self.state);
-                self.eng
-                    .timers_mut()
-                    .add("drag time-step limit", t0.elapsed().as_secs_f64());
-                d
-            } else {
-                f64::INFINITY
-            };
-            let (mut dt, by_drag) = step_size(&self.loaded.scene.time, dt_cfl, dt_force, dt_drag);
-            self.prog.drag_limited_steps += u64::from(by_drag);
-            if !(dt.is_finite() && dt > 0.0) {
-                return Err(RunError::Step(format!(
-                    "step {}: time step is {dt} (no signal speed or force to set it); give time.dt",
-                    self.state.step
-                )));
-            }
             let t_out = self.times[self.prog.next_output];
-            let landing = self.state.t + dt >= t_out - 1e-9 * dt;
-            if landing {
-                dt = t_out - self.state.t;
-            }
-            self.prog.dt_min = self.prog.dt_min.min(dt);
-            self.prog.dt_max = self.prog.dt_max.max(dt);
-            self.prog.cfl_max = self.prog.cfl_max.max(dt * forces.vsig_max / h);
-            self.eng
-                .advance(&mut self.state, &forces, dt)
+            let driver = Driver::new(&self.loaded.scene.time, h);
+            let step = driver
+                .step(&mut self.eng, &mut self.state, t_out)
                 .map_err(|e| {
                     RunError::Step(format!("{e}; the snapshots written so far are kept"))
                 })?;
+            let (dt, landing) = (step.plan.dt, step.plan.landing);
+            self.prog.drag_limited_steps += u64::from(step.plan.by_drag);
+            self.prog.dt_min = self.prog.dt_min.min(dt);
+            self.prog.dt_max = self.prog.dt_max.max(dt);
+            self.prog.cfl_max = self.prog.cfl_max.max(dt * step.forces.vsig_max / h);
             taken += 1;
             if self.is_ball() {
                 // The Lagrange–Jacobi check needs every step's state on the host.
@@ -577,7 +554,6 @@ impl Runner {
                 self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());
             }
             if landing {
-                self.state.t = t_out;
                 self.sync()?;
                 self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());
                 bar.suspend(|| self.write_output())?;

@@ -9,8 +9,10 @@
 //! table (`docs/stiffness.md`); `tests/stiffness.rs` runs the reduced grid in CI and the full grid
 //! on demand.
 use crate::analysis;
+use crate::engine::backend::{Backend, DeviceChoice};
 use crate::engine::cpu::CpuEngine;
-use crate::engine::{step_size, Physics};
+use crate::engine::driver::Driver;
+use crate::engine::Physics;
 use crate::exact::complex::C;
 use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
@@ -474,7 +476,8 @@ pub fn run_case(case: &Case) -> CaseReport {
             Err(_) => (f64::NAN, f64::NAN),
         }
     };
-    let mut eng = match CpuEngine::new(phys, &mut state) {
+    let driver = Driver::new(&time, phys.h);
+    let mut eng = match Backend::new(DeviceChoice::Cpu, phys, &mut state) {
         Ok(e) => e,
         Err(e) => {
             rep.failures.push(format!("initial state: {e}"));
@@ -489,23 +492,17 @@ pub fn run_case(case: &Case) -> CaseReport {
     let rest_scale = mass * cs;
     let mut dp_max: f64 = 0.0;
     while state.t < t_end {
-        let f = eng.forces(&state);
-        let (c, fl) = eng.dt_limits(&f);
-        let (mut tau, _) = step_size(&time, c, fl, eng.drag_dt_limit(&state));
+        let step = match driver.step(&mut eng, &mut state, t_end) {
+            Ok(s) => s,
+            Err(e) => {
+                rep.failures.push(format!("not finite or density ≤ 0: {e}"));
+                return rep;
+            }
+        };
         if rep.steps == 0 {
+            let tau = step.plan.dt_free;
             rep.explicit_steps = (t_end / tau.min(explicit_limit)).ceil();
             rep.max_beta = tau / t_min;
-        }
-        let landing = state.t + tau >= t_end - 1e-9 * tau;
-        if landing {
-            tau = t_end - state.t;
-        }
-        if let Err(e) = eng.advance(&mut state, &f, tau) {
-            rep.failures.push(format!("not finite or density ≤ 0: {e}"));
-            return rep;
-        }
-        if landing {
-            state.t = t_end;
         }
         rep.steps += 1;
         pscale = pscale.max(state.momentum_scale());

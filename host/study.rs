@@ -25,8 +25,9 @@
 //!
 //! Every point's scene is built and validated before anything runs or is written.
 use crate::analysis::{self, ExactErrors};
-use crate::engine::cpu::CpuEngine;
-use crate::engine::{step_size, Physics};
+use crate::engine::backend::{Backend, DeviceChoice};
+use crate::engine::driver::Driver;
+use crate::engine::Physics;
 use crate::io::{self, IoError};
 use crate::plot::{fig_loglog, LogLogSeries};
 use crate::scene::{self, Scene};
@@ -602,7 +603,8 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
     };
     let mut state = su.state;
     let phys = Physics::from_scene(scene, su.h, su.domain);
-    let mut eng = match CpuEngine::new(phys, &mut state) {
+    let driver = Driver::new(&scene.time, phys.h);
+    let mut eng = match Backend::new(DeviceChoice::Cpu, phys, &mut state) {
         Ok(e) => e,
         Err(e) => return fail(out, e.to_string()),
     };
@@ -612,16 +614,12 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
     let ts = Instant::now();
     let cpu0 = thread_cpu_seconds();
     while state.t < t_end {
-        let forces = eng.forces(&state);
-        let (dt_cfl, dt_force) = eng.dt_limits(&forces);
-        let dt_drag = eng.drag_dt_limit(&state);
-        let (mut dt, by_drag) = step_size(&scene.time, dt_cfl, dt_force, dt_drag);
-        if !(dt.is_finite() && dt > 0.0) {
-            let m = format!("step {}: time step {dt}", out.steps);
-            return fail(out, m);
-        }
+        let step = match driver.prepare(&mut eng, &state, t_end) {
+            Ok(s) => s,
+            Err(e) => return fail(out, e.to_string()),
+        };
         if out.steps == 0 {
-            let need = (t_end / dt).ceil();
+            let need = (t_end / step.plan.dt_free).ceil();
             if need > max_steps as f64 {
                 out.status = Status::Skipped(need as u64);
                 out.total_s = t0.elapsed().as_secs_f64();
@@ -631,18 +629,12 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
         if out.steps >= max_steps {
             return fail(out, format!("more than max_steps = {max_steps} steps"));
         }
-        let landing = state.t + dt >= t_end - 1e-9 * dt;
-        if landing {
-            dt = t_end - state.t;
-        }
-        if let Err(e) = eng.advance(&mut state, &forces, dt) {
+        if let Err(e) = driver.take(&mut eng, &mut state, &step) {
             return fail(out, e.to_string());
         }
-        if landing {
-            state.t = t_end;
-        }
+        let dt = step.plan.dt;
         out.steps += 1;
-        out.drag_limited += u64::from(by_drag);
+        out.drag_limited += u64::from(step.plan.by_drag);
         out.dt = (out.dt.0.min(dt), out.dt.1.max(dt));
         pscale = pscale.max(state.momentum_scale());
     }

@@ -7,6 +7,12 @@ use crate::{cell, dot, update, Real, Vec3};
 
 /// One step's grid: cells [origin + iΔ, origin + (i+1)Δ) along each axis, `n` cells per axis.
 /// Plain data (`repr(C)`), so it travels to a GPU kernel by value.
+///
+/// Two levels share one key: the IDIC cells (Δ), and search cells of `sub` IDIC cells along
+/// each axis, so that the neighbour walk visits few, well-filled cells while the IDIC cells stay
+/// small. The key is hierarchical (search cell, then IDIC cell inside it): a phase sorted by key
+/// has every IDIC cell and every search cell as one contiguous range (docs/performance.md,
+/// "search grid").
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GridGeom<R> {
@@ -16,7 +22,11 @@ pub struct GridGeom<R> {
     /// Period length on periodic axes (the periodic interval starts at `origin`); 0 on open axes.
     pub period: [R; 3],
     pub n: [u64; 3],
-    /// Neighbour reach in cells along each axis: ceil(support / cell).
+    /// IDIC cells per search cell along each axis (`n` is a multiple of it; 1 on unused axes).
+    pub sub: [u64; 3],
+    /// Search cell size along each axis: `sub` × `cell`.
+    pub search: [R; 3],
+    /// Neighbour reach in search cells along each axis: ceil(support / search).
     pub reach: [u64; 3],
     /// Kernel support radius (2h).
     pub support: R,
@@ -51,9 +61,31 @@ impl<R: Real> GridGeom<R> {
         c
     }
 
+    /// Search cells per axis.
+    #[inline(always)]
+    fn ns(&self, k: usize) -> u64 {
+        self.n[k] / self.sub[k]
+    }
+
+    /// IDIC cells per search cell.
+    #[inline(always)]
+    fn sub_cells(&self) -> u64 {
+        self.sub[0] * self.sub[1] * self.sub[2]
+    }
+
+    /// Key of an IDIC cell: the row-major index of its search cell, times the IDIC cells per
+    /// search cell, plus its row-major index inside the search cell.
     #[inline(always)]
     pub fn key_of_coord(&self, c: [u64; 3]) -> u64 {
-        cell::key(c[0], c[1], c[2], self.n[0], self.n[1])
+        let s = self.sub;
+        let block = cell::key(
+            c[0] / s[0],
+            c[1] / s[1],
+            c[2] / s[2],
+            self.ns(0),
+            self.ns(1),
+        );
+        block * self.sub_cells() + cell::key(c[0] % s[0], c[1] % s[1], c[2] % s[2], s[0], s[1])
     }
 
     #[inline(always)]
@@ -63,9 +95,12 @@ impl<R: Real> GridGeom<R> {
 
     #[inline(always)]
     pub fn coord_of_key(&self, key: u64) -> [u64; 3] {
-        let ix = key % self.n[0];
-        let r = key / self.n[0];
-        [ix, r % self.n[1], r / self.n[1]]
+        let s = self.sub;
+        let (block, inner) = (key / self.sub_cells(), key % self.sub_cells());
+        let (n0, n1) = (self.ns(0), self.ns(1));
+        let b = [block % n0, (block / n0) % n1, block / n0 / n1];
+        let i = [inner % s[0], (inner / s[0]) % s[1], inner / s[0] / s[1]];
+        [b[0] * s[0] + i[0], b[1] * s[1] + i[1], b[2] * s[2] + i[2]]
     }
 
     /// Total number of cells in the grid box.
@@ -97,10 +132,11 @@ impl<R: Real> GridGeom<R> {
         x
     }
 
-    /// Cell ranges within reach `r` along axis k of coordinate c (one or two inclusive ranges).
+    /// Search-cell ranges within reach `r` along axis k of search coordinate c (one or two
+    /// inclusive ranges).
     #[inline(always)]
     fn axis_ranges(&self, k: usize, c: u64, r: u64) -> ([(u64, u64); 2], usize) {
-        let n = self.n[k];
+        let n = self.ns(k);
         if self.is_periodic(k) {
             if 2 * r + 1 >= n {
                 return ([(0, n - 1), (0, 0)], 1);
@@ -121,23 +157,25 @@ impl<R: Real> GridGeom<R> {
         }
     }
 
-    /// Lower bound of the distance between cell coordinates a and b along axis k.
+    /// Lower bound of the distance between search-cell coordinates a and b along axis k.
     #[inline(always)]
     fn gap(&self, k: usize, a: u64, b: u64) -> R {
         let mut d = a.abs_diff(b);
-        if self.is_periodic(k) && self.n[k] - d < d {
-            d = self.n[k] - d;
+        if self.is_periodic(k) && self.ns(k) - d < d {
+            d = self.ns(k) - d;
         }
         // Only cells within reach get here (d ≤ reach): the u32 conversion is exact and cheap.
-        R::from_f64(d.saturating_sub(1) as u32 as f64) * self.cell[k]
+        R::from_f64(d.saturating_sub(1) as u32 as f64) * self.search[k]
     }
 
-    /// Calls `f(lo_key, hi_key)` for every row of cells (inclusive key range along x) that may
-    /// hold a point within the support of some point of cell `c`. Rows are trimmed to the
-    /// support sphere, so about half the cells of the bounding cube are skipped in 3D. Each cell
-    /// is visited at most once, always in the same order.
+    /// Calls `f(lo_key, hi_key)` for every row of search cells (inclusive key range along x)
+    /// that may hold a point within the support of some point of the IDIC cell `c`. Rows are
+    /// trimmed to the support sphere. Each cell is visited at most once, always in the same
+    /// order.
     #[inline(always)]
     pub fn for_each_neighbour_row(&self, c: [u64; 3], mut f: impl FnMut(u64, u64)) {
+        let c = [c[0] / self.sub[0], c[1] / self.sub[1], c[2] / self.sub[2]];
+        let (n0, n1, sc) = (self.ns(0), self.ns(1), self.sub_cells());
         let s2 = self.support * self.support;
         let (yr, ny) = self.axis_ranges(1, c[1], self.reach[1]);
         let (zr, nz) = self.axis_ranges(2, c[2], self.reach[2]);
@@ -157,16 +195,16 @@ impl<R: Real> GridGeom<R> {
                         let d2 = s2 - g2;
                         let mut rx = self.reach[0];
                         while rx > 1 {
-                            let g = R::from_f64((rx - 1) as u32 as f64) * self.cell[0];
+                            let g = R::from_f64((rx - 1) as u32 as f64) * self.search[0];
                             if g * g < d2 {
                                 break;
                             }
                             rx -= 1;
                         }
                         let (xr, nx) = self.axis_ranges(0, c[0], rx);
-                        let row = (iz * self.n[1] + iy) * self.n[0];
+                        let row = (iz * n1 + iy) * n0;
                         for &(x0, x1) in &xr[..nx] {
-                            f(row + x0, row + x1);
+                            f((row + x0) * sc, (row + x1) * sc + sc - 1);
                         }
                     }
                 }
@@ -176,23 +214,27 @@ impl<R: Real> GridGeom<R> {
 }
 
 /// Where one phase's particles (sorted by cell key) sit: `keys`/`start` list the occupied
-/// cells; `dense`, when not empty, is the first particle with key ≥ k for every key of the box
-/// (an O(1) row lookup instead of two binary searches).
+/// cells; `dense`, when not empty, is the first particle with key ≥ `dense_stride`·i for every
+/// i (an O(1) row lookup instead of two binary searches). A stride of the IDIC cells per search
+/// cell keeps the table small (the CPU); the GPU's counting sort builds it per key (stride 1).
 #[derive(Clone, Copy, Debug)]
 pub struct CellLookup<'a> {
     pub keys: &'a [u64],
     pub start: &'a [u32],
     pub dense: &'a [u32],
+    pub dense_stride: u64,
 }
 
 impl CellLookup<'_> {
-    /// Particle index range of the cells with keys in [lo, hi].
+    /// Particle index range of the cells with keys in [lo, hi]; with a dense table, lo and
+    /// hi + 1 are multiples of its stride (whole search cells, as the walk asks).
     #[inline(always)]
     pub fn particles_in_keys(&self, lo: u64, hi: u64) -> (usize, usize) {
         if !self.dense.is_empty() {
+            let s = self.dense_stride;
             return (
-                self.dense[lo as usize] as usize,
-                self.dense[hi as usize + 1] as usize,
+                self.dense[(lo / s) as usize] as usize,
+                self.dense[((hi + 1) / s) as usize] as usize,
             );
         }
         let a = self.keys.partition_point(|&k| k < lo);

@@ -211,6 +211,7 @@ impl PhaseBufs {
                 keys: &[],
                 start: &[],
                 dense: &self.dense(p)[g * s..(g + 1) * s],
+                dense_stride: 1,
             },
             x: self.x(),
         }

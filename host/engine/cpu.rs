@@ -431,11 +431,6 @@ impl CpuEngine {
         out
     }
 
-    /// Time-step limits from the forces (see [`super::dt_limits`]).
-    pub fn dt_limits(&self, f: &Forces) -> (f64, f64) {
-        super::dt_limits(self.phys.h, f)
-    }
-
     /// Per-cell sums and cell stopping times at the current layer. `v_tilde` is the gas
     /// velocity v^n + τA^n (or v^n for diagnostics).
     pub fn cell_table(&self, state: &State, v_tilde: &[[f64; 3]]) -> CellTable {

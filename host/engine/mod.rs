@@ -4,6 +4,7 @@
 //! equation; no viscosity unless asked); [`Pipeline::stages`] lists what a run actually does.
 pub mod backend;
 pub mod cpu;
+pub mod driver;
 pub mod gpu;
 pub mod timers;
 
