@@ -57,10 +57,17 @@ pub fn bench(
             let cpu = CpuEngine::new(phys.clone(), &mut s).map_err(|e| e.to_string())?;
             cpu.mean_gas_neighbours(&s)
         };
-        let (device, _) = backend::select(device)?;
-        let used0 = backend::device_memory_used(device);
-        let mut eng = Backend::new(device, phys.clone(), &mut state).map_err(|e| e.to_string())?;
-        let used1 = backend::device_memory_used(device);
+        let (resolved, _) = backend::select(device)?;
+        let used0 = backend::device_memory_used(resolved);
+        let (mut eng, note) =
+            Backend::start(device, phys.clone(), &mut state).map_err(|e| match e {
+                backend::StartError::Device(m) => m,
+                backend::StartError::Step(e) => e.to_string(),
+            })?;
+        if let Some(n) = note {
+            eprintln!("dustsph: {n}");
+        }
+        let used1 = backend::device_memory_used(resolved);
         let n = state.gas.ph.len() + state.dust.iter().map(|d| d.len()).sum::<usize>();
         let t0 = Instant::now();
         let driver = Driver::new(&scene.time, phys.h);

@@ -1,6 +1,6 @@
 //! The driver: scene → set-up → step loop → snapshots and summary.
 use crate::analysis::{self, ExactErrors};
-use crate::engine::backend::{self, Backend, DeviceChoice};
+use crate::engine::backend::{Backend, DeviceChoice, StartError};
 use crate::engine::cpu::StepError;
 use crate::engine::driver::Driver;
 use crate::engine::Physics;
@@ -380,27 +380,19 @@ impl Runner {
             }
         }
         // The initial grid and densities come from the scene alone: a failure here is bad input.
-        let asked = device;
-        let (device, note) = backend::select(device).map_err(RunError::Input)?;
+        let (eng, note) =
+            Backend::start(device, phys, &mut state).map_err(|e| match e {
+                StartError::Device(m) => RunError::Input(m),
+                StartError::Step(StepError::Unsupported(m)) => {
+                    RunError::Input(format!("{file}: {m}"))
+                }
+                StartError::Step(e) => RunError::Input(format!(
+                    "{file}: the initial state cannot be set up (check idic.cell, sph.h/hfact, sph.n): {e}"
+                )),
+            })?;
         if let (Some(n), true) = (note, verbose) {
             eprintln!("dustsph: {n}");
         }
-        let eng = match Backend::new(device, phys.clone(), &mut state) {
-            // `auto` falls back to the CPU for what the GPU path does not do yet.
-            Err(StepError::Unsupported(m)) if asked == DeviceChoice::Auto => {
-                if verbose {
-                    eprintln!("dustsph: {m}: running on the CPU");
-                }
-                Backend::new(DeviceChoice::Cpu, phys, &mut state)
-            }
-            r => r,
-        }
-        .map_err(|e| match e {
-            StepError::Unsupported(m) => RunError::Input(format!("{file}: {m}")),
-            e => RunError::Input(format!(
-                "{file}: the initial state cannot be set up (check idic.cell, sph.h/hfact, sph.n): {e}"
-            )),
-        })?;
         Ok((eng, state, su.box_size))
     }
 

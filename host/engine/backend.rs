@@ -53,6 +53,39 @@ pub fn select(choice: DeviceChoice) -> Result<(DeviceChoice, Option<String>), St
     }
 }
 
+/// [`Backend::start`] after `select`, with the GPU engine's constructor given (tests pass one
+/// that fails).
+fn start_resolved(
+    asked: DeviceChoice,
+    device: DeviceChoice,
+    note: Option<String>,
+    phys: Physics,
+    state: &mut State,
+    gpu: impl FnOnce(Physics, &mut State) -> Result<Backend, StepError>,
+) -> Result<(Backend, Option<String>), StartError> {
+    if asked != DeviceChoice::Auto || device != DeviceChoice::Cuda {
+        let eng = Backend::new(device, phys, state).map_err(StartError::Step)?;
+        return Ok((eng, note));
+    }
+    let saved = state.clone();
+    match gpu(phys.clone(), state) {
+        Ok(eng) => Ok((eng, None)),
+        Err(e) => {
+            *state = saved;
+            let why = match &e {
+                StepError::Unsupported(m) => m.clone(),
+                e => format!("the GPU failed at start ({e})"),
+            };
+            let eng = Backend::new(DeviceChoice::Cpu, phys, state).map_err(StartError::Step)?;
+            let note = format!(
+                "{why}: running on the CPU with {} threads",
+                rayon::current_num_threads()
+            );
+            Ok((eng, Some(note)))
+        }
+    }
+}
+
 /// Device memory in use on CUDA device 0 (None for other backends or without a driver).
 pub fn device_memory_used(choice: DeviceChoice) -> Option<usize> {
     if choice != DeviceChoice::Cuda {
@@ -61,7 +94,32 @@ pub fn device_memory_used(choice: DeviceChoice) -> Option<usize> {
     Cuda::new(0, gpu::PTX).ok()?.memory_used().ok()
 }
 
+/// Why no engine was started.
+#[derive(Debug)]
+pub enum StartError {
+    /// The device asked for is not usable here (`--device cuda` without a GPU).
+    Device(String),
+    /// The engine could not set up the initial state.
+    Step(StepError),
+}
+
 impl Backend {
+    /// The engine for what the user asked, and a one-line note when `auto` did not use the
+    /// GPU. `auto` falls back to the CPU when no GPU is usable, when the GPU path refuses the
+    /// scene, or when CUDA fails to initialise or to run the set-up launches (sort, densities);
+    /// all of that happens before any output is written. The state is restored before the CPU
+    /// starts, so a failed GPU attempt leaves no trace.
+    pub fn start(
+        asked: DeviceChoice,
+        phys: Physics,
+        state: &mut State,
+    ) -> Result<(Backend, Option<String>), StartError> {
+        let (device, note) = select(asked).map_err(StartError::Device)?;
+        start_resolved(asked, device, note, phys, state, |p, s| {
+            Backend::new(DeviceChoice::Cuda, p, s)
+        })
+    }
+
     /// Build the engine for a resolved choice (`select` first); sorts `state` in place.
     pub fn new(
         choice: DeviceChoice,
@@ -180,5 +238,65 @@ impl Backend {
             Backend::Cuda(e) => Ok(e.dust_stopping_times(state)?),
             Backend::Emulated(e) => Ok(e.dust_stopping_times(state)?),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `auto` whose GPU attempt fails after touching the state (as a failed first launch
+    /// would) runs on the CPU from the untouched state, and says why in one line.
+    #[test]
+    fn auto_falls_back_when_the_gpu_fails_at_start() {
+        let loaded = crate::scene::load(
+            std::path::Path::new(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/configs/dustybox.toml"
+            )),
+            &[],
+        )
+        .unwrap();
+        let su = crate::setup::build(&loaded.scene).unwrap();
+        let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
+        let mut reference = su.state.clone();
+        let _cpu = Backend::new(DeviceChoice::Cpu, phys.clone(), &mut reference).unwrap();
+        let mut state = su.state.clone();
+        let (eng, note) = start_resolved(
+            DeviceChoice::Auto,
+            DeviceChoice::Cuda,
+            None,
+            phys.clone(),
+            &mut state,
+            |_, s| {
+                s.gas.ph.x.reverse();
+                s.gas.ph.rho.iter_mut().for_each(|r| *r = f64::NAN);
+                Err(StepError::Blowup("CUDA_ERROR_INVALID_PTX".into()))
+            },
+        )
+        .unwrap();
+        assert!(matches!(eng, Backend::Cpu(_)));
+        let note = note.expect("a note");
+        assert!(
+            note.contains("GPU failed at start") && note.contains("CUDA_ERROR_INVALID_PTX"),
+            "{note}"
+        );
+        assert!(!note.contains('\n'));
+        assert_eq!(state.gas.ph.x, reference.gas.ph.x);
+        assert_eq!(state.gas.ph.rho, reference.gas.ph.rho);
+        // `cuda` asked explicitly never falls back: without a usable GPU it is an error.
+        if gpu::probe().is_ok() {
+            return;
+        }
+        let mut s2 = su.state.clone();
+        let r = start_resolved(
+            DeviceChoice::Cuda,
+            DeviceChoice::Cuda,
+            None,
+            phys,
+            &mut s2,
+            |p, s| Backend::new(DeviceChoice::Cuda, p, s),
+        );
+        assert!(r.is_err());
     }
 }
