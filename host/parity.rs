@@ -82,6 +82,12 @@ impl Acc {
 
     fn state(&mut self, a: &State, b: &State, dust_rho: bool) {
         self.phase("gas", &a.gas.ph, &b.gas.ph, true);
+        if let (Some(ha), Some(hb)) = (&a.gas.h, &b.gas.h) {
+            self.add("gas h".into(), ha, hb);
+        }
+        if let (Some(oa), Some(ob)) = (&a.gas.omega, &b.gas.omega) {
+            self.add("gas omega".into(), oa, ob);
+        }
         self.add("gas p".into(), &a.gas.p, &b.gas.p);
         if let (Some(ea), Some(eb)) = (&a.gas.e, &b.gas.e) {
             self.add("gas e".into(), ea, eb);
@@ -234,5 +240,38 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         "configs/dustysettle.toml",
         &["sph.n=100", "sph.gradient=standard"],
         10,
+    ),
+    // Variable h (every phase) and the IAD gradient on the GPU step.
+    (
+        "variable h + IAD: Phantom wave 3D, constant K (first-order step)",
+        "configs/dustywave_phantom.toml",
+        &[
+            "sph.n=16",
+            "dustywave.layers=6",
+            "time.integrator=first_order",
+        ],
+        10,
+    ),
+    (
+        "variable h: dustywave adiabatic, constant K, drag heating",
+        "configs/dustywave.toml",
+        &[
+            "sph.n=64",
+            "sph.variable_h=true",
+            "gas.eos=adiabatic",
+            "gas.cs=",
+            "gas.gamma=1.4",
+            "gas.p=1.0",
+            "dust.law=constant_k",
+            "dust.fractions=[{eps=1.0, k=5.0}, {eps=0.5, k=50.0}]",
+            "dust.heating=true",
+        ],
+        15,
+    ),
+    (
+        "IAD, fixed h: small ball 3D (Epstein)",
+        "configs/dusty_ball.toml",
+        &["sph.n=6", "sph.h=0.3", "sph.gradient=iad"],
+        8,
     ),
 ];

@@ -86,6 +86,21 @@ fn kernel_coupling_settle_matches_cpu_bit_for_bit() {
     case(10);
 }
 
+#[test]
+fn variable_h_iad_phantom_wave_matches_cpu_bit_for_bit() {
+    case(11);
+}
+
+#[test]
+fn variable_h_adiabatic_wave_with_heating_matches_cpu_bit_for_bit() {
+    case(12);
+}
+
+#[test]
+fn iad_small_ball_matches_cpu_bit_for_bit() {
+    case(13);
+}
+
 /// Byte size of the single parameter of each entry point in the PTX.
 fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
     let mut out = Vec::new();
@@ -186,7 +201,6 @@ fn gpu_engine_names_the_cpu_only_options_it_refuses() {
     use dustsph::engine::backend::Backend;
     use dustsph::engine::Physics;
     for (set, key) in [
-        ("sph.gradient=\"iad\"", "sph.gradient"),
         ("time.integrator=\"kdk\"", "time.integrator"),
         (
             "idic.coupling=\"kernel\"\u{0}time.position_update=\"old\"",

@@ -98,7 +98,9 @@ pub fn dshape_over_q<R: Real>(q: R) -> R {
 }
 
 /// The kernel at one smoothing length with its constants computed once, so that a pair costs
-/// no division in the inner region (q ≤ 1) and one in the outer shell.
+/// no division in the inner region (q ≤ 1) and one in the outer shell. `repr(C)`: GPU buffers
+/// hold one per particle.
+#[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct KernelAt<R> {
     pub h: R,

@@ -39,6 +39,10 @@ kernels! {
     dustsph_density => density, DensityArgs;
     dustsph_eos => eos, EosArgs;
     dustsph_forces => forces, ForcesArgs;
+    dustsph_solve_h => solve_h, HSolveArgs;
+    dustsph_force_prep => force_prep, PrepArgs;
+    dustsph_iad_matrix => iad_matrix, IadArgs;
+    dustsph_max_of => max_of, MaxArgs;
     dustsph_union_flags => union_flags, UnionArgs;
     dustsph_union_keys => union_keys, UnionKeysArgs;
     dustsph_cell_step => cell_step, CellArgs;

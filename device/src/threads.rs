@@ -19,8 +19,9 @@
 use crate::drag::StoppingLaw;
 use crate::eos::Eos;
 use crate::grid::{CellLookup, GridGeom};
+use crate::kernel::KernelAt;
 use crate::kernels::{self, GasView, Sorted, MAX_FRACTIONS};
-use crate::sph::Viscosity;
+use crate::sph::{Sym3, Viscosity};
 use crate::{dot, drag, update, Real, Vec3};
 use core::slice;
 use core::sync::atomic::{AtomicU32, AtomicU64, Ordering};
@@ -451,6 +452,13 @@ pub struct ForcesArgs {
     pub dedt: *mut f64,
     /// [max signal speed, max |A|] as [`kernels::ordered_bits`], zeroed.
     pub limits: *mut u64,
+    /// 0: fixed h, standard gradient; 1: variable h (grad-h); 2: IAD gradient. Modes 1 and 2
+    /// read the per-particle kernels `kat` and pressure terms `pt` ([`force_prep`]); 2 also
+    /// the IAD matrices `iad` ([`iad_matrix`]).
+    pub mode: u32,
+    pub kat: *const KernelAt<f64>,
+    pub pt: *const f64,
+    pub iad: *const Sym3<f64>,
     pub p: StepParams,
 }
 
@@ -469,7 +477,20 @@ pub unsafe fn forces(t: usize, a: &ForcesArgs) {
         fixed: g.fixed(),
     };
     let av = a.p.viscosity();
-    let r = kernels::forces_at(&g.sorted(&a.p, 0), &view, t, a.p.h, a.p.dim, av.as_ref());
+    let s = g.sorted(&a.p, 0);
+    let r = match a.mode {
+        0 => kernels::forces_at(&s, &view, t, a.p.h, a.p.dim, av.as_ref()),
+        1 => kernels::forces_vh_at(&s, &view, sl(a.kat, n), sl(a.pt, n), t, av.as_ref()),
+        _ => kernels::forces_iad_at(
+            &s,
+            &view,
+            sl(a.kat, n),
+            sl(a.pt, n),
+            sl(a.iad, n),
+            t,
+            av.as_ref(),
+        ),
+    };
     *a.acc.add(t) = r.acc;
     if !a.dedt.is_null() {
         *a.dedt.add(t) = r.dedt;
@@ -477,6 +498,134 @@ pub unsafe fn forces(t: usize, a: &ForcesArgs) {
     let am = Real::sqrt(dot(r.acc, r.acc));
     AtomicU64::from_ptr(a.limits).fetch_max(kernels::ordered_bits(r.vsig), Ordering::Relaxed);
     AtomicU64::from_ptr(a.limits.add(1)).fetch_max(kernels::ordered_bits(am), Ordering::Relaxed);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Variable smoothing lengths and the IAD gradient (docs/method.md; Price 2012, Garcia-Senz et
+// al. 2012): the CPU's per-particle functions, one thread per particle.
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct HSolveArgs {
+    pub ph: PhaseBufs,
+    /// Initial h per particle; null: the reference h for all (the dust, solved afresh).
+    pub h0: *const f64,
+    /// Out: h, Ω (null for the dust), Newton iterations; ρ goes to the phase's `rho`.
+    pub h: *mut f64,
+    pub omega: *mut f64,
+    pub iters: *mut u32,
+    /// Smallest index of a particle whose solve failed; initialise to u32::MAX.
+    pub bad: *mut u32,
+    pub hfact: f64,
+    /// Half the grid's search radius: h must stay below it.
+    pub h_max: f64,
+    pub tol: f64,
+    pub p: StepParams,
+}
+
+/// h, ρ and Ω of particle t by Newton–Raphson over its own group ([`kernels::solve_h_at`]).
+pub unsafe fn solve_h(t: usize, a: &HSolveArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let s = ph.sorted(&a.p, ph.group_of(t));
+    let h0 = if a.h0.is_null() { a.p.h } else { *a.h0.add(t) };
+    let o = kernels::solve_h_at(
+        &s,
+        ph.m(),
+        ph.fixed(),
+        *ph.rho.add(t),
+        t,
+        h0,
+        a.hfact,
+        a.h_max,
+        a.tol,
+        a.p.dim,
+    );
+    *a.h.add(t) = o.h;
+    if !a.omega.is_null() {
+        *a.omega.add(t) = o.omega;
+    }
+    *a.iters.add(t) = o.iterations;
+    // ρ of this particle is read by no other thread of the solve (only m and x are).
+    *ph.rho.add(t) = o.rho;
+    if !o.ok {
+        AtomicU32::from_ptr(a.bad).fetch_min(t as u32, Ordering::Relaxed);
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct PrepArgs {
+    pub gas: PhaseBufs,
+    /// h per particle, or null (the reference h).
+    pub h: *const f64,
+    /// Ω per particle (grad-h: pt = p/(Ω ρ²)), or null (IAD: pt = p/ρ²).
+    pub omega: *const f64,
+    pub pres: *const f64,
+    pub kat: *mut KernelAt<f64>,
+    pub pt: *mut f64,
+    pub p: StepParams,
+}
+
+/// Kernel constants and pressure term of gas particle t, once per force evaluation.
+pub unsafe fn force_prep(t: usize, a: &PrepArgs) {
+    let g = &a.gas;
+    if t >= g.len() {
+        return;
+    }
+    let h = if a.h.is_null() { a.p.h } else { *a.h.add(t) };
+    *a.kat.add(t) = KernelAt::new(h, a.p.dim);
+    let (p, rho) = (*a.pres.add(t), *g.rho.add(t));
+    *a.pt.add(t) = if a.omega.is_null() {
+        p / (rho * rho)
+    } else {
+        p / (*a.omega.add(t) * rho * rho)
+    };
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct IadArgs {
+    pub gas: PhaseBufs,
+    pub kat: *const KernelAt<f64>,
+    pub iad: *mut Sym3<f64>,
+    pub p: StepParams,
+}
+
+/// IAD matrix C_t of gas particle t ([`kernels::iad_matrix_at`]).
+pub unsafe fn iad_matrix(t: usize, a: &IadArgs) {
+    let g = &a.gas;
+    if t >= g.len() {
+        return;
+    }
+    let n = g.len();
+    *a.iad.add(t) = kernels::iad_matrix_at(&g.sorted(&a.p, 0), g.m(), g.rho(), sl(a.kat, n), t);
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct MaxArgs {
+    pub x: *const f64,
+    pub n: u32,
+    pub chunk: u32,
+    /// The maximum as [`kernels::ordered_bits`]; zeroed before the launch.
+    pub out: *mut u64,
+}
+
+/// Maximum of x over chunk t (the largest h sets the search radius).
+pub unsafe fn max_of(t: usize, a: &MaxArgs) {
+    let (lo, n) = (t * a.chunk as usize, a.n as usize);
+    if lo >= n {
+        return;
+    }
+    let hi = (lo + a.chunk as usize).min(n);
+    let mut m = f64::NEG_INFINITY;
+    for i in lo..hi {
+        m = m.max(*a.x.add(i));
+    }
+    AtomicU64::from_ptr(a.out).fetch_max(kernels::ordered_bits(m), Ordering::Relaxed);
 }
 
 // ---------------------------------------------------------------------------------------------

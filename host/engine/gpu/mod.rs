@@ -18,7 +18,9 @@ use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
 use crate::particles::{Phase, State};
 use crate::scene::PositionUpdate;
 use dustsph_device::eos::Eos;
+use dustsph_device::kernel::{KernelAt, SUPPORT};
 use dustsph_device::kernels::{from_ordered_bits, MAX_FRACTIONS};
+use dustsph_device::sph::Sym3;
 use dustsph_device::threads::{self as th, LawParam, PhaseBufs, StepParams};
 pub use launch::{probe, Cuda, Emulated, GpuError, Launcher};
 use std::marker::PhantomData;
@@ -371,7 +373,30 @@ pub struct GpuEngine<L: Launcher> {
     bounds: Buf<L, u64>,
     bad: Buf<L, u32>,
     dust_density_fresh: bool,
+    /// The state's step count (for messages).
+    step: u64,
+    /// Variable h and IAD (`sph.variable_h`, `sph.gradient = "iad"`).
+    sm: DevSmoothing<L>,
 }
+
+/// Buffers of variable h and of the IAD gradient (empty when the scene uses neither).
+struct DevSmoothing<L: Launcher> {
+    /// h and Ω of every gas particle (variable h; carried by the sort).
+    gas_h: Option<Buf<L, f64>>,
+    gas_omega: Option<Buf<L, f64>>,
+    /// The solve's outputs (swapped in on success) and its iteration counts.
+    h_new: Buf<L, f64>,
+    omega_new: Buf<L, f64>,
+    iters: Buf<L, u32>,
+    /// Per gas particle: kernel constants and pressure term (variable h or IAD), IAD matrix.
+    kat: Buf<L, KernelAt<f64>>,
+    pt: Buf<L, f64>,
+    iad: Buf<L, Sym3<f64>>,
+    hmax: Buf<L, u64>,
+}
+
+/// Phantom's tolerance of the h solve (as the CPU path).
+const H_TOL: f64 = 1e-4;
 
 impl From<GpuError> for StepError {
     fn from(e: GpuError) -> Self {
@@ -396,14 +421,14 @@ impl<L: Launcher> GpuEngine<L> {
                 "the explicit drag baseline (drag.method = \"explicit\")",
             ),
             (
-                pipe.variable_h,
-                "variable smoothing lengths (sph.variable_h)",
+                // The coupling's weights would need each gas particle's own h.
+                pipe.variable_h && pipe.kernel_coupling,
+                "variable smoothing lengths with the kernel coupling (sph.variable_h with idic.coupling = \"kernel\")",
             ),
             (
                 pipe.continuity_density,
                 "continuity-equation density (sph.density)",
             ),
-            (pipe.iad, "the IAD gradient (sph.gradient = \"iad\")"),
             (
                 pipe.kdk,
                 "the leapfrog integrator (time.integrator = \"kdk\")",
@@ -497,6 +522,33 @@ impl<L: Launcher> GpuEngine<L> {
             limits: d.buf(2)?,
             bounds: d.buf(6)?,
             bad: d.buf(1)?,
+            step: state.step,
+            sm: {
+                let vh = pipe.variable_h;
+                // On resume the state carries h and Ω of the last step: kept as they are.
+                let resumed = vh && g.h.is_some() && g.omega.is_some();
+                let per_gas = if vh || pipe.iad { ng.max(1) } else { 1 };
+                let solve = if vh { ng.max(dust.n).max(1) } else { 1 };
+                DevSmoothing {
+                    gas_h: if resumed {
+                        Some(d.from(g.h.as_deref().unwrap_or(&[]))?)
+                    } else {
+                        None
+                    },
+                    gas_omega: if resumed {
+                        Some(d.from(g.omega.as_deref().unwrap_or(&[]))?)
+                    } else {
+                        None
+                    },
+                    h_new: d.buf(solve)?,
+                    omega_new: d.buf(solve)?,
+                    iters: d.buf(solve)?,
+                    kat: d.buf(per_gas)?,
+                    pt: d.buf(per_gas)?,
+                    iad: d.buf(if pipe.iad { ng.max(1) } else { 1 })?,
+                    hmax: d.buf(1)?,
+                }
+            },
             phys,
             pipe,
             timers: Timers::default(),
@@ -508,7 +560,11 @@ impl<L: Launcher> GpuEngine<L> {
             dust_density_fresh: false,
         };
         eng.regrid()?;
-        eng.gas_density_eos()?;
+        if eng.sm.gas_h.is_some() {
+            eng.eos()?;
+        } else {
+            eng.gas_density_eos()?;
+        }
         eng.dust_density()?;
         eng.sync(state)?;
         eng.check(state)?;
@@ -549,12 +605,8 @@ impl<L: Launcher> GpuEngine<L> {
             let dec = |k: usize| from_ordered_bits(o[k]);
             b = merge_bounds(b, ([dec(0), dec(1), dec(2)], [dec(3), dec(4), dec(5)]));
         }
-        self.grid = Grid::from_bounds(
-            &self.phys.domain,
-            self.phys.cell_size,
-            self.phys.support(),
-            b,
-        )?;
+        let support = self.search_support()?;
+        self.grid = Grid::from_bounds(&self.phys.domain, self.phys.cell_size, support, b)?;
         if !crate::grid::dense_table_fits(self.grid.total_cells(), self.gas.n + self.dust.n) {
             return Err(StepError::Grid(crate::grid::GridError(format!(
                 "the particles span {} cells, too many for the GPU's dense cell table \
@@ -567,6 +619,12 @@ impl<L: Launcher> GpuEngine<L> {
         let mut extra: Vec<&mut Buf<L, f64>> = vec![&mut self.pres, &mut self.cs];
         if let Some(e) = &mut self.e {
             extra.push(e);
+        }
+        if let Some(h) = &mut self.sm.gas_h {
+            extra.push(h);
+        }
+        if let Some(o) = &mut self.sm.gas_omega {
+            extra.push(o);
         }
         self.gas.sort(&self.d, &p, &mut self.sums, &mut extra)?;
         self.dust.sort(&self.d, &p, &mut self.sums, &mut [])?;
@@ -581,8 +639,102 @@ impl<L: Launcher> GpuEngine<L> {
         self.d.run("dustsph_density", ph.n, &a, th::density)
     }
 
-    fn gas_density_eos(&mut self) -> Result<(), GpuError> {
-        self.density(&self.gas)?;
+    /// The grid's search radius: the support 2h; with variable h, 2 max h_a plus 0.1% (the
+    /// CPU path's rule, so both build the same grid).
+    fn search_support(&mut self) -> Result<f64, GpuError> {
+        let base = self.phys.support();
+        let (Some(h), true) = (&self.sm.gas_h, self.pipe.variable_h) else {
+            return Ok(base);
+        };
+        let d = &self.d;
+        d.put(&mut self.sm.hmax, &[0])?;
+        let chunk = 256usize;
+        let a = th::MaxArgs {
+            x: d.ptr(h),
+            n: self.gas.n as u32,
+            chunk: chunk as u32,
+            out: d.ptr(&self.sm.hmax),
+        };
+        d.run("dustsph_max_of", self.gas.n.div_ceil(chunk), &a, th::max_of)?;
+        let b = d.get(&self.sm.hmax, 1)?[0];
+        let hmax = if b == 0 { 0.0 } else { from_ordered_bits(b) };
+        Ok(base.max(SUPPORT * hmax * (1.0 + 1e-3)))
+    }
+
+    /// Variable h of the gas (`gas = true`, from its current h, or the reference h at the
+    /// start) or of every dust fraction (from the reference h): h, ρ (and Ω) by Newton–Raphson.
+    /// A particle whose h runs into the search radius widens the grid's reach (same cells and
+    /// order) and the solve is repeated, as on the CPU.
+    fn solve_h(&mut self, gas: bool, step: u64) -> Result<(), StepError> {
+        let hfact = self.phys.variable_h.expect("variable h");
+        for _attempt in 0..40 {
+            let d = &self.d;
+            d.put(&mut self.bad, &[u32::MAX])?;
+            let ph = if gas { &self.gas } else { &self.dust };
+            let a = th::HSolveArgs {
+                ph: ph.bufs(d),
+                h0: match (&self.sm.gas_h, gas) {
+                    (Some(h), true) => d.ptr(h),
+                    _ => std::ptr::null(),
+                },
+                h: d.ptr(&self.sm.h_new),
+                omega: if gas {
+                    d.ptr(&self.sm.omega_new)
+                } else {
+                    std::ptr::null_mut()
+                },
+                iters: d.ptr(&self.sm.iters),
+                bad: d.ptr(&self.bad),
+                hfact,
+                h_max: self.grid.geom.support / SUPPORT,
+                tol: H_TOL,
+                p: self.params(0.0),
+            };
+            d.run("dustsph_solve_h", ph.n, &a, th::solve_h)?;
+            let bad = d.get(&self.bad, 1)?[0];
+            if bad == u32::MAX {
+                if gas {
+                    let n = self.gas.n;
+                    let (hn, on) = (
+                        d.buf(n.max(self.dust.n).max(1))?,
+                        d.buf(n.max(self.dust.n).max(1))?,
+                    );
+                    let h_new = std::mem::replace(&mut self.sm.h_new, hn);
+                    let o_new = std::mem::replace(&mut self.sm.omega_new, on);
+                    self.sm.gas_h = Some(h_new);
+                    self.sm.gas_omega = Some(o_new);
+                }
+                return Ok(());
+            }
+            let i = bad as usize;
+            let iters = d.get(&self.sm.iters, i + 1)?[i];
+            if iters < 30 && self.grid.geom.support < 1e300 {
+                self.grid = self.grid.with_support(1.02 * self.grid.geom.support);
+                continue;
+            }
+            let ids = d.get(&ph.id, i + 1)?;
+            let h = d.get(&self.sm.h_new, i + 1)?[i];
+            let what = if gas {
+                "gas".to_string()
+            } else {
+                let g = (0..ph.groups)
+                    .find(|&g| i < ph.off[g + 1] as usize)
+                    .unwrap_or(0);
+                format!("dust fraction {g}")
+            };
+            return Err(StepError::Blowup(format!(
+                "step {step}: variable h did not converge for {what} particle id {} (h = {h:e})",
+                ids[i]
+            )));
+        }
+        Err(StepError::Blowup(format!(
+            "step {step}: variable h of the {} outgrew every search radius",
+            if gas { "gas" } else { "dust" }
+        )))
+    }
+
+    /// Pressure and sound speed from the density (and energy).
+    fn eos(&self) -> Result<(), GpuError> {
         let d = &self.d;
         let a = th::EosArgs {
             rho: d.ptr(&self.gas.rho),
@@ -595,9 +747,22 @@ impl<L: Launcher> GpuEngine<L> {
         d.run("dustsph_eos", self.gas.n, &a, th::eos)
     }
 
-    fn dust_density(&mut self) -> Result<(), GpuError> {
+    fn gas_density_eos(&mut self) -> Result<(), StepError> {
+        if self.pipe.variable_h {
+            self.solve_h(true, self.step)?;
+        } else {
+            self.density(&self.gas)?;
+        }
+        Ok(self.eos()?)
+    }
+
+    fn dust_density(&mut self) -> Result<(), StepError> {
         if !self.dust_density_fresh {
-            self.density(&self.dust)?;
+            if self.pipe.variable_h && self.dust.n > 0 {
+                self.solve_h(false, self.step)?;
+            } else {
+                self.density(&self.dust)?;
+            }
             self.dust_density_fresh = true;
         }
         Ok(())
@@ -607,6 +772,40 @@ impl<L: Launcher> GpuEngine<L> {
     pub fn forces(&mut self) -> Result<Forces, StepError> {
         let d = &self.d;
         d.put(&mut self.limits, &[0, 0])?;
+        let p = self.params(0.0);
+        let mode = if self.pipe.iad {
+            2
+        } else {
+            u32::from(self.pipe.variable_h)
+        };
+        if mode != 0 {
+            let a = th::PrepArgs {
+                gas: self.gas.bufs(d),
+                h: d.opt(&self.sm.gas_h),
+                // IAD's pressure term is p/ρ² (no grad-h factor).
+                omega: if mode == 1 {
+                    d.opt(&self.sm.gas_omega)
+                } else {
+                    std::ptr::null_mut()
+                },
+                pres: d.ptr(&self.pres),
+                kat: d.ptr(&self.sm.kat),
+                pt: d.ptr(&self.sm.pt),
+                p,
+            };
+            d.run("dustsph_force_prep", self.gas.n, &a, th::force_prep)?;
+        }
+        if mode == 2 {
+            let a = th::IadArgs {
+                gas: self.gas.bufs(d),
+                kat: d.ptr(&self.sm.kat),
+                iad: d.ptr(&self.sm.iad),
+                p,
+            };
+            self.timers.time("gas IAD matrices", || {
+                d.run("dustsph_iad_matrix", self.gas.n, &a, th::iad_matrix)
+            })?;
+        }
         let a = th::ForcesArgs {
             gas: self.gas.bufs(d),
             pres: d.ptr(&self.pres),
@@ -614,7 +813,11 @@ impl<L: Launcher> GpuEngine<L> {
             acc: d.ptr(&self.acc),
             dedt: d.opt(&self.dedt),
             limits: d.ptr(&self.limits),
-            p: self.params(0.0),
+            mode,
+            kat: d.ptr(&self.sm.kat),
+            pt: d.ptr(&self.sm.pt),
+            iad: d.ptr(&self.sm.iad),
+            p,
         };
         self.timers.time("gas forces", || {
             d.run("dustsph_forces", self.gas.n, &a, th::forces)
@@ -845,6 +1048,7 @@ impl<L: Launcher> GpuEngine<L> {
         self.timers = timers;
         state.t += tau;
         state.step += 1;
+        self.step = state.step;
         self.check(state)
     }
 
@@ -858,24 +1062,28 @@ impl<L: Launcher> GpuEngine<L> {
         if let Some(e) = &self.e {
             state.gas.e = Some(d.get(e, ng)?);
         }
+        if let (Some(h), Some(o)) = (&self.sm.gas_h, &self.sm.gas_omega) {
+            state.gas.h = Some(d.get(h, ng)?);
+            state.gas.omega = Some(d.get(o, ng)?);
+        }
         let mut dust: Vec<&mut Phase> = state.dust.iter_mut().collect();
         self.dust.download(d, &mut dust)
     }
 
     /// Dust densities for output (kept fresh every step only when the drag law needs them).
-    pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), GpuError> {
+    pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
         self.dust_density()?;
-        self.sync(state)
+        Ok(self.sync(state)?)
     }
 
     /// Stopping time of every dust particle (its cell's t_k*; +∞ where uncoupled).
-    pub fn dust_stopping_times(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, GpuError> {
+    pub fn dust_stopping_times(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, StepError> {
         if state.dust.is_empty() {
             return Ok(Vec::new());
         }
         self.refresh_dust_density(state)?;
         if self.coupling.is_some() {
-            return self.kernel_stopping_times();
+            return Ok(self.kernel_stopping_times()?);
         }
         self.cell_step(0.0, true)?;
         let d = &self.d;
