@@ -274,4 +274,32 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         &["sph.n=6", "sph.h=0.3", "sph.gradient=iad"],
         8,
     ),
+    // The kick–drift–kick leapfrog.
+    (
+        "leapfrog + variable h + IAD: Phantom wave 3D as shipped",
+        "configs/dustywave_phantom.toml",
+        &["sph.n=16", "dustywave.layers=6"],
+        10,
+    ),
+    (
+        "leapfrog: dustyshock (walls, AV, heating)",
+        "configs/dustyshock.toml",
+        &["sph.n=200", "time.integrator=kdk"],
+        20,
+    ),
+    (
+        "leapfrog + kernel coupling: dustybox 3D, dust offset 0.5, external accelerations",
+        "configs/dustybox.toml",
+        &[
+            "scene.dim=3",
+            "sph.n=8",
+            "sph.hfact=1.2",
+            "dustybox.dust_shift=0.5",
+            "idic.coupling=kernel",
+            "external.gas=[1.0, 0.5, 0.0]",
+            "external.dust=[0.0, 0.0, -2.0]",
+            "time.integrator=kdk",
+        ],
+        10,
+    ),
 ];

@@ -36,6 +36,8 @@ kernels! {
     dustsph_gather_f64 => gather::<f64>, GatherArgs<f64>;
     dustsph_gather_u64 => gather::<u64>, GatherArgs<u64>;
     dustsph_gather_u8 => gather::<u8>, GatherArgs<u8>;
+    dustsph_copy_v3 => copy::<V3>, CopyArgs<V3>;
+    dustsph_copy_f64 => copy::<f64>, CopyArgs<f64>;
     dustsph_density => density, DensityArgs;
     dustsph_eos => eos, EosArgs;
     dustsph_forces => forces, ForcesArgs;

@@ -389,6 +389,21 @@ pub struct GatherArgs<T> {
     pub n: u32,
 }
 
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CopyArgs<T> {
+    pub src: *const T,
+    pub dst: *mut T,
+    pub n: u32,
+}
+
+/// dst[t] = src[t] (one kernel per element type).
+pub unsafe fn copy<T: Copy>(t: usize, a: &CopyArgs<T>) {
+    if t < a.n as usize {
+        *a.dst.add(t) = *a.src.add(t);
+    }
+}
+
 /// dst[t] = src[perm[t]] (one kernel per element type).
 pub unsafe fn gather<T: Copy>(t: usize, a: &GatherArgs<T>) {
     if t < a.n as usize {
@@ -459,6 +474,8 @@ pub struct ForcesArgs {
     pub kat: *const KernelAt<f64>,
     pub pt: *const f64,
     pub iad: *const Sym3<f64>,
+    /// Per-particle signal speed (the leapfrog keeps its closing forces whole); null: not kept.
+    pub vsig: *mut f64,
     pub p: StepParams,
 }
 
@@ -494,6 +511,9 @@ pub unsafe fn forces(t: usize, a: &ForcesArgs) {
     *a.acc.add(t) = r.acc;
     if !a.dedt.is_null() {
         *a.dedt.add(t) = r.dedt;
+    }
+    if !a.vsig.is_null() {
+        *a.vsig.add(t) = r.vsig;
     }
     let am = Real::sqrt(dot(r.acc, r.acc));
     AtomicU64::from_ptr(a.limits).fetch_max(kernels::ordered_bits(r.vsig), Ordering::Relaxed);

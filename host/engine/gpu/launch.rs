@@ -141,6 +141,8 @@ pub const KERNELS: &[&str] = &[
     "dustsph_gather_f64",
     "dustsph_gather_u64",
     "dustsph_gather_u8",
+    "dustsph_copy_v3",
+    "dustsph_copy_f64",
     "dustsph_density",
     "dustsph_eos",
     "dustsph_forces",
