@@ -117,6 +117,11 @@ pub fn compare(loaded: &LoadedScene, steps: u64, device: DeviceChoice) -> Result
     // change the step size and hide itself.
     let driver = Driver::new(&scene.time, phys.h);
     for step in 1..=steps {
+        if cpu.pipe().explicit_drag {
+            let a = cpu.drag_dt_limit(&s_cpu).map_err(err)?;
+            let b = dev.drag_dt_limit(&s_dev).map_err(err)?;
+            acc.add("explicit drag step limit".into(), &[a], &[b]);
+        }
         let sc = driver
             .prepare(&mut cpu, &s_cpu, f64::INFINITY)
             .map_err(|e| format!("cpu step {step}: {e}"))?;
@@ -301,5 +306,33 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
             "time.integrator=kdk",
         ],
         10,
+    ),
+    // The explicit drag baseline and the continuity density.
+    (
+        "explicit drag: dustywave N=4",
+        "configs/dustywave.toml",
+        &["sph.n=64", "drag.method=explicit"],
+        20,
+    ),
+    (
+        "explicit drag + leapfrog: dustyshock (walls, AV, heating)",
+        "configs/dustyshock.toml",
+        &["sph.n=200", "drag.method=explicit", "time.integrator=kdk"],
+        20,
+    ),
+    (
+        "continuity density: dustywave adiabatic, constant K",
+        "configs/dustywave.toml",
+        &[
+            "sph.n=64",
+            "sph.density=continuity",
+            "gas.eos=adiabatic",
+            "gas.cs=",
+            "gas.gamma=1.4",
+            "gas.p=1.0",
+            "dust.law=constant_k",
+            "dust.fractions=[{eps=1.0, k=5.0}, {eps=0.5, k=50.0}]",
+        ],
+        15,
     ),
 ];

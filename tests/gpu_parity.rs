@@ -116,6 +116,21 @@ fn leapfrog_kernel_coupling_box_matches_cpu_bit_for_bit() {
     case(16);
 }
 
+#[test]
+fn explicit_drag_wave_matches_cpu_bit_for_bit() {
+    case(17);
+}
+
+#[test]
+fn explicit_drag_leapfrog_shock_matches_cpu_bit_for_bit() {
+    case(18);
+}
+
+#[test]
+fn continuity_density_wave_matches_cpu_bit_for_bit() {
+    case(19);
+}
+
 /// Byte size of the single parameter of each entry point in the PTX.
 fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
     let mut out = Vec::new();

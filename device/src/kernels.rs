@@ -438,7 +438,9 @@ pub fn fraction_coupling<R: Real>(
 
 /// The IDIC cell step from a cell's sums (method.md §3.3–3.4): cell ε_k, stopping times t_k*
 /// from each fraction's law (+∞ when it does not couple: no gas or no dust in the cell), and the
-/// closed-form implicit solve. `gamma_root` turns the mean sqrt(p/ρ) into c_s*.
+/// closed-form implicit solve. `gamma_root` turns the mean sqrt(p/ρ) into c_s*. With
+/// `explicit` (the forward-Euler baseline, [`drag::explicit_gas_update`]) there is no solve:
+/// the new means handed to the particles are the known means ṽ*, ũ_k*.
 #[inline(always)]
 pub fn cell_couple<R: Real>(
     gas: &GasSums<R>,
@@ -446,6 +448,7 @@ pub fn cell_couple<R: Real>(
     laws: &[StoppingLaw<R>],
     tau: R,
     gamma_root: R,
+    explicit: bool,
 ) -> CellCoupling<R> {
     let nf = dust.len().min(laws.len()).min(MAX_FRACTIONS);
     let mut u_tilde = [[R::ZERO; 3]; MAX_FRACTIONS];
@@ -459,9 +462,14 @@ pub fn cell_couple<R: Real>(
     } else {
         [R::ZERO; 3]
     };
-    solve_coupling(v_tilde, &u_tilde[..nf], tau, |k| {
+    let mut c = solve_coupling(v_tilde, &u_tilde[..nf], tau, |k| {
         fraction_coupling(gas, &dust[k], &laws[k], gamma_root)
-    })
+    });
+    if explicit {
+        c.v_new = v_tilde;
+        c.u_new[..nf].copy_from_slice(&u_tilde[..nf]);
+    }
+    c
 }
 
 /// The implicit solve of one cell (or gas particle) from its means ṽ, ũ_k and, per fraction,

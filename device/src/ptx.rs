@@ -39,6 +39,8 @@ kernels! {
     dustsph_copy_v3 => copy::<V3>, CopyArgs<V3>;
     dustsph_copy_f64 => copy::<f64>, CopyArgs<f64>;
     dustsph_density => density, DensityArgs;
+    dustsph_density_continuity => density_continuity, DensityArgs;
+    dustsph_explicit_limit => explicit_limit, LimitArgs;
     dustsph_eos => eos, EosArgs;
     dustsph_forces => forces, ForcesArgs;
     dustsph_solve_h => solve_h, HSolveArgs;

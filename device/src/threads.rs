@@ -86,6 +86,8 @@ pub struct StepParams {
     /// Constant external accelerations of the gas (added to A^n) and of the dust (B^n).
     pub ext_gas: V3,
     pub ext_dust: V3,
+    /// 1: the explicit (forward-Euler) drag baseline instead of IDIC.
+    pub explicit_drag: u32,
 }
 
 impl StepParams {
@@ -434,6 +436,19 @@ pub unsafe fn density(t: usize, a: &DensityArgs) {
     *ph.rho.add(t) = r;
 }
 
+/// Continuity equation: ρ_t ← ρ_t + τ dρ_t/dt at the current positions and velocities
+/// ([`kernels::density_rate_at`] reads only x, v and m, so the update is in place).
+pub unsafe fn density_continuity(t: usize, a: &DensityArgs) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let s = ph.sorted(&a.p, ph.group_of(t));
+    let rate = kernels::density_rate_at(&s, ph.v(), ph.m(), ph.fixed(), t, a.p.h, a.p.dim);
+    let r = ph.rho.add(t);
+    *r += a.p.tau * rate;
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct EosArgs {
@@ -764,7 +779,8 @@ pub unsafe fn cell_step(t: usize, a: &CellArgs) {
             laws[f].needs_dust_density(),
         );
     }
-    let c = kernels::cell_couple(&gs, &ds[..nf], &laws[..nf], tau, eos.gamma_root());
+    let explicit = p.explicit_drag != 0;
+    let c = kernels::cell_couple(&gs, &ds[..nf], &laws[..nf], tau, eos.gamma_root(), explicit);
     let cb = &a.cells;
     *cb.gas_mass.add(t) = gs.mass;
     *cb.v_new.add(t) = c.v_new;
@@ -775,6 +791,30 @@ pub unsafe fn cell_step(t: usize, a: &CellArgs) {
         *cb.t_stop.add(s) = c.t_stop[f];
         *cb.u_new.add(s) = c.u_new[f];
     }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct LimitArgs {
+    pub cells: CellBufs,
+    /// The fastest drag rate Λ of any union cell as [`kernels::ordered_bits`]; zeroed.
+    pub rate: *mut u64,
+    pub p: StepParams,
+}
+
+/// The explicit drag's rate bound Λ of union cell t ([`drag::explicit_rate`]), max-reduced.
+pub unsafe fn explicit_limit(t: usize, a: &LimitArgs) {
+    if t >= *a.cells.uidx.add(a.p.total as usize) as usize {
+        return;
+    }
+    let nf = a.p.nf as usize;
+    let mut inv_t = [0.0; MAX_FRACTIONS];
+    for (k, r) in inv_t.iter_mut().enumerate().take(nf) {
+        let ts = *a.cells.t_stop.add(t * nf + k);
+        *r = if ts.is_finite() { 1.0 / ts } else { 0.0 };
+    }
+    let rate = drag::explicit_rate(sl(a.cells.eps.add(t * nf), nf), &inv_t[..nf]);
+    AtomicU64::from_ptr(a.rate).fetch_max(kernels::ordered_bits(rate), Ordering::Relaxed);
 }
 
 #[repr(C)]
@@ -811,7 +851,12 @@ pub unsafe fn gas_kick(t: usize, a: &KickArgs) {
     let vn = if a.drag != 0 {
         let nf = a.p.nf as usize;
         let c = cell_of(g, &a.p, &a.cells, t) * nf;
-        drag::gas_update(
+        let update = if a.p.explicit_drag != 0 {
+            drag::explicit_gas_update
+        } else {
+            drag::gas_update
+        };
+        update(
             vt,
             sl(a.cells.eps.add(c), nf),
             sl(a.cells.beta.add(c), nf),
@@ -836,7 +881,12 @@ pub unsafe fn dust_kick(t: usize, a: &KickArgs) {
     let c = cell_of(d, &a.p, &a.cells, t);
     let s = c * nf + d.group_of(t);
     let u = *d.v.add(t);
-    let un = drag::dust_update(u, *a.cells.beta.add(s), *a.cells.v_new.add(c));
+    let update = if a.p.explicit_drag != 0 {
+        drag::explicit_dust_update
+    } else {
+        drag::dust_update
+    };
+    let un = update(u, *a.cells.beta.add(s), *a.cells.v_new.add(c));
     *d.v.add(t) = un;
     if !a.loss.is_null() {
         *a.loss.add(t) = drag::kinetic_loss(*d.m.add(t), u, un);

@@ -205,12 +205,12 @@ impl Backend {
         }
     }
 
-    /// The explicit drag baseline's step limit (+∞ for IDIC, which never limits the step; the
-    /// baseline runs on the CPU only).
-    pub fn drag_dt_limit(&mut self, state: &State) -> f64 {
+    /// The explicit drag baseline's step limit (+∞ for IDIC, which never limits the step).
+    pub fn drag_dt_limit(&mut self, state: &State) -> Result<f64, StepError> {
         match self {
-            Backend::Cpu(e) => e.drag_dt_limit(state),
-            _ => f64::INFINITY,
+            Backend::Cpu(e) => Ok(e.drag_dt_limit(state)),
+            Backend::Cuda(e) => e.drag_dt_limit(),
+            Backend::Emulated(e) => e.drag_dt_limit(),
         }
     }
 

@@ -57,7 +57,7 @@ impl Driver {
         let (dt_cfl, dt_force) = dt_limits(self.h, forces);
         let dt_drag = if eng.pipe().explicit_drag {
             let t0 = std::time::Instant::now();
-            let d = eng.drag_dt_limit(state);
+            let d = eng.drag_dt_limit(state)?;
             eng.timers_mut()
                 .add("explicit drag time-step limit", t0.elapsed().as_secs_f64());
             d

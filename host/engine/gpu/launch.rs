@@ -144,6 +144,8 @@ pub const KERNELS: &[&str] = &[
     "dustsph_copy_v3",
     "dustsph_copy_f64",
     "dustsph_density",
+    "dustsph_density_continuity",
+    "dustsph_explicit_limit",
     "dustsph_eos",
     "dustsph_forces",
     "dustsph_solve_h",

@@ -459,17 +459,9 @@ impl<L: Launcher> GpuEngine<L> {
         }
         let cpu_only = [
             (
-                pipe.explicit_drag,
-                "the explicit drag baseline (drag.method = \"explicit\")",
-            ),
-            (
                 // The coupling's weights would need each gas particle's own h.
                 pipe.variable_h && pipe.kernel_coupling,
                 "variable smoothing lengths with the kernel coupling (sph.variable_h with idic.coupling = \"kernel\")",
-            ),
-            (
-                pipe.continuity_density,
-                "continuity-equation density (sph.density)",
             ),
             (
                 // The GPU drifts before the drag pass under the old update; the kernel coupling
@@ -514,6 +506,7 @@ impl<L: Launcher> GpuEngine<L> {
             laws,
             ext_gas: phys.ext_gas,
             ext_dust: phys.ext_dust,
+            explicit_drag: pipe.explicit_drag as u32,
         };
         let heating = pipe.heating;
         let gas = DevPhase::new(&d, &[&state.gas.ph], heating)?;
@@ -636,11 +629,7 @@ impl<L: Launcher> GpuEngine<L> {
             dust_density_fresh: false,
         };
         eng.regrid()?;
-        if eng.sm.gas_h.is_some() {
-            eng.eos()?;
-        } else {
-            eng.gas_density_eos()?;
-        }
+        eng.gas_density_eos(None)?;
         eng.dust_density()?;
         eng.sync(state)?;
         eng.check(state)?;
@@ -837,13 +826,60 @@ impl<L: Launcher> GpuEngine<L> {
         d.run("dustsph_eos", self.gas.n, &a, th::eos)
     }
 
-    fn gas_density_eos(&mut self) -> Result<(), StepError> {
+    /// Gas density at the current (new) positions, then the EOS: variable h, summation, or the
+    /// continuity equation ρ += τ dρ/dt. `tau` is `None` at start-up and on resume, where a
+    /// resumed variable-h state and a continuity density are kept as they are (the CPU's rule).
+    fn gas_density_eos(&mut self, tau: Option<f64>) -> Result<(), StepError> {
         if self.pipe.variable_h {
-            self.solve_h(true, self.step)?;
-        } else {
+            let resumed = tau.is_none() && self.sm.gas_h.is_some();
+            if !resumed {
+                self.solve_h(true, self.step)?;
+            }
+        } else if !self.pipe.continuity_density {
             self.density(&self.gas)?;
+        } else if let Some(tau) = tau {
+            let a = th::DensityArgs {
+                ph: self.gas.bufs(&self.d),
+                p: self.params(tau),
+            };
+            self.d.run(
+                "dustsph_density_continuity",
+                self.gas.n,
+                &a,
+                th::density_continuity,
+            )?;
         }
         Ok(self.eos()?)
+    }
+
+    /// The explicit drag's step limit at the current layer, [`drag::EXPLICIT_SAFETY`]/Λ with Λ
+    /// the fastest drag rate of any cell; +∞ with IDIC (the drag never limits its step).
+    pub fn drag_dt_limit(&mut self) -> Result<f64, StepError> {
+        if !self.pipe.explicit_drag {
+            return Ok(f64::INFINITY);
+        }
+        // ε_k and t_k* do not depend on the velocities handed to the cell sums.
+        self.cell_step(0.0, true)?;
+        let d = &self.d;
+        d.put(&mut self.limits, &[0, 0])?;
+        let a = th::LimitArgs {
+            cells: self.cells.bufs(d),
+            rate: d.ptr(&self.limits),
+            p: self.params(0.0),
+        };
+        d.run(
+            "dustsph_explicit_limit",
+            self.cells.ukey.len,
+            &a,
+            th::explicit_limit,
+        )?;
+        let b = d.get(&self.limits, 1)?[0];
+        let rate = if b == 0 { 0.0 } else { from_ordered_bits(b) };
+        Ok(if rate > 0.0 {
+            dustsph_device::drag::EXPLICIT_SAFETY / rate
+        } else {
+            f64::INFINITY
+        })
     }
 
     fn dust_density(&mut self) -> Result<(), StepError> {
@@ -1154,11 +1190,12 @@ impl<L: Launcher> GpuEngine<L> {
     fn new_layer(
         &mut self,
         timers: &mut Timers,
+        tau: f64,
         before_density: impl FnOnce(&mut Self) -> Result<(), GpuError>,
     ) -> Result<(), StepError> {
         timers.time("grid rebuild + sort", || self.regrid())?;
         before_density(self)?;
-        timers.time("gas density + EOS", || self.gas_density_eos())?;
+        timers.time("gas density + EOS", || self.gas_density_eos(Some(tau)))?;
         self.dust_density_fresh = false;
         if self.pipe.dust_density_each_step {
             timers.time("dust density", || self.dust_density())?;
@@ -1199,7 +1236,7 @@ impl<L: Launcher> GpuEngine<L> {
             }
             self.energy_step(tau, heat)
         })?;
-        self.new_layer(timers, |_| Ok(()))
+        self.new_layer(timers, tau, |_| Ok(()))
     }
 
     /// Kick–drift–kick leapfrog, as the CPU's `advance_kdk`: half kick (forces + drag over
@@ -1217,7 +1254,7 @@ impl<L: Launcher> GpuEngine<L> {
         })?;
         // The sort carries A^n and ė^n (kdk sorts them with the gas): e* = e^{n+1/2} + τ/2 ė^n
         // sets the pressure of the new layer.
-        self.new_layer(timers, |eng| {
+        self.new_layer(timers, tau, |eng| {
             if let (Some(e), Some(save)) = (&eng.e, &eng.kdk.e_save) {
                 eng.d.copy(e, save, eng.gas.n)?;
             }
