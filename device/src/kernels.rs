@@ -549,15 +549,15 @@ pub fn from_ordered_bits(k: u64) -> f64 {
     }
 }
 
-/// Sort `perm[a..b]` ascending in place (insertion sort: cells hold tens of particles). The
-/// GPU counting sort scatters a cell's particles in arbitrary order; sorting each cell's
-/// segment by old index makes the result the CPU's (key, index) order, bit for bit.
+/// Insertion sort of one search cell's particles (old indices) by (combined key, old index):
+/// the CPU's sort order, restored after the GPU's counting sort by search cell.
 #[inline(always)]
-pub fn sort_segment(perm: &mut [u32]) {
+pub fn sort_segment_by_key(perm: &mut [u32], keys: &[u64]) {
+    let at = |p: u32| (keys[p as usize], p);
     for i in 1..perm.len() {
         let v = perm[i];
         let mut j = i;
-        while j > 0 && perm[j - 1] > v {
+        while j > 0 && at(perm[j - 1]) > at(v) {
             perm[j] = perm[j - 1];
             j -= 1;
         }

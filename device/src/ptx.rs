@@ -48,7 +48,7 @@ kernels! {
     dustsph_iad_matrix => iad_matrix, IadArgs;
     dustsph_max_of => max_of, MaxArgs;
     dustsph_union_flags => union_flags, UnionArgs;
-    dustsph_union_keys => union_keys, UnionKeysArgs;
+    dustsph_union_keys => union_keys, UnionArgs;
     dustsph_cell_step => cell_step, CellArgs;
     dustsph_gas_kick => gas_kick, KickArgs;
     dustsph_dust_kick => dust_kick, KickArgs;

@@ -121,10 +121,45 @@ impl StepParams {
         l
     }
 
+    /// IDIC cells per search cell.
     #[inline(always)]
-    fn stride(&self) -> usize {
+    pub fn sub_cells(&self) -> usize {
+        (self.geom.sub[0] * self.geom.sub[1] * self.geom.sub[2]) as usize
+    }
+
+    /// Entries per group of the dense start tables: one per search cell ("bucket") of the grid
+    /// box, + 1. The tables are per search cell, not per IDIC cell, so they are `sub_cells`
+    /// times smaller (8 in 3D with IDIC cells of 0.5h).
+    #[inline(always)]
+    pub fn stride(&self) -> usize {
+        self.total as usize / self.sub_cells() + 1
+    }
+
+    /// Combined particle key = group · (T + 1) + IDIC cell key.
+    #[inline(always)]
+    fn key_stride(&self) -> usize {
         self.total as usize + 1
     }
+
+    /// Dense-table slot (group · stride + search cell) of a combined key.
+    #[inline(always)]
+    fn bucket_of(&self, combined: u64) -> usize {
+        let ks = self.key_stride() as u64;
+        let (g, k) = (combined / ks, combined % ks);
+        g as usize * self.stride() + k as usize / self.sub_cells()
+    }
+}
+
+/// Union index of IDIC cell `k`: the occupied cells of search cell b = k / sub are
+/// ukey[ubidx[b] .. ubidx[b + 1]], sorted. `None` when no phase occupies k. Plain slices, so
+/// the host reads the union the same way.
+#[inline(always)]
+pub fn union_index(ubidx: &[u32], ukey: &[u64], sub_cells: usize, k: u64) -> Option<usize> {
+    let b = k as usize / sub_cells;
+    let (lo, hi) = (ubidx[b] as usize, ubidx[b + 1] as usize);
+    let run = &ukey[lo..hi];
+    let i = run.partition_point(|&u| u < k);
+    (i < run.len() && run[i] == k).then_some(lo + i)
 }
 
 /// One phase buffer on the device (or in host memory, for the emulated backend).
@@ -214,17 +249,23 @@ impl PhaseBufs {
                 keys: &[],
                 start: &[],
                 dense: &self.dense(p)[g * s..(g + 1) * s],
-                dense_stride: 1,
+                dense_stride: p.sub_cells() as u64,
             },
             x: self.x(),
         }
     }
-    /// Particle range of group g in the cell with (grid) key k.
+    /// Particle range of group g in the IDIC cell with (grid) key k: its search cell's range
+    /// from the dense table, then the run of key k inside it (sorted by key).
     #[inline(always)]
     unsafe fn cell_range(&self, p: &StepParams, g: usize, k: u64) -> (usize, usize) {
         let d = self.dense(p);
-        let i = g * p.stride() + k as usize;
-        (d[i] as usize, d[i + 1] as usize)
+        let i = g * p.stride() + k as usize / p.sub_cells();
+        let (lo, hi) = (d[i] as usize, d[i + 1] as usize);
+        let keys = sl(self.keys, self.len());
+        let c = (g * p.key_stride()) as u64 + k;
+        let a = lo + keys[lo..hi].partition_point(|&x| x < c);
+        let b = a + keys[a..hi].partition_point(|&x| x == c);
+        (a, b)
     }
 }
 
@@ -278,7 +319,7 @@ pub unsafe fn bounds(t: usize, a: &BoundsArgs) {
 pub struct KeysArgs {
     pub ph: PhaseBufs,
     pub p: StepParams,
-    /// groups · (T + 1) + 1 counters, zeroed.
+    /// groups · stride + 1 counters (one per search cell of each group), zeroed.
     pub counts: *mut u32,
 }
 
@@ -287,9 +328,9 @@ pub unsafe fn keys(t: usize, a: &KeysArgs) {
     if t >= ph.len() {
         return;
     }
-    let key = (ph.group_of(t) * a.p.stride()) as u64 + a.p.geom.key(ph.x()[t]);
+    let key = (ph.group_of(t) * a.p.key_stride()) as u64 + a.p.geom.key(ph.x()[t]);
     *ph.keys.add(t) = key;
-    atomic_add_u32(a.counts.add(key as usize), 1);
+    atomic_add_u32(a.counts.add(a.p.bucket_of(key)), 1);
 }
 
 #[repr(C)]
@@ -347,17 +388,18 @@ pub struct ScatterArgs {
     pub keys: *const u64,
     pub n: u32,
     pub dense: *const u32,
-    /// One zeroed counter per combined key.
+    /// One zeroed counter per dense-table slot.
     pub cursor: *mut u32,
     /// New → old particle index.
     pub perm: *mut u32,
+    pub p: StepParams,
 }
 
 pub unsafe fn scatter(t: usize, a: &ScatterArgs) {
     if t >= a.n as usize {
         return;
     }
-    let k = *a.keys.add(t) as usize;
+    let k = a.p.bucket_of(*a.keys.add(t));
     let pos = *a.dense.add(k) + atomic_add_u32(a.cursor.add(k), 1);
     *a.perm.add(pos as usize) = t as u32;
 }
@@ -366,19 +408,22 @@ pub unsafe fn scatter(t: usize, a: &ScatterArgs) {
 #[derive(Clone, Copy, Debug)]
 pub struct SegmentArgs {
     pub dense: *const u32,
-    /// Number of combined keys.
+    /// Number of dense-table slots.
     pub nkeys: u32,
     pub perm: *mut u32,
+    /// Combined keys by old particle index (before the gathers).
+    pub keys: *const u64,
+    pub n: u32,
 }
 
-/// Thread t sorts the segment of combined key t by old index: the CPU's (key, index) order.
+/// Thread t sorts the segment of search cell t by (key, old index): the CPU's order.
 pub unsafe fn sort_segments(t: usize, a: &SegmentArgs) {
     if t >= a.nkeys as usize {
         return;
     }
     let (lo, hi) = (*a.dense.add(t) as usize, *a.dense.add(t + 1) as usize);
     if hi > lo + 1 {
-        kernels::sort_segment(sl_mut(a.perm.add(lo), hi - lo));
+        kernels::sort_segment_by_key(sl_mut(a.perm.add(lo), hi - lo), sl(a.keys, a.n as usize));
     }
 }
 
@@ -671,9 +716,12 @@ pub unsafe fn max_of(t: usize, a: &MaxArgs) {
 pub struct UnionArgs {
     pub gas: PhaseBufs,
     pub dust: PhaseBufs,
-    /// T + 1 flags: 1 where any phase occupies cell t (the last stays 0); scanned afterwards
-    /// into the union index of each cell.
+    /// stride flags: the number of IDIC cells of search cell t that any phase occupies (the
+    /// last stays 0); scanned afterwards into `ubidx`, where search cell t's occupied cells
+    /// start in the union.
     pub flags: *mut u32,
+    /// The union's keys, written by [`union_keys`] (null for [`union_flags`]).
+    pub ukey: *mut u64,
     pub p: StepParams,
 }
 
@@ -683,40 +731,51 @@ unsafe fn occupied(ph: &PhaseBufs, p: &StepParams, g: usize, k: u64) -> bool {
     b > a
 }
 
-pub unsafe fn union_flags(t: usize, a: &UnionArgs) {
-    if t > a.p.total as usize {
-        return;
-    }
-    let k = t as u64;
-    let mut occ = false;
-    if t < a.p.total as usize {
-        occ = a.gas.n > 0 && occupied(&a.gas, &a.p, 0, k);
+/// Calls `f(i, k)` for the i-th occupied IDIC cell k (in key order) of search cell t.
+#[inline(always)]
+unsafe fn occupied_cells(a: &UnionArgs, t: usize, mut f: impl FnMut(usize, u64)) {
+    let sc = a.p.sub_cells();
+    let mut i = 0;
+    for s in 0..sc {
+        let k = (t * sc + s) as u64;
+        let mut occ = a.gas.n > 0 && occupied(&a.gas, &a.p, 0, k);
         for g in 0..a.dust.groups as usize {
             occ |= a.dust.n > 0 && occupied(&a.dust, &a.p, g, k);
         }
+        if occ {
+            f(i, k);
+            i += 1;
+        }
     }
-    *a.flags.add(t) = occ as u32;
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug)]
-pub struct UnionKeysArgs {
-    /// Union index of each cell (the scanned flags), T + 1 entries; uidx[T] = union count.
-    pub uidx: *const u32,
-    pub total: u64,
-    pub ukey: *mut u64,
+pub unsafe fn union_flags(t: usize, a: &UnionArgs) {
+    let nb = a.p.stride() - 1;
+    if t > nb {
+        return;
+    }
+    let mut count = 0;
+    if t < nb {
+        occupied_cells(a, t, |_, _| count += 1);
+    }
+    *a.flags.add(t) = count;
 }
 
-pub unsafe fn union_keys(t: usize, a: &UnionKeysArgs) {
-    if t < a.total as usize && *a.uidx.add(t + 1) > *a.uidx.add(t) {
-        *a.ukey.add(*a.uidx.add(t) as usize) = t as u64;
+/// Search cell t writes its occupied IDIC cells' keys into the union, in key order.
+pub unsafe fn union_keys(t: usize, a: &UnionArgs) {
+    if t >= a.p.stride() - 1 {
+        return;
     }
+    let base = *a.flags.add(t) as usize;
+    occupied_cells(a, t, |i, k| *a.ukey.add(base + i) = k);
 }
 
 /// Per union cell: gas mass, v*^{n+1}, and per fraction ε, β, t*, u*^{n+1} (at u · nf + k).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct CellBufs {
+    /// Where each search cell's occupied IDIC cells start in the union (stride entries; the
+    /// last is the union count), and the union's keys.
     pub uidx: *const u32,
     pub ukey: *const u64,
     pub gas_mass: *mut f64,
@@ -742,7 +801,7 @@ pub struct CellArgs {
 /// the implicit solve.
 pub unsafe fn cell_step(t: usize, a: &CellArgs) {
     let p = &a.p;
-    let nu = *a.cells.uidx.add(p.total as usize) as usize;
+    let nu = union_count(&a.cells, p);
     if t >= nu {
         return;
     }
@@ -804,7 +863,7 @@ pub struct LimitArgs {
 
 /// The explicit drag's rate bound Λ of union cell t ([`drag::explicit_rate`]), max-reduced.
 pub unsafe fn explicit_limit(t: usize, a: &LimitArgs) {
-    if t >= *a.cells.uidx.add(a.p.total as usize) as usize {
+    if t >= union_count(&a.cells, &a.p) {
         return;
     }
     let nf = a.p.nf as usize;
@@ -831,10 +890,19 @@ pub struct KickArgs {
     pub p: StepParams,
 }
 
+/// Union index of the IDIC cell of particle i (its own cell is occupied, so it is found).
 #[inline(always)]
 unsafe fn cell_of(ph: &PhaseBufs, p: &StepParams, cells: &CellBufs, i: usize) -> usize {
-    let key = *ph.keys.add(i) as usize % p.stride();
-    *cells.uidx.add(key) as usize
+    let key = *ph.keys.add(i) % p.key_stride() as u64;
+    let nb = p.stride();
+    let (ubidx, ukey) = (sl(cells.uidx, nb), sl(cells.ukey, union_count(cells, p)));
+    union_index(ubidx, ukey, p.sub_cells(), key).unwrap_or(0)
+}
+
+/// Number of occupied IDIC cells in the union.
+#[inline(always)]
+unsafe fn union_count(cells: &CellBufs, p: &StepParams) -> usize {
+    *cells.uidx.add(p.stride() - 1) as usize
 }
 
 /// Gas velocity update (method.md §3.3) of particle t.
@@ -910,7 +978,7 @@ pub struct HeatArgs {
 /// gas first, then fraction by fraction, in particle order: the CPU's order.
 pub unsafe fn heat(t: usize, a: &HeatArgs) {
     let p = &a.p;
-    if t >= *a.cells.uidx.add(p.total as usize) as usize {
+    if t >= union_count(&a.cells, p) {
         return;
     }
     let k = *a.cells.ukey.add(t);

@@ -247,7 +247,8 @@ impl<L: Launcher> DevPhase<L> {
         extra: &mut [&mut Buf<L, f64>],
         extra_v3: &mut [&mut Buf<L, V3>],
     ) -> Result<(), GpuError> {
-        let nkeys = self.groups * (p.total as usize + 1);
+        // The dense table has one slot per search cell of each group.
+        let nkeys = self.groups * p.stride();
         d.zeroed(&mut self.dense, nkeys + 1)?;
         let ka = th::KeysArgs {
             ph: self.bufs(d),
@@ -263,12 +264,15 @@ impl<L: Launcher> DevPhase<L> {
             dense: d.ptr(&self.dense),
             cursor: d.ptr(&self.cursor),
             perm: d.ptr(&self.perm),
+            p: *p,
         };
         d.run("dustsph_scatter", self.n, &sa, th::scatter)?;
         let seg = th::SegmentArgs {
             dense: d.ptr(&self.dense),
             nkeys: nkeys as u32,
             perm: d.ptr(&self.perm),
+            keys: d.ptr(&self.keys),
+            n: self.n as u32,
         };
         d.run("dustsph_sort_segments", nkeys, &seg, th::sort_segments)?;
         let perm = d.ptr(&self.perm);
@@ -672,11 +676,13 @@ impl<L: Launcher> GpuEngine<L> {
         }
         let support = self.search_support()?;
         self.grid = Grid::from_bounds(&self.phys.domain, self.phys.cell_size, support, b)?;
-        if !crate::grid::dense_table_fits(self.grid.total_cells(), self.gas.n + self.dust.n) {
+        // The start tables are dense over the search cells of the grid box.
+        let search_cells = self.params(0.0).stride() as u64 - 1;
+        if !crate::grid::dense_table_fits(search_cells, self.gas.n + self.dust.n) {
             return Err(StepError::Grid(crate::grid::GridError(format!(
-                "the particles span {} cells, too many for the GPU's dense cell table \
-                 ({} particles); the CPU path (--device cpu) handles such spread-out clouds",
-                self.grid.total_cells(),
+                "step {}: the particles span {search_cells} search cells, too many for the dense \
+                 cell tables ({} particles): the cloud has spread too far for this smoothing length",
+                self.step,
                 self.gas.n + self.dust.n
             ))));
         }
@@ -980,22 +986,19 @@ impl<L: Launcher> GpuEngine<L> {
     fn cell_step(&mut self, tau: f64, acc_zero: bool) -> Result<(), GpuError> {
         let d = &self.d;
         let p = self.params(tau);
-        let t = p.total as usize;
-        d.zeroed(&mut self.cells.uidx, t + 1)?;
-        let ua = th::UnionArgs {
+        let nb = p.stride();
+        d.zeroed(&mut self.cells.uidx, nb)?;
+        let mut ua = th::UnionArgs {
             gas: self.gas.bufs(d),
             dust: self.dust.bufs(d),
             flags: d.ptr(&self.cells.uidx),
+            ukey: std::ptr::null_mut(),
             p,
         };
-        d.run("dustsph_union_flags", t + 1, &ua, th::union_flags)?;
-        d.scan(&self.cells.uidx, t + 1, &mut self.sums)?;
-        let ka = th::UnionKeysArgs {
-            uidx: d.ptr(&self.cells.uidx),
-            total: p.total,
-            ukey: d.ptr(&self.cells.ukey),
-        };
-        d.run("dustsph_union_keys", t, &ka, th::union_keys)?;
+        d.run("dustsph_union_flags", nb, &ua, th::union_flags)?;
+        d.scan(&self.cells.uidx, nb, &mut self.sums)?;
+        ua.ukey = d.ptr(&self.cells.ukey);
+        d.run("dustsph_union_keys", nb - 1, &ua, th::union_keys)?;
         let ca = th::CellArgs {
             gas: self.gas.bufs(d),
             dust: self.dust.bufs(d),
@@ -1333,15 +1336,22 @@ impl<L: Launcher> GpuEngine<L> {
         }
         self.cell_step(0.0, true)?;
         let d = &self.d;
-        let total = self.grid.total_cells() as usize;
-        let uidx = d.get(&self.cells.uidx, total + 1)?;
+        let p = self.params(0.0);
+        let (nb, ks) = (p.stride(), self.grid.total_cells() + 1);
+        let ubidx = d.get(&self.cells.uidx, nb)?;
+        let nu = ubidx[nb - 1] as usize;
+        let ukey = d.get(&self.cells.ukey, nu)?;
         let nf = self.dust.groups;
-        let ts = d.get(&self.cells.t_stop, uidx[total] as usize * nf)?;
+        let ts = d.get(&self.cells.t_stop, nu * nf)?;
         let keys = d.get(&self.dust.keys, self.dust.n)?;
+        let sc = p.sub_cells();
         Ok((0..nf)
             .map(|g| {
                 (self.dust.off[g] as usize..self.dust.off[g + 1] as usize)
-                    .map(|j| ts[uidx[keys[j] as usize % (total + 1)] as usize * nf + g])
+                    .map(|j| {
+                        let u = th::union_index(&ubidx, &ukey, sc, keys[j] % ks);
+                        ts[u.expect("a dust particle's cell is occupied") * nf + g]
+                    })
                     .collect()
             })
             .collect())
