@@ -335,4 +335,32 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         ],
         15,
     ),
+    // The kernel coupling with variable h, drag heating and the authors' position update.
+    (
+        "kernel coupling + variable h + IAD + leapfrog: Phantom wave 3D, dust offset 0.5",
+        "configs/dustywave_phantom.toml",
+        &[
+            "sph.n=16",
+            "dustywave.layers=6",
+            "idic.coupling=kernel",
+            "dustywave.dust_shift=0.5",
+        ],
+        10,
+    ),
+    (
+        "kernel coupling + drag heating: dustyshock (walls, AV)",
+        "configs/dustyshock.toml",
+        &["sph.n=200", "idic.coupling=kernel"],
+        20,
+    ),
+    (
+        "kernel coupling + old position update: dustywave N=4",
+        "configs/dustywave.toml",
+        &[
+            "sph.n=64",
+            "idic.coupling=kernel",
+            "time.position_update=old",
+        ],
+        20,
+    ),
 ];

@@ -131,6 +131,21 @@ fn continuity_density_wave_matches_cpu_bit_for_bit() {
     case(19);
 }
 
+#[test]
+fn kernel_coupling_variable_h_phantom_wave_matches_cpu_bit_for_bit() {
+    case(20);
+}
+
+#[test]
+fn kernel_coupling_heating_shock_matches_cpu_bit_for_bit() {
+    case(21);
+}
+
+#[test]
+fn kernel_coupling_old_update_wave_matches_cpu_bit_for_bit() {
+    case(22);
+}
+
 /// Byte size of the single parameter of each entry point in the PTX.
 fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
     let mut out = Vec::new();
@@ -203,6 +218,7 @@ fn ptx_entry_points_take_the_host_argument_structs() {
         ("dustsph_coupling_solve", size_of::<th::CoupleArgs>()),
         ("dustsph_coupling_return", size_of::<th::ReturnArgs>()),
         ("dustsph_coupling_tstop", size_of::<th::ReturnArgs>()),
+        ("dustsph_coupling_heat", size_of::<th::CouplingHeatArgs>()),
         (
             "dustsph_coupling_scatter",
             size_of::<th::ScatterDepositArgs>(),
@@ -230,29 +246,6 @@ fn ptx_entry_points_take_the_host_argument_structs() {
         !gpu::PTX.contains(".extern"),
         "unresolved externs in the PTX"
     );
-}
-
-/// The GPU engine refuses what it does not implement, naming the scene key (the run then
-/// falls back to the CPU under `--device auto`).
-#[test]
-fn gpu_engine_names_the_cpu_only_options_it_refuses() {
-    use dustsph::engine::backend::Backend;
-    use dustsph::engine::Physics;
-    for (set, key) in [(
-        "idic.coupling=\"kernel\"\u{0}time.position_update=\"old\"",
-        "time.position_update",
-    )] {
-        let mut sets: Vec<String> = set.split('\u{0}').map(String::from).collect();
-        sets.push("sph.n=32".to_string());
-        let loaded = dustsph::scene::load(&common::config("dustywave"), &sets).unwrap();
-        let su = dustsph::setup::build(&loaded.scene).unwrap();
-        let mut state = su.state;
-        let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
-        match Backend::new(DeviceChoice::Emulate, phys, &mut state) {
-            Ok(_) => panic!("{set}: accepted by the GPU engine"),
-            Err(e) => assert!(e.to_string().contains(key), "{set}: {e}"),
-        }
-    }
 }
 
 /// The design card's atomicAdd form of the kernel coupling's deposits (`idic.deposit =

@@ -61,6 +61,7 @@ kernels! {
     dustsph_coupling_solve => coupling_solve, CoupleArgs;
     dustsph_coupling_return => coupling_return, ReturnArgs;
     dustsph_coupling_tstop => coupling_tstop, ReturnArgs;
+    dustsph_coupling_heat => coupling_heat, CouplingHeatArgs;
     dustsph_coupling_scatter => coupling_scatter, ScatterDepositArgs;
     dustsph_coupling_solve_sums => coupling_solve_sums, ScatterDepositArgs;
 }

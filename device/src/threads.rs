@@ -1027,8 +1027,10 @@ pub struct EnergyArgs {
     pub gas: PhaseBufs,
     pub e: *mut f64,
     pub dedt: *const f64,
-    /// Drag heat per unit gas mass per union cell; null without heating.
+    /// Drag heat per unit gas mass per union cell (or per gas particle, `heat_per_particle`);
+    /// null without heating.
     pub heat: *const f64,
+    pub heat_per_particle: u32,
     pub cells: CellBufs,
     pub p: StepParams,
 }
@@ -1040,6 +1042,8 @@ pub unsafe fn energy(t: usize, a: &EnergyArgs) {
     }
     let q = if a.heat.is_null() {
         0.0
+    } else if a.heat_per_particle != 0 {
+        *a.heat.add(t)
     } else {
         *a.heat.add(cell_of(g, &a.p, &a.cells, t))
     };
@@ -1112,6 +1116,25 @@ pub struct CouplingBufs {
     pub du: *mut V3,
     /// Per gas particle and fraction (a·nf + k): t_k* of its means (+∞ where uncoupled).
     pub t_stop: *mut f64,
+    /// The gas kernels of the weights, one per gas particle (variable h: W(r, h_a)); null:
+    /// one shared kernel at the reference h.
+    pub kat: *const KernelAt<f64>,
+}
+
+/// Calls `f` with the gas kernels of the weights: one per gas particle, or one shared
+/// ([`kernels::kernel_of`] tells them apart by length, as on the CPU).
+#[inline(always)]
+unsafe fn with_gas_kernels<T>(
+    kat: *const KernelAt<f64>,
+    n_gas: usize,
+    p: &StepParams,
+    f: impl FnOnce(&[KernelAt<f64>]) -> T,
+) -> T {
+    if kat.is_null() {
+        f(&[KernelAt::new(p.h, p.dim)])
+    } else {
+        f(sl(kat, n_gas))
+    }
 }
 
 #[repr(C)]
@@ -1121,6 +1144,8 @@ pub struct NormArgs {
     /// The phase whose normalisers are computed (the gas itself, or the dust).
     pub ph: PhaseBufs,
     pub s: *mut f64,
+    /// As [`CouplingBufs::kat`].
+    pub kat: *const KernelAt<f64>,
     pub p: StepParams,
 }
 
@@ -1133,8 +1158,9 @@ pub unsafe fn coupling_norm(t: usize, a: &NormArgs) {
     let s = if kernels::is_fixed(ph.fixed(), t) {
         0.0
     } else {
-        let k = [crate::kernel::KernelAt::new(a.p.h, a.p.dim)];
-        kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), &k, a.gas.fixed(), ph.x()[t])
+        with_gas_kernels(a.kat, a.gas.len(), &a.p, |k| {
+            kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), k, a.gas.fixed(), ph.x()[t])
+        })
     };
     *a.s.add(t) = s;
 }
@@ -1164,7 +1190,7 @@ pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
     if kernels::is_fixed(g.fixed(), t) {
         return coupling_finish(t, a, &kernels::Deposit::default(), &dust_dep);
     }
-    let k = crate::kernel::KernelAt::new(p.h, p.dim);
+    let k = with_gas_kernels(a.cb.kat, g.len(), p, |k| kernels::kernel_of(k, t));
     let xa = g.x()[t];
     let gas_dep = kernels::deposit_at(
         &g.sorted(p, 0),
@@ -1298,16 +1324,17 @@ pub unsafe fn coupling_scatter(t: usize, a: &ScatterDepositArgs) {
     };
     let (m, rho) = (*ph.m.add(t), *ph.rho.add(t));
     let stride = 1 + p.nf as usize;
-    let k = [crate::kernel::KernelAt::new(p.h, p.dim)];
-    kernels::coupling_row_at(&c.gas.sorted(p, 0), &k, c.gas.fixed(), ph.x()[t], |g, w| {
-        let wm = w / s * m;
-        let o = a.sums.add((g * stride + slot) * DEPOSIT_SLOTS);
-        atomic_add_f64(o, wm);
-        for (d, v) in vel.iter().enumerate() {
-            atomic_add_f64(o.add(1 + d), wm * v);
-        }
-        atomic_add_f64(o.add(4), wm * rho);
-        atomic_add_f64(o.add(5), wm * cs);
+    with_gas_kernels(c.cb.kat, c.gas.len(), p, |k| {
+        kernels::coupling_row_at(&c.gas.sorted(p, 0), k, c.gas.fixed(), ph.x()[t], |g, w| {
+            let wm = w / s * m;
+            let o = a.sums.add((g * stride + slot) * DEPOSIT_SLOTS);
+            atomic_add_f64(o, wm);
+            for (d, v) in vel.iter().enumerate() {
+                atomic_add_f64(o.add(1 + d), wm * v);
+            }
+            atomic_add_f64(o.add(4), wm * rho);
+            atomic_add_f64(o.add(5), wm * cs);
+        })
     });
 }
 
@@ -1348,6 +1375,8 @@ pub struct ReturnArgs {
     pub cb: CouplingBufs,
     /// For [`coupling_tstop`]: the stopping time of every particle of `ph`.
     pub out: *mut f64,
+    /// Drag heating: the kinetic energy each particle of `ph` loses; null without heating.
+    pub loss: *mut f64,
     pub p: StepParams,
 }
 
@@ -1366,17 +1395,21 @@ pub unsafe fn coupling_return(t: usize, a: &ReturnArgs) {
     } else {
         (v, *a.cb.s_dust.add(t), ph.group_of(t))
     };
-    let k = [crate::kernel::KernelAt::new(p.h, p.dim)];
     let is_gas = a.is_gas != 0;
-    let inc =
-        kernels::gather_increment_at(&a.gas.sorted(p, 0), &k, a.gas.fixed(), ph.x()[t], s, |g| {
+    let inc = with_gas_kernels(a.cb.kat, a.gas.len(), p, |k| {
+        kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
             if is_gas {
                 *a.cb.dv.add(g)
             } else {
                 *a.cb.du.add(g * nf + f)
             }
-        });
-    *ph.v.add(t) = crate::add(base, inc);
+        })
+    });
+    let new = crate::add(base, inc);
+    if !a.loss.is_null() {
+        *a.loss.add(t) = drag::kinetic_loss(*ph.m.add(t), base, new);
+    }
+    *ph.v.add(t) = new;
 }
 
 /// The stopping time dust particle t feels: Σ_a w_ta t_k,a (+∞ without gas within reach).
@@ -1392,10 +1425,69 @@ pub unsafe fn coupling_tstop(t: usize, a: &ReturnArgs) {
         f64::INFINITY
     } else {
         let f = ph.group_of(t);
-        let k = [crate::kernel::KernelAt::new(p.h, p.dim)];
-        kernels::gather_increment_at(&a.gas.sorted(p, 0), &k, a.gas.fixed(), ph.x()[t], s, |g| {
-            [*a.cb.t_stop.add(g * nf + f), 0.0, 0.0]
-        })[0]
+        with_gas_kernels(a.cb.kat, a.gas.len(), p, |k| {
+            kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
+                [*a.cb.t_stop.add(g * nf + f), 0.0, 0.0]
+            })[0]
+        })
     };
     *a.out.add(t) = out;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CouplingHeatArgs {
+    pub couple: CoupleArgs,
+    /// Kinetic energy lost per gas / dust particle in this drag pass ([`coupling_return`]).
+    pub loss_gas: *const f64,
+    pub loss_dust: *const f64,
+    /// Out: drag heat per unit mass of every gas particle.
+    pub heat: *mut f64,
+}
+
+/// Drag heat of gas particle t under the kernel coupling: Σ_q w_qt ΔE_q / m_t, every particle's
+/// loss spread with its own weights (Σ_a w_qa = 1: the gas gains what the particles lose), as
+/// the CPU's deposit of the losses as masses.
+pub unsafe fn coupling_heat(t: usize, a: &CouplingHeatArgs) {
+    let c = &a.couple;
+    let g = &c.gas;
+    if t >= g.len() {
+        return;
+    }
+    let p = &c.p;
+    if kernels::is_fixed(g.fixed(), t) {
+        *a.heat.add(t) = 0.0;
+        return;
+    }
+    let ka = with_gas_kernels(c.cb.kat, g.len(), p, |k| kernels::kernel_of(k, t));
+    let xa = g.x()[t];
+    let zero = [0.0; 3];
+    let mut q = kernels::deposit_at(
+        &g.sorted(p, 0),
+        sl(c.cb.s_gas, g.len()),
+        sl(a.loss_gas, g.len()),
+        g.rho(),
+        g.fixed(),
+        xa,
+        &ka,
+        |_| zero,
+        |_| 0.0,
+    )
+    .mass;
+    let d = &c.dust;
+    for f in 0..p.nf as usize {
+        q += kernels::deposit_at(
+            &d.sorted(p, f),
+            sl(c.cb.s_dust, d.len()),
+            sl(a.loss_dust, d.len()),
+            d.rho(),
+            d.fixed(),
+            xa,
+            &ka,
+            |_| zero,
+            |_| 0.0,
+        )
+        .mass;
+    }
+    *a.heat.add(t) = q / *g.m.add(t);
 }

@@ -166,6 +166,7 @@ pub const KERNELS: &[&str] = &[
     "dustsph_coupling_solve",
     "dustsph_coupling_return",
     "dustsph_coupling_tstop",
+    "dustsph_coupling_heat",
     "dustsph_coupling_scatter",
     "dustsph_coupling_solve_sums",
 ];

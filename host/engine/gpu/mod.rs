@@ -342,6 +342,10 @@ struct DevCoupling<L: Launcher> {
     dv: Buf<L, V3>,
     du: Buf<L, V3>,
     t_stop: Buf<L, f64>,
+    /// Drag heating: the heat per unit mass of every gas particle.
+    heat: Option<Buf<L, f64>>,
+    /// Variable h: the weights use each gas particle's kernel (the engine's `sm.kat`).
+    kat: *const KernelAt<f64>,
 }
 
 impl<L: Launcher> DevCoupling<L> {
@@ -352,6 +356,7 @@ impl<L: Launcher> DevCoupling<L> {
             dv: d.ptr(&self.dv),
             du: d.ptr(&self.du),
             t_stop: d.ptr(&self.t_stop),
+            kat: self.kat,
         }
     }
 }
@@ -461,28 +466,6 @@ impl<L: Launcher> GpuEngine<L> {
                 "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
             )));
         }
-        let cpu_only = [
-            (
-                // The coupling's weights would need each gas particle's own h.
-                pipe.variable_h && pipe.kernel_coupling,
-                "variable smoothing lengths with the kernel coupling (sph.variable_h with idic.coupling = \"kernel\")",
-            ),
-            (
-                // The GPU drifts before the drag pass under the old update; the kernel coupling
-                // needs the positions of layer n.
-                pipe.kernel_coupling && phys.position_update == PositionUpdate::Old,
-                "the authors' position update with the kernel coupling (time.position_update = \"old\" with idic.coupling = \"kernel\")",
-            ),
-            (
-                pipe.kernel_coupling && pipe.heating,
-                "drag heating with the kernel coupling (dust.heating with idic.coupling = \"kernel\")",
-            ),
-        ];
-        if let Some((_, what)) = cpu_only.iter().find(|c| c.0) {
-            return Err(StepError::Unsupported(format!(
-                "{what} runs on the CPU only so far; use --device cpu"
-            )));
-        }
         let d = Dev(launcher);
         let (eos_kind, eos_value) = match phys.eos {
             Eos::Isothermal { cs } => (0, cs),
@@ -562,6 +545,12 @@ impl<L: Launcher> GpuEngine<L> {
                     dv: d.buf(ng.max(1))?,
                     du: d.buf((ng * nf).max(1))?,
                     t_stop: d.buf((ng * nf).max(1))?,
+                    heat: if pipe.heating {
+                        Some(d.buf(ng.max(1))?)
+                    } else {
+                        None
+                    },
+                    kat: std::ptr::null(),
                 })
             } else {
                 None
@@ -573,6 +562,7 @@ impl<L: Launcher> GpuEngine<L> {
             step: state.step,
             kdk: {
                 let k = pipe.kdk;
+                let save = k || phys.position_update == PositionUpdate::Old;
                 let closing = rows.map(|r| {
                     let f = Forces::from_rows(r, true);
                     (f.vsig_max, f.acc_max)
@@ -587,8 +577,8 @@ impl<L: Launcher> GpuEngine<L> {
                     } else {
                         None
                     },
-                    v_save: d.buf(if k { ng.max(1) } else { 1 })?,
-                    u_save: d.buf(if k { dust.n.max(1) } else { 1 })?,
+                    v_save: d.buf(if save { ng.max(1) } else { 1 })?,
+                    u_save: d.buf(if save { dust.n.max(1) } else { 1 })?,
                     e_save: if k && pipe.energy {
                         Some(d.buf(ng.max(1))?)
                     } else {
@@ -632,6 +622,9 @@ impl<L: Launcher> GpuEngine<L> {
             dust,
             dust_density_fresh: false,
         };
+        if let (Some(c), true) = (&mut eng.coupling, eng.pipe.variable_h) {
+            c.kat = eng.d.ptr(&eng.sm.kat);
+        }
         eng.regrid()?;
         eng.gas_density_eos(None)?;
         eng.dust_density()?;
@@ -1015,11 +1008,25 @@ impl<L: Launcher> GpuEngine<L> {
     fn coupling_norms(&self) -> Result<(), GpuError> {
         let d = &self.d;
         let c = self.coupling.as_ref().expect("kernel coupling");
+        if !c.kat.is_null() {
+            // Variable h: the weights' kernels at the gas particles' current h.
+            let a = th::PrepArgs {
+                gas: self.gas.bufs(d),
+                h: d.opt(&self.sm.gas_h),
+                omega: std::ptr::null_mut(),
+                pres: d.ptr(&self.pres),
+                kat: d.ptr(&self.sm.kat),
+                pt: d.ptr(&self.sm.pt),
+                p: self.params(0.0),
+            };
+            d.run("dustsph_force_prep", self.gas.n, &a, th::force_prep)?;
+        }
         for (ph, s) in [(&self.gas, &c.s_gas), (&self.dust, &c.s_dust)] {
             let a = th::NormArgs {
                 gas: self.gas.bufs(d),
                 ph: ph.bufs(d),
                 s: d.ptr(s),
+                kat: c.kat,
                 p: self.params(0.0),
             };
             d.run("dustsph_coupling_norm", ph.n, &a, th::coupling_norm)?;
@@ -1029,7 +1036,7 @@ impl<L: Launcher> GpuEngine<L> {
 
     /// The drag pass with the kernel coupling: normalisers, the solve on every gas particle,
     /// the increments back to the gas (from ṽ) and the dust (from ũ).
-    fn kernel_coupling(&mut self, tau: f64) -> Result<(), GpuError> {
+    fn kernel_coupling(&mut self, tau: f64, heat: bool) -> Result<(), GpuError> {
         self.coupling_norms()?;
         let ng = self.gas.n;
         let nf = self.dust.groups;
@@ -1085,9 +1092,23 @@ impl<L: Launcher> GpuEngine<L> {
                 is_gas: gas as u32,
                 cb: c.bufs(d),
                 out: std::ptr::null_mut(),
+                loss: if heat {
+                    d.opt(&ph.loss)
+                } else {
+                    std::ptr::null_mut()
+                },
                 p,
             };
             d.run("dustsph_coupling_return", ph.n, &ra, th::coupling_return)?;
+        }
+        if let (true, Some(h)) = (heat, &c.heat) {
+            let ha = th::CouplingHeatArgs {
+                couple: ca,
+                loss_gas: d.opt(&self.gas.loss),
+                loss_dust: d.opt(&self.dust.loss),
+                heat: d.ptr(h),
+            };
+            d.run("dustsph_coupling_heat", ng, &ha, th::coupling_heat)?;
         }
         Ok(())
     }
@@ -1116,7 +1137,7 @@ impl<L: Launcher> GpuEngine<L> {
         }
         if drag && self.coupling.is_some() {
             // The kernel coupling updates the velocities itself.
-            return Ok(timers.time("idic (kernel coupling)", || self.kernel_coupling(dt))?);
+            return Ok(timers.time("idic (kernel coupling)", || self.kernel_coupling(dt, heat))?);
         }
         if drag {
             timers.time("idic", || self.cell_step(dt, false))?;
@@ -1175,11 +1196,12 @@ impl<L: Launcher> GpuEngine<L> {
                 gas: self.gas.bufs(d),
                 e: d.ptr(e),
                 dedt: d.ptr(dedt),
-                heat: if heat {
-                    d.ptr(&self.cells.heat)
-                } else {
-                    std::ptr::null_mut()
+                heat: match (heat, &self.coupling) {
+                    (false, _) => std::ptr::null_mut(),
+                    (true, Some(c)) => d.opt(&c.heat),
+                    (true, None) => d.ptr(&self.cells.heat),
                 },
+                heat_per_particle: self.coupling.is_some() as u32,
                 cells: self.cells.bufs(d),
                 p: self.params(dt),
             };
@@ -1223,19 +1245,24 @@ impl<L: Launcher> GpuEngine<L> {
     }
 
     fn advance_first_order(&mut self, timers: &mut Timers, tau: f64) -> Result<(), StepError> {
+        // The authors' update drifts with v^n (method.md §3.3): kept aside across the kick.
         let old = self.phys.position_update == PositionUpdate::Old;
         if old {
-            timers.time("positions + energy", || -> Result<(), GpuError> {
-                self.drift(&self.gas, tau)?;
-                self.drift(&self.dust, tau)
-            })?;
+            self.d.copy(&self.gas.v, &self.kdk.v_save, self.gas.n)?;
+            self.d.copy(&self.dust.v, &self.kdk.u_save, self.dust.n)?;
         }
         let heat = self.pipe.heating && self.pipe.drag;
         self.kick(timers, tau, heat)?;
         timers.time("positions + energy", || -> Result<(), GpuError> {
-            if !old {
-                self.drift(&self.gas, tau)?;
-                self.drift(&self.dust, tau)?;
+            if old {
+                std::mem::swap(&mut self.gas.v, &mut self.kdk.v_save);
+                std::mem::swap(&mut self.dust.v, &mut self.kdk.u_save);
+            }
+            self.drift(&self.gas, tau)?;
+            self.drift(&self.dust, tau)?;
+            if old {
+                std::mem::swap(&mut self.gas.v, &mut self.kdk.v_save);
+                std::mem::swap(&mut self.dust.v, &mut self.kdk.u_save);
             }
             self.energy_step(tau, heat)
         })?;
@@ -1386,6 +1413,7 @@ impl<L: Launcher> GpuEngine<L> {
             is_gas: 0,
             cb: c.bufs(d),
             out: d.ptr(&out),
+            loss: std::ptr::null_mut(),
             p,
         };
         d.run(
