@@ -1,5 +1,7 @@
-//! Backend parity: a scene stepped on the CPU engine and on a GPU engine (a real device, or its
-//! kernels emulated), every array of every phase compared after every step.
+//! Launcher parity: a scene stepped by the one pipeline on the rayon launcher with a single
+//! thread (the reference order) and on `device` (a CUDA GPU, or the rayon launcher on every
+//! core), every array of every phase compared after every step. On a GPU this is CUDA against
+//! the CPU; without one it checks that no result depends on how threads are scheduled.
 use crate::engine::backend::{self, Backend, DeviceChoice};
 use crate::engine::driver::{Driver, Taken};
 use crate::engine::Physics;
@@ -98,17 +100,24 @@ impl Acc {
     }
 }
 
-/// Step `steps` steps of a scene on the CPU and on `device` (the CPU's time step for both) and
-/// compare all arrays after set-up, after every step, and the dust stopping times at the end.
+/// Step `steps` steps of a scene on the one-thread CPU reference and on `device` (the
+/// reference's time step for both) and compare all arrays after set-up, after every step, and
+/// the dust stopping times at the end.
 pub fn compare(loaded: &LoadedScene, steps: u64, device: DeviceChoice) -> Result<Parity, String> {
     let scene = &loaded.scene;
     let su = setup::build(scene).map_err(|e| e.to_string())?;
     let phys = Physics::from_scene(scene, su.h, su.domain);
     let (device, _) = backend::select(device)?;
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .map_err(|e| e.to_string())?;
     let mut s_cpu = su.state.clone();
     let mut s_dev = su.state;
-    let err = |e: crate::engine::cpu::StepError| e.to_string();
-    let mut cpu = Backend::new(DeviceChoice::Cpu, phys.clone(), &mut s_cpu).map_err(err)?;
+    let err = |e: crate::engine::StepError| e.to_string();
+    let mut cpu = one
+        .install(|| Backend::new(DeviceChoice::Cpu, phys.clone(), &mut s_cpu))
+        .map_err(err)?;
     let mut dev = Backend::new(device, phys.clone(), &mut s_dev).map_err(err)?;
     let dust_rho = cpu.pipe().dust_density_each_step;
     let mut acc = Acc(Vec::new());
@@ -118,20 +127,22 @@ pub fn compare(loaded: &LoadedScene, steps: u64, device: DeviceChoice) -> Result
     let driver = Driver::new(&scene.time, phys.h);
     for step in 1..=steps {
         if cpu.pipe().explicit_drag {
-            let a = cpu.drag_dt_limit(&s_cpu).map_err(err)?;
+            let a = one.install(|| cpu.drag_dt_limit(&s_cpu)).map_err(err)?;
             let b = dev.drag_dt_limit(&s_dev).map_err(err)?;
             acc.add("explicit drag step limit".into(), &[a], &[b]);
         }
-        let sc = driver
-            .prepare(&mut cpu, &s_cpu, f64::INFINITY)
+        let sc = one
+            .install(|| driver.prepare(&mut cpu, &s_cpu, f64::INFINITY))
             .map_err(|e| format!("cpu step {step}: {e}"))?;
         let fd = dev.forces(&s_dev).map_err(err)?;
         let (fc, plan) = (&sc.forces, sc.plan);
         acc.add("max signal speed".into(), &[fc.vsig_max], &[fd.vsig_max]);
         acc.add("max |A|".into(), &[fc.acc_max], &[fd.acc_max]);
-        driver
-            .take(&mut cpu, &mut s_cpu, &sc)
-            .map_err(|e| format!("cpu step {step}: {e}"))?;
+        one.install(|| {
+            driver.take(&mut cpu, &mut s_cpu, &sc)?;
+            cpu.sync(&mut s_cpu)
+        })
+        .map_err(|e| format!("cpu step {step}: {e}"))?;
         let sd = Taken { plan, forces: fd };
         driver
             .take(&mut dev, &mut s_dev, &sd)
@@ -139,7 +150,9 @@ pub fn compare(loaded: &LoadedScene, steps: u64, device: DeviceChoice) -> Result
         dev.sync(&mut s_dev).map_err(err)?;
         acc.state(&s_cpu, &s_dev, dust_rho);
     }
-    let tc = cpu.dust_stopping_times(&mut s_cpu).map_err(err)?;
+    let tc = one
+        .install(|| cpu.dust_stopping_times(&mut s_cpu))
+        .map_err(err)?;
     let td = dev.dust_stopping_times(&mut s_dev).map_err(err)?;
     for (k, (a, b)) in tc.iter().zip(&td).enumerate() {
         // +∞ (uncoupled) compares by bits; finite values by size.

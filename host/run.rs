@@ -1,9 +1,9 @@
 //! The driver: scene → set-up → step loop → snapshots and summary.
 use crate::analysis::{self, ExactErrors};
 use crate::engine::backend::{Backend, DeviceChoice, StartError};
-use crate::engine::cpu::StepError;
 use crate::engine::driver::Driver;
 use crate::engine::Physics;
+use crate::engine::StepError;
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::particles::State;
 use crate::scene::LoadedScene;
@@ -142,7 +142,7 @@ fn write_snapshot(
     state: &mut State,
     box_size: f64,
 ) -> Result<(), RunError> {
-    let step_err = |e: crate::engine::cpu::StepError| RunError::Step(e.to_string());
+    let step_err = |e: crate::engine::StepError| RunError::Step(e.to_string());
     eng.refresh_dust_density(state).map_err(step_err)?;
     let t_stop = eng.dust_stopping_times(state).map_err(step_err)?;
     let h = eng.phys().h;
@@ -542,9 +542,6 @@ impl Runner {
                 self.sync()?;
             }
             self.record_ball_step();
-            if self.eng.host_state_live() {
-                self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());
-            }
             if landing {
                 self.sync()?;
                 self.prog.pscale = self.prog.pscale.max(self.state.momentum_scale());

@@ -10,9 +10,8 @@
 //! on demand.
 use crate::analysis;
 use crate::engine::backend::{Backend, DeviceChoice};
-use crate::engine::cpu::CpuEngine;
 use crate::engine::driver::Driver;
-use crate::engine::Physics;
+use crate::engine::{Physics, StepError};
 use crate::exact::complex::C;
 use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
@@ -467,14 +466,14 @@ pub fn run_case(case: &Case) -> CaseReport {
         let mut st = state.clone();
         let mut p = phys.clone();
         p.drag = DragMethod::Explicit;
-        match CpuEngine::new(p, &mut st) {
-            Ok(mut e) => {
-                let lim = e.drag_dt_limit(&st);
-                let t = e.cell_table(&st, &st.gas.ph.v);
-                (lim, t.t_stop.iter().copied().fold(f64::INFINITY, f64::min))
-            }
-            Err(_) => (f64::NAN, f64::NAN),
-        }
+        let limits = |st: &mut crate::particles::State| -> Result<(f64, f64), StepError> {
+            let mut e = Backend::new(DeviceChoice::Cpu, p, st)?;
+            let lim = e.drag_dt_limit(st)?;
+            let ts = e.dust_stopping_times(st)?;
+            let t_min = ts.iter().flatten().copied().fold(f64::INFINITY, f64::min);
+            Ok((lim, t_min))
+        };
+        limits(&mut st).unwrap_or((f64::NAN, f64::NAN))
     };
     let driver = Driver::new(&time, phys.h);
     let mut eng = match Backend::new(DeviceChoice::Cpu, phys, &mut state) {
@@ -503,6 +502,11 @@ pub fn run_case(case: &Case) -> CaseReport {
             let tau = step.plan.dt_free;
             rep.explicit_steps = (t_end / tau.min(explicit_limit)).ceil();
             rep.max_beta = tau / t_min;
+        }
+        // The momentum check reads every step's state.
+        if let Err(e) = eng.sync(&mut state) {
+            rep.failures.push(format!("sync: {e}"));
+            return rep;
         }
         rep.steps += 1;
         pscale = pscale.max(state.momentum_scale());

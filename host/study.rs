@@ -632,6 +632,10 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
         if let Err(e) = driver.take(&mut eng, &mut state, &step) {
             return fail(out, e.to_string());
         }
+        // The momentum check reads every step's state.
+        if let Err(e) = eng.sync(&mut state) {
+            return fail(out, e.to_string());
+        }
         let dt = step.plan.dt;
         out.steps += 1;
         out.drag_limited += u64::from(step.plan.by_drag);

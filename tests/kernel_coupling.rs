@@ -6,7 +6,7 @@
 //! tests measure what the coupling buys).
 mod common;
 use common::*;
-use dustsph::engine::cpu::CpuEngine;
+use dustsph::engine::backend::{Backend, DeviceChoice};
 use dustsph::engine::Physics;
 use dustsph::particles::State;
 
@@ -136,11 +136,11 @@ fn comoving_mode_change(coupling: &str, shift: &str) -> f64 {
         }
     }
     let p0 = momentum(&st);
-    let mut eng = CpuEngine::new(phys, &mut st).unwrap();
-    let zero = dustsph::engine::cpu::Forces::from_rows(&vec![[0.0; 5]; st.gas.ph.len()], false);
+    let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     for _ in 0..200 {
-        eng.advance(&mut st, &zero, 1e-3).unwrap();
+        eng.advance_drag_only(&mut st, 1e-3).unwrap();
     }
+    eng.sync(&mut st).unwrap();
     let p1 = momentum(&st);
     assert!(
         (0..3).all(|a| (p1[a] - p0[a]).abs() < 1e-15),
@@ -187,11 +187,11 @@ fn terminal_drift(coupling: &str, t_stop: f64, steps: usize) -> (f64, f64) {
         "external.gas=[10.0, 0.0, 0.0]",
     ]);
     let (phys, mut st) = setup(&sets);
-    let mut eng = CpuEngine::new(phys, &mut st).unwrap();
-    let zero = dustsph::engine::cpu::Forces::from_rows(&vec![[0.0; 5]; st.gas.ph.len()], false);
+    let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     for _ in 0..steps {
-        eng.advance(&mut st, &zero, 1e-3).unwrap();
+        eng.advance_drag_only(&mut st, 1e-3).unwrap();
     }
+    eng.sync(&mut st).unwrap();
     let mean = |v: &[[f64; 3]]| v.iter().map(|v| v[0]).sum::<f64>() / v.len() as f64;
     let (vg, ud) = (mean(&st.gas.ph.v), mean(&st.dust[0].v));
     let drift = t_stop * 10.0 / 2.0;

@@ -1,7 +1,7 @@
 //! The step is assembled from the scene, and the unbounded grid never drops a particle.
 mod common;
 use common::*;
-use dustsph::engine::cpu::CpuEngine;
+use dustsph::engine::backend::{Backend, DeviceChoice};
 use dustsph::engine::{Physics, Pipeline};
 use dustsph::grid::Domain;
 use dustsph::particles::{Gas, Phase, State};
@@ -116,10 +116,12 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
         integrator: dustsph::scene::Integrator::FirstOrder,
     };
     assert!(Pipeline::from_physics(&phys).drag);
-    let mut eng = CpuEngine::new(phys, &mut st).unwrap();
+    let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     let mut pscale: f64 = 0.0;
     for _ in 0..300 {
-        eng.step(&mut st, 2e-3).unwrap();
+        let f = eng.forces(&st).unwrap();
+        eng.advance(&mut st, &f, 2e-3).unwrap();
+        eng.sync(&mut st).unwrap();
         pscale = pscale.max(st.momentum_scale());
     }
     assert_eq!(st.gas.ph.len(), n);
@@ -206,10 +208,12 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
         gradient: dustsph::scene::GradientMethod::Standard,
         integrator: dustsph::scene::Integrator::FirstOrder,
     };
-    let mut eng = CpuEngine::new(phys, &mut st).unwrap();
+    let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     for _ in 0..10 {
-        eng.step(&mut st, 1e-3).unwrap();
+        let f = eng.forces(&st).unwrap();
+        eng.advance(&mut st, &f, 1e-3).unwrap();
     }
+    eng.sync(&mut st).unwrap();
     for (d, x0) in st.dust[0].v.iter().zip(st.dust[0].x.iter()) {
         assert_eq!(d[0], 1.0, "uncoupled dust must keep its velocity exactly");
         assert!(x0[0] > 5.0);

@@ -1,9 +1,8 @@
-//! The backend a run steps on: the rayon CPU engine, or the GPU engine on a CUDA device (or
-//! its kernels emulated on the CPU, for checking). Chosen by `--device auto|cpu|cuda|emulate`.
-use super::cpu::{CpuEngine, Forces, StepError};
-use super::gpu::{self, Cuda, Emulated, GpuEngine};
+//! The backend a run steps on: the one step pipeline (host/engine/gpu) on a launcher — the
+//! CPU's rayon pool, or a CUDA device. Chosen by `--device auto|cpu|cuda`.
+use super::gpu::{self, Cuda, GpuEngine, Rayon};
 use super::timers::Timers;
-use super::{Physics, Pipeline};
+use super::{Forces, Physics, Pipeline, StepError};
 use crate::particles::State;
 
 /// What the user asked for.
@@ -12,18 +11,28 @@ pub enum DeviceChoice {
     /// A CUDA GPU when one is usable, else the CPU (with a one-line note).
     #[default]
     Auto,
+    /// The step's kernels on this machine's cores (rayon).
     Cpu,
     Cuda,
-    /// The GPU kernels run on the CPU (slow; checks the GPU path without a GPU).
+    /// The former name of `cpu` (the GPU kernels on the CPU): the same launcher.
+    #[value(hide = true)]
     Emulate,
 }
 
-// The CPU engine is held inline: it is the common case and lives for the whole run.
-#[allow(clippy::large_enum_variant)]
+/// The one step on one of its two launchers.
 pub enum Backend {
-    Cpu(CpuEngine),
+    Cpu(Box<GpuEngine<Rayon>>),
     Cuda(Box<GpuEngine<Cuda>>),
-    Emulated(Box<GpuEngine<Emulated>>),
+}
+
+/// The same call on either launcher.
+macro_rules! each {
+    ($self:expr, $e:ident => $body:expr) => {
+        match $self {
+            Backend::Cpu($e) => $body,
+            Backend::Cuda($e) => $body,
+        }
+    };
 }
 
 /// Either the backend, or a message for the user (bad choice for this machine).
@@ -127,117 +136,80 @@ impl Backend {
         state: &mut State,
     ) -> Result<Backend, StepError> {
         Ok(match choice {
-            DeviceChoice::Cpu | DeviceChoice::Auto => Backend::Cpu(CpuEngine::new(phys, state)?),
             DeviceChoice::Cuda => {
                 let dev = Cuda::new(0, gpu::PTX)?;
                 Backend::Cuda(Box::new(GpuEngine::new(phys, state, dev)?))
             }
-            DeviceChoice::Emulate => {
-                Backend::Emulated(Box::new(GpuEngine::new(phys, state, Emulated)?))
-            }
+            _ => Backend::Cpu(Box::new(GpuEngine::new(phys, state, Rayon)?)),
         })
     }
 
     pub fn phys(&self) -> &Physics {
-        match self {
-            Backend::Cpu(e) => &e.phys,
-            Backend::Cuda(e) => &e.phys,
-            Backend::Emulated(e) => &e.phys,
-        }
+        each!(self, e => &e.phys)
     }
 
     pub fn pipe(&self) -> &Pipeline {
-        match self {
-            Backend::Cpu(e) => &e.pipe,
-            Backend::Cuda(e) => &e.pipe,
-            Backend::Emulated(e) => &e.pipe,
-        }
+        each!(self, e => &e.pipe)
     }
 
     pub fn timers(&self) -> &Timers {
-        match self {
-            Backend::Cpu(e) => &e.timers,
-            Backend::Cuda(e) => &e.timers,
-            Backend::Emulated(e) => &e.timers,
-        }
+        each!(self, e => &e.timers)
     }
 
     pub fn timers_mut(&mut self) -> &mut Timers {
-        match self {
-            Backend::Cpu(e) => &mut e.timers,
-            Backend::Cuda(e) => &mut e.timers,
-            Backend::Emulated(e) => &mut e.timers,
-        }
+        each!(self, e => &mut e.timers)
     }
 
     /// Where the run steps, for the summary.
     pub fn describe(&self) -> String {
         match self {
-            Backend::Cpu(_) => format!("cpu (rayon, {} threads)", rayon::current_num_threads()),
+            Backend::Cpu(e) => format!("cpu ({})", e.describe()),
             Backend::Cuda(e) => format!("cuda: {}", e.describe()),
-            Backend::Emulated(e) => format!("emulate: {}", e.describe()),
         }
     }
 
-    /// Whether the host `State` is current after every step (else call [`Backend::sync`]).
-    pub fn host_state_live(&self) -> bool {
-        matches!(self, Backend::Cpu(_))
+    /// The time-step maxima of the forces at the current layer (the accelerations stay with
+    /// the engine; see [`Backend::accelerations`]).
+    pub fn forces(&mut self, _state: &State) -> Result<Forces, StepError> {
+        each!(self, e => e.forces())
     }
 
-    pub fn forces(&mut self, state: &State) -> Result<Forces, StepError> {
-        match self {
-            Backend::Cpu(e) => {
-                let mut t = std::mem::take(&mut e.timers);
-                let f = t.time("gas forces", || e.forces(state));
-                e.timers = t;
-                Ok(f)
-            }
-            Backend::Cuda(e) => e.forces(),
-            Backend::Emulated(e) => e.forces(),
-        }
+    pub fn advance(&mut self, state: &mut State, _f: &Forces, tau: f64) -> Result<(), StepError> {
+        each!(self, e => e.advance(state, tau))
     }
 
-    pub fn advance(&mut self, state: &mut State, f: &Forces, tau: f64) -> Result<(), StepError> {
-        match self {
-            Backend::Cpu(e) => e.advance(state, f, tau),
-            Backend::Cuda(e) => e.advance(state, tau),
-            Backend::Emulated(e) => e.advance(state, tau),
-        }
+    /// The gas accelerations A (pressure + viscosity) at the current layer, per particle in the
+    /// engine's order (call [`Backend::sync`] for the matching state).
+    pub fn accelerations(&mut self) -> Result<Vec<[f64; 3]>, StepError> {
+        each!(self, e => e.accelerations())
+    }
+
+    /// One step of size τ with the gas forces set to zero: the drag pass, the drift and the new
+    /// layer alone (for checks of the coupling).
+    pub fn advance_drag_only(&mut self, state: &mut State, tau: f64) -> Result<(), StepError> {
+        each!(self, e => {
+            e.zero_forces()?;
+            e.advance(state, tau)
+        })
     }
 
     /// The explicit drag baseline's step limit (+∞ for IDIC, which never limits the step).
-    pub fn drag_dt_limit(&mut self, state: &State) -> Result<f64, StepError> {
-        match self {
-            Backend::Cpu(e) => Ok(e.drag_dt_limit(state)),
-            Backend::Cuda(e) => e.drag_dt_limit(),
-            Backend::Emulated(e) => e.drag_dt_limit(),
-        }
+    pub fn drag_dt_limit(&mut self, _state: &State) -> Result<f64, StepError> {
+        each!(self, e => e.drag_dt_limit())
     }
 
-    /// Bring the host state up to date with the device (a no-op on the CPU).
+    /// Bring the host state up to date with the engine.
     pub fn sync(&mut self, state: &mut State) -> Result<(), StepError> {
-        match self {
-            Backend::Cpu(_) => Ok(()),
-            Backend::Cuda(e) => Ok(e.sync(state)?),
-            Backend::Emulated(e) => Ok(e.sync(state)?),
-        }
+        each!(self, e => Ok(e.sync(state)?))
     }
 
     /// Dust densities (for output) and the host state brought up to date.
     pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
-        match self {
-            Backend::Cpu(e) => e.refresh_dust_density(state),
-            Backend::Cuda(e) => Ok(e.refresh_dust_density(state)?),
-            Backend::Emulated(e) => Ok(e.refresh_dust_density(state)?),
-        }
+        each!(self, e => e.refresh_dust_density(state))
     }
 
     pub fn dust_stopping_times(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, StepError> {
-        match self {
-            Backend::Cpu(e) => e.dust_stopping_times(state),
-            Backend::Cuda(e) => Ok(e.dust_stopping_times(state)?),
-            Backend::Emulated(e) => Ok(e.dust_stopping_times(state)?),
-        }
+        each!(self, e => e.dust_stopping_times(state))
     }
 }
 
@@ -276,6 +248,7 @@ mod tests {
         )
         .unwrap();
         assert!(matches!(eng, Backend::Cpu(_)));
+        drop(_cpu);
         let note = note.expect("a note");
         assert!(
             note.contains("GPU failed at start") && note.contains("CUDA_ERROR_INVALID_PTX"),

@@ -3,8 +3,8 @@
 //! `stiffness`, `parity` and `bench` all step through [`Driver`], so they choose the same τ
 //! for the same state.
 use super::backend::Backend;
-use super::cpu::{Forces, StepError};
 use super::{dt_limits, step_size};
+use super::{Forces, StepError};
 use crate::particles::State;
 use crate::scene::TimeCfg;
 

@@ -3,10 +3,12 @@
 //! A scene switches stages on or off (no dust → no IDIC pass; isothermal → no energy
 //! equation; no viscosity unless asked); [`Pipeline::stages`] lists what a run actually does.
 pub mod backend;
-pub mod cpu;
 pub mod driver;
 pub mod gpu;
+pub mod step;
 pub mod timers;
+
+pub use step::{check_state, Forces, StepError, SUPPORT};
 
 use crate::grid::Domain;
 use crate::scene::{
@@ -141,7 +143,7 @@ pub fn dust_without_gas_in_cell(phys: &Physics, state: &crate::particles::State)
 
 /// Time-step limits from the forces: (CFL with factor 1, force limit with factor 1).
 /// dt = cfl · min(both); the drag never limits the step.
-pub fn dt_limits(h: f64, f: &cpu::Forces) -> (f64, f64) {
+pub fn dt_limits(h: f64, f: &Forces) -> (f64, f64) {
     let dt_cfl = if f.vsig_max > 0.0 {
         h / f.vsig_max
     } else {

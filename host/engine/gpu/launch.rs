@@ -1,6 +1,7 @@
 //! Where kernels run: a real GPU through the CUDA driver ([`Cuda`]), or this machine's cores
-//! ([`Emulated`]), which runs the very thread functions the PTX entry points call — so the
-//! whole GPU step, launches and buffers included, is exercised in CI without a GPU.
+//! ([`Rayon`]), which runs the very thread functions the PTX entry points call. The step is
+//! one pipeline of launches over resident buffers; these are its two launchers, so the CPU
+//! path (`--device cpu`) *is* the GPU step, launches and buffers included.
 use cudarc::driver::{
     CudaContext, CudaFunction, CudaSlice, CudaStream, DevicePtr, DeviceRepr, LaunchConfig,
     PushKernelArg,
@@ -51,23 +52,21 @@ pub trait Launcher {
 /// Host memory, 8-byte aligned.
 pub struct HostMem(Vec<u64>);
 
-/// Runs each kernel's thread function for every thread index on rayon's pool.
+/// The CPU launcher: runs each kernel's thread function for every thread index on rayon's
+/// pool (the same f64 operations as the PTX: round-to-nearest, no contraction).
 #[derive(Default)]
-pub struct Emulated;
+pub struct Rayon;
 
 struct Shared<'a, A>(&'a A);
 // SAFETY: the kernels' contract (threads.rs) — distinct threads write distinct elements or use
 // atomics — is what makes running thread functions concurrently sound.
 unsafe impl<A> Sync for Shared<'_, A> {}
 
-impl Launcher for Emulated {
+impl Launcher for Rayon {
     type Mem = HostMem;
 
     fn describe(&self) -> String {
-        format!(
-            "GPU kernels emulated on the CPU ({} threads)",
-            rayon::current_num_threads()
-        )
+        format!("rayon, {} threads", rayon::current_num_threads())
     }
 
     fn alloc(&self, bytes: usize) -> Result<HostMem, GpuError> {

@@ -7,12 +7,12 @@
 //! only a few numbers per step (the two time-step limits, the six bounds of the grid, one
 //! failure flag); particle arrays come back only for snapshots, checkpoints and the summary.
 //!
-//! The engine is generic over [`Launcher`]: [`Cuda`] runs the embedded PTX, [`Emulated`] runs
+//! The engine is generic over [`Launcher`]: [`Cuda`] runs the embedded PTX, [`Rayon`] runs
 //! the same kernel code on the CPU, which is how CI checks it against the CPU engine.
 pub mod launch;
 
-use super::cpu::{Forces, StepError};
 use super::timers::Timers;
+use super::{Forces, StepError};
 use super::{Physics, Pipeline};
 use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
 use crate::particles::{Phase, State};
@@ -22,7 +22,7 @@ use dustsph_device::kernel::{KernelAt, SUPPORT};
 use dustsph_device::kernels::{from_ordered_bits, MAX_FRACTIONS};
 use dustsph_device::sph::Sym3;
 use dustsph_device::threads::{self as th, LawParam, PhaseBufs, StepParams};
-pub use launch::{probe, Cuda, Emulated, GpuError, Launcher};
+pub use launch::{probe, Cuda, GpuError, Launcher, Rayon};
 use std::marker::PhantomData;
 
 /// The kernels, as PTX built from `device/` by build.rs (empty when that build was skipped).
@@ -345,18 +345,23 @@ struct DevCoupling<L: Launcher> {
     /// Drag heating: the heat per unit mass of every gas particle.
     heat: Option<Buf<L, f64>>,
     /// Variable h: the weights use each gas particle's kernel (the engine's `sm.kat`).
-    kat: *const KernelAt<f64>,
+    per_particle_kernels: bool,
 }
 
 impl<L: Launcher> DevCoupling<L> {
-    fn bufs(&self, d: &Dev<L>) -> th::CouplingBufs {
+    /// `kat`: the engine's per-gas-particle kernels (used with variable h).
+    fn bufs(&self, d: &Dev<L>, kat: &Buf<L, KernelAt<f64>>) -> th::CouplingBufs {
         th::CouplingBufs {
             s_gas: d.ptr(&self.s_gas),
             s_dust: d.ptr(&self.s_dust),
             dv: d.ptr(&self.dv),
             du: d.ptr(&self.du),
             t_stop: d.ptr(&self.t_stop),
-            kat: self.kat,
+            kat: if self.per_particle_kernels {
+                d.ptr(kat)
+            } else {
+                std::ptr::null()
+            },
         }
     }
 }
@@ -550,7 +555,7 @@ impl<L: Launcher> GpuEngine<L> {
                     } else {
                         None
                     },
-                    kat: std::ptr::null(),
+                    per_particle_kernels: pipe.variable_h,
                 })
             } else {
                 None
@@ -622,9 +627,6 @@ impl<L: Launcher> GpuEngine<L> {
             dust,
             dust_density_fresh: false,
         };
-        if let (Some(c), true) = (&mut eng.coupling, eng.pipe.variable_h) {
-            c.kat = eng.d.ptr(&eng.sm.kat);
-        }
         eng.regrid()?;
         eng.gas_density_eos(None)?;
         eng.dust_density()?;
@@ -910,6 +912,27 @@ impl<L: Launcher> GpuEngine<L> {
         f
     }
 
+    /// The gas accelerations at the current layer, downloaded (diagnostics and tests).
+    pub fn accelerations(&mut self) -> Result<Vec<V3>, StepError> {
+        let mut timers = std::mem::take(&mut self.timers);
+        let r = self.compute_forces(&mut timers);
+        self.timers = timers;
+        r?;
+        Ok(self.d.get(&self.acc, self.gas.n)?)
+    }
+
+    /// Set the gas forces of the coming step to zero (A = 0, ė = 0): the step that follows is
+    /// the drag pass, the drift and the new layer alone.
+    pub fn zero_forces(&mut self) -> Result<(), StepError> {
+        let d = &self.d;
+        d.zeroed(&mut self.acc, self.gas.n)?;
+        if let Some(e) = &mut self.dedt {
+            d.zeroed(e, self.gas.n)?;
+        }
+        self.kdk.closing = None;
+        Ok(())
+    }
+
     /// The forces at the state on the device.
     fn compute_forces(&mut self, timers: &mut Timers) -> Result<Forces, StepError> {
         let d = &self.d;
@@ -1008,7 +1031,7 @@ impl<L: Launcher> GpuEngine<L> {
     fn coupling_norms(&self) -> Result<(), GpuError> {
         let d = &self.d;
         let c = self.coupling.as_ref().expect("kernel coupling");
-        if !c.kat.is_null() {
+        if c.per_particle_kernels {
             // Variable h: the weights' kernels at the gas particles' current h.
             let a = th::PrepArgs {
                 gas: self.gas.bufs(d),
@@ -1026,7 +1049,7 @@ impl<L: Launcher> GpuEngine<L> {
                 gas: self.gas.bufs(d),
                 ph: ph.bufs(d),
                 s: d.ptr(s),
-                kat: c.kat,
+                kat: c.bufs(d, &self.sm.kat).kat,
                 p: self.params(0.0),
             };
             d.run("dustsph_coupling_norm", ph.n, &a, th::coupling_norm)?;
@@ -1051,7 +1074,7 @@ impl<L: Launcher> GpuEngine<L> {
             dust: self.dust.bufs(d),
             acc: d.ptr(&self.acc),
             pres: d.ptr(&self.pres),
-            cb: c.bufs(d),
+            cb: c.bufs(d, &self.sm.kat),
             p,
         };
         match &c.sums {
@@ -1090,7 +1113,7 @@ impl<L: Launcher> GpuEngine<L> {
                     std::ptr::null_mut()
                 },
                 is_gas: gas as u32,
-                cb: c.bufs(d),
+                cb: c.bufs(d, &self.sm.kat),
                 out: std::ptr::null_mut(),
                 loss: if heat {
                     d.opt(&ph.loss)
@@ -1396,7 +1419,7 @@ impl<L: Launcher> GpuEngine<L> {
             dust: self.dust.bufs(d),
             acc: d.ptr(&self.zero_acc),
             pres: d.ptr(&self.pres),
-            cb: c.bufs(d),
+            cb: c.bufs(d, &self.sm.kat),
             p,
         };
         d.run(
@@ -1411,7 +1434,7 @@ impl<L: Launcher> GpuEngine<L> {
             ph: self.dust.bufs(d),
             acc: std::ptr::null_mut(),
             is_gas: 0,
-            cb: c.bufs(d),
+            cb: c.bufs(d, &self.sm.kat),
             out: d.ptr(&out),
             loss: std::ptr::null_mut(),
             p,
@@ -1455,7 +1478,7 @@ impl<L: Launcher> GpuEngine<L> {
         }
         if any {
             self.sync(state)?;
-            super::cpu::check_state(state, self.dust_density_fresh)?;
+            super::check_state(state, self.dust_density_fresh)?;
             return Err(StepError::Blowup(format!(
                 "step {}: the GPU flagged a particle with a bad value",
                 state.step
