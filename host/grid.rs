@@ -261,6 +261,7 @@ impl CellIndex {
             start: &self.start,
             dense: &self.dense,
             dense_stride: self.dense_stride.max(1),
+            key_offset: 0,
         }
     }
 

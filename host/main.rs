@@ -39,8 +39,8 @@ enum Cmd {
         /// No progress output
         #[arg(long, short)]
         quiet: bool,
-        /// Where to step: a CUDA GPU if usable (auto), the CPU, a GPU (cuda), or the GPU
-        /// kernels emulated on the CPU (emulate; slow, for checking)
+        /// Where to step: a CUDA GPU if usable, else the CPU (auto); the CPU's cores (cpu); a
+        /// CUDA GPU (cuda). The same step and kernels on either.
         #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
         device: DeviceChoice,
     },
@@ -51,10 +51,10 @@ enum Cmd {
         #[arg(long, value_name = "FILE")]
         write_ptx: Option<PathBuf>,
     },
-    /// Run each scene kind for a few steps on the CPU and on a device, and compare every array
-    /// after every step (bit for bit expected).
+    /// Run each scene kind for a few steps on a one-thread CPU reference and on a device, and
+    /// compare every array after every step (bit for bit expected).
     Parity {
-        /// The device to check against the CPU (cuda; or emulate, the GPU kernels on the CPU)
+        /// The device to check against the one-thread CPU reference (cuda; or cpu: every core)
         #[arg(long, value_enum, default_value_t = DeviceChoice::Cuda)]
         device: DeviceChoice,
     },
@@ -73,7 +73,7 @@ enum Cmd {
         /// 3.3e4 … 1e7
         #[arg(long, value_delimiter = ',', default_values_t = vec![32usize])]
         box_n: Vec<usize>,
-        /// Where to run: cpu (default), cuda, or emulate
+        /// Where to run: cpu (default) or cuda
         #[arg(long, value_enum, default_value_t = DeviceChoice::Cpu)]
         device: DeviceChoice,
     },

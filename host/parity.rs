@@ -104,6 +104,17 @@ impl Acc {
 /// reference's time step for both) and compare all arrays after set-up, after every step, and
 /// the dust stopping times at the end.
 pub fn compare(loaded: &LoadedScene, steps: u64, device: DeviceChoice) -> Result<Parity, String> {
+    compare_tables(loaded, steps, device, false)
+}
+
+/// [`compare`], with the device on sparse cell tables when `sparse` (the reference keeps the
+/// dense ones): both forms of the tables must give the same step.
+pub fn compare_tables(
+    loaded: &LoadedScene,
+    steps: u64,
+    device: DeviceChoice,
+    sparse: bool,
+) -> Result<Parity, String> {
     let scene = &loaded.scene;
     let su = setup::build(scene).map_err(|e| e.to_string())?;
     let phys = Physics::from_scene(scene, su.h, su.domain);
@@ -119,6 +130,9 @@ pub fn compare(loaded: &LoadedScene, steps: u64, device: DeviceChoice) -> Result
         .install(|| Backend::new(DeviceChoice::Cpu, phys.clone(), &mut s_cpu))
         .map_err(err)?;
     let mut dev = Backend::new(device, phys.clone(), &mut s_dev).map_err(err)?;
+    if sparse {
+        dev.force_sparse_tables(&mut s_dev).map_err(err)?;
+    }
     let dust_rho = cpu.pipe().dust_density_each_step;
     let mut acc = Acc(Vec::new());
     acc.state(&s_cpu, &s_dev, dust_rho);

@@ -475,6 +475,12 @@ impl Runner {
         self.loaded.scene.scene.problem == crate::scene::Problem::Dustyball
     }
 
+    /// The state as it stands (brought up to date from the engine).
+    pub fn current_state(&mut self) -> Result<&State, RunError> {
+        self.sync()?;
+        Ok(&self.state)
+    }
+
     /// Host state up to date with the backend.
     fn sync(&mut self) -> Result<(), RunError> {
         self.eng
@@ -638,7 +644,8 @@ impl Runner {
                 crate::scene::GradientMethod::Standard => "standard",
                 crate::scene::GradientMethod::Iad => "iad",
             },
-            pipeline: eng.pipe().stages(),
+            // The stages that ran, in the order they first ran (from the timers).
+            pipeline: eng.timers().entries().iter().map(|e| e.0).collect(),
             drag_method: eng.phys().drag.name(),
             drag_limited_steps: prog.drag_limited_steps,
             steps: state.step,

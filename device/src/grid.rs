@@ -223,6 +223,9 @@ pub struct CellLookup<'a> {
     pub start: &'a [u32],
     pub dense: &'a [u32],
     pub dense_stride: u64,
+    /// Added to the walk's keys before the binary search of `keys` (the GPU's sparse tables
+    /// hold every group's keys back to back, as group · (T + 1) + key).
+    pub key_offset: u64,
 }
 
 impl CellLookup<'_> {
@@ -237,6 +240,7 @@ impl CellLookup<'_> {
                 self.dense[((hi + 1) / s) as usize] as usize,
             );
         }
+        let (lo, hi) = (lo + self.key_offset, hi + self.key_offset);
         let a = self.keys.partition_point(|&k| k < lo);
         let b = a + self.keys[a..].partition_point(|&k| k <= hi);
         (self.start[a] as usize, self.start[b] as usize)

@@ -174,8 +174,14 @@ pub struct PhaseBufs {
     pub fixed: *mut u8,
     /// Combined sort key per particle.
     pub keys: *mut u64,
-    /// Dense start table over the combined keys: groups · (T + 1) + 1 entries.
+    /// Dense start table over the search cells: groups · stride + 1 entries (dense mode).
     pub dense: *mut u32,
+    /// Sparse mode (a grid box too large for dense tables, e.g. a few particles flung far
+    /// away): the occupied IDIC cells' combined keys, sorted, and where each cell's particles
+    /// start (`ncells` + 1 entries); `ncells` = 0 in dense mode.
+    pub ckeys: *const u64,
+    pub cstart: *const u32,
+    pub ncells: u32,
     pub n: u32,
     pub groups: u32,
     /// Group g holds particles off[g]..off[g + 1].
@@ -242,6 +248,20 @@ impl PhaseBufs {
     /// The neighbour-walk view of group g.
     #[inline(always)]
     unsafe fn sorted<'a>(&'a self, p: &'a StepParams, g: usize) -> Sorted<'a, f64> {
+        if self.ncells > 0 {
+            let nc = self.ncells as usize;
+            return Sorted {
+                geom: &p.geom,
+                look: CellLookup {
+                    keys: sl(self.ckeys, nc),
+                    start: sl(self.cstart, nc + 1),
+                    dense: &[],
+                    dense_stride: 1,
+                    key_offset: (g * p.key_stride()) as u64,
+                },
+                x: self.x(),
+            };
+        }
         let s = p.stride();
         Sorted {
             geom: &p.geom,
@@ -250,6 +270,7 @@ impl PhaseBufs {
                 start: &[],
                 dense: &self.dense(p)[g * s..(g + 1) * s],
                 dense_stride: p.sub_cells() as u64,
+                key_offset: 0,
             },
             x: self.x(),
         }
@@ -258,11 +279,21 @@ impl PhaseBufs {
     /// from the dense table, then the run of key k inside it (sorted by key).
     #[inline(always)]
     unsafe fn cell_range(&self, p: &StepParams, g: usize, k: u64) -> (usize, usize) {
+        let c = (g * p.key_stride()) as u64 + k;
+        if self.ncells > 0 {
+            let nc = self.ncells as usize;
+            let (keys, start) = (sl(self.ckeys, nc), sl(self.cstart, nc + 1));
+            let i = keys.partition_point(|&x| x < c);
+            return if i < nc && keys[i] == c {
+                (start[i] as usize, start[i + 1] as usize)
+            } else {
+                (0, 0)
+            };
+        }
         let d = self.dense(p);
         let i = g * p.stride() + k as usize / p.sub_cells();
         let (lo, hi) = (d[i] as usize, d[i + 1] as usize);
         let keys = sl(self.keys, self.len());
-        let c = (g * p.key_stride()) as u64 + k;
         let a = lo + keys[lo..hi].partition_point(|&x| x < c);
         let b = a + keys[a..hi].partition_point(|&x| x == c);
         (a, b)
@@ -330,7 +361,10 @@ pub unsafe fn keys(t: usize, a: &KeysArgs) {
     }
     let key = (ph.group_of(t) * a.p.key_stride()) as u64 + a.p.geom.key(ph.x()[t]);
     *ph.keys.add(t) = key;
-    atomic_add_u32(a.counts.add(a.p.bucket_of(key)), 1);
+    // Sparse mode sorts on the host: no counters.
+    if !a.counts.is_null() {
+        atomic_add_u32(a.counts.add(a.p.bucket_of(key)), 1);
+    }
 }
 
 #[repr(C)]
@@ -775,8 +809,11 @@ pub unsafe fn union_keys(t: usize, a: &UnionArgs) {
 #[derive(Clone, Copy, Debug)]
 pub struct CellBufs {
     /// Where each search cell's occupied IDIC cells start in the union (stride entries; the
-    /// last is the union count), and the union's keys.
+    /// last is the union count), and the union's keys. In sparse mode (`sparse_count` > 0
+    /// or the phases' tables sparse) `uidx` is unused and the union has `sparse_count` keys.
     pub uidx: *const u32,
+    pub sparse: u32,
+    pub sparse_count: u32,
     pub ukey: *const u64,
     pub gas_mass: *mut f64,
     pub v_new: *mut V3,
@@ -894,14 +931,20 @@ pub struct KickArgs {
 #[inline(always)]
 unsafe fn cell_of(ph: &PhaseBufs, p: &StepParams, cells: &CellBufs, i: usize) -> usize {
     let key = *ph.keys.add(i) % p.key_stride() as u64;
+    let ukey = sl(cells.ukey, union_count(cells, p));
+    if cells.sparse != 0 {
+        return ukey.partition_point(|&u| u < key);
+    }
     let nb = p.stride();
-    let (ubidx, ukey) = (sl(cells.uidx, nb), sl(cells.ukey, union_count(cells, p)));
-    union_index(ubidx, ukey, p.sub_cells(), key).unwrap_or(0)
+    union_index(sl(cells.uidx, nb), ukey, p.sub_cells(), key).unwrap_or(0)
 }
 
 /// Number of occupied IDIC cells in the union.
 #[inline(always)]
 unsafe fn union_count(cells: &CellBufs, p: &StepParams) -> usize {
+    if cells.sparse != 0 {
+        return cells.sparse_count as usize;
+    }
     *cells.uidx.add(p.stride() - 1) as usize
 }
 

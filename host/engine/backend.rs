@@ -193,6 +193,15 @@ impl Backend {
         })
     }
 
+    /// Sparse cell tables from now on (what a cloud too spread out for dense tables gets):
+    /// the step must not change (tests/gpu_parity.rs).
+    pub fn force_sparse_tables(&mut self, state: &mut State) -> Result<(), StepError> {
+        each!(self, e => {
+            e.force_sparse_tables()?;
+            Ok(e.sync(state)?)
+        })
+    }
+
     /// The explicit drag baseline's step limit (+∞ for IDIC, which never limits the step).
     pub fn drag_dt_limit(&mut self, _state: &State) -> Result<f64, StepError> {
         each!(self, e => e.drag_dt_limit())

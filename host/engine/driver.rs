@@ -58,8 +58,10 @@ impl Driver {
         let dt_drag = if eng.pipe().explicit_drag {
             let t0 = std::time::Instant::now();
             let d = eng.drag_dt_limit(state)?;
-            eng.timers_mut()
-                .add("explicit drag time-step limit", t0.elapsed().as_secs_f64());
+            eng.timers_mut().add(
+                "explicit drag time-step limit (τ ≤ 0.9/Λ)",
+                t0.elapsed().as_secs_f64(),
+            );
             d
         } else {
             f64::INFINITY

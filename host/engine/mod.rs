@@ -1,7 +1,8 @@
 //! The step: physics parameters, the pipeline assembled from the scene, and the backends.
 //!
 //! A scene switches stages on or off (no dust → no IDIC pass; isothermal → no energy
-//! equation; no viscosity unless asked); [`Pipeline::stages`] lists what a run actually does.
+//! equation; no viscosity unless asked); the run's summary lists the stages that ran, from
+//! their timers.
 pub mod backend;
 pub mod driver;
 pub mod gpu;
@@ -214,99 +215,5 @@ impl Pipeline {
             kernel_coupling: !p.laws.is_empty() && p.coupling == Coupling::Kernel,
             external: p.ext_gas.iter().chain(&p.ext_dust).any(|a| *a != 0.0),
         }
-    }
-
-    /// The stages a step runs, in order.
-    pub fn stages(&self) -> Vec<&'static str> {
-        let forces = match (self.viscosity, self.iad) {
-            (true, false) => "gas forces (pressure + artificial viscosity)",
-            (false, false) => "gas forces (pressure)",
-            (true, true) => "gas forces (pressure + artificial viscosity, IAD gradient)",
-            (false, true) => "gas forces (pressure, IAD gradient)",
-        };
-        let density = if self.continuity_density {
-            "gas density (continuity equation) + EOS"
-        } else if self.variable_h {
-            "gas h and density (variable h, Newton–Raphson) + EOS"
-        } else {
-            "gas density + EOS"
-        };
-        let mut s = Vec::new();
-        let force_pass = |s: &mut Vec<&'static str>| {
-            if self.iad {
-                s.push("gas IAD matrices");
-            }
-            s.push(forces);
-            if self.energy {
-                s.push("gas energy rate");
-            }
-        };
-        if self.kdk {
-            // The opening forces are the previous step's closing ones (computed once at start).
-            s.push(if self.drag {
-                "half kick: gas velocities + IDIC drag over τ/2 (gas, then dust)"
-            } else {
-                "half kick: gas velocities"
-            });
-            if self.explicit_drag {
-                s.push("explicit drag time-step limit (τ ≤ 0.9 t_s)");
-            }
-            if self.energy {
-                s.push("gas energy half step");
-            }
-            s.push("positions (v^{n+1/2})");
-            s.push("grid rebuild + sort");
-            s.push(density);
-            if self.drag && self.dust_density_each_step {
-                s.push("dust density");
-            }
-            s.push("predicted v, e at the new layer (half kick + drag over τ/2)");
-            force_pass(&mut s);
-            s.push(if self.drag {
-                "closing half kick: gas velocities + IDIC drag over τ/2"
-            } else {
-                "closing half kick: gas velocities"
-            });
-            if self.drag && self.heating {
-                s.push("drag heating");
-            }
-            if self.energy {
-                s.push("gas energy half step + EOS");
-            }
-            return s;
-        }
-        force_pass(&mut s);
-        if self.external {
-            s.push("external accelerations (gas A^n, dust B^n)");
-        }
-        if self.explicit_drag {
-            s.push("explicit drag time-step limit (τ ≤ 0.9 t_s)");
-            s.push("explicit drag cell sums");
-            s.push("explicit drag particle velocities (forward Euler; gas, then dust)");
-        } else if self.kernel_coupling {
-            s.push("kernel coupling: weight sums over the gas");
-            s.push("kernel coupling: deposits on the gas particles");
-            s.push("kernel coupling: implicit solve per gas particle");
-            s.push("kernel coupling: increments to gas and dust particles");
-        } else if self.drag {
-            s.push("IDIC cell sums");
-            s.push("IDIC cell solve");
-            s.push("IDIC particle velocities (gas, then dust)");
-        } else {
-            s.push("gas velocities (explicit)");
-        }
-        if self.drag && self.heating {
-            s.push("drag heating");
-        }
-        s.push("positions");
-        if self.energy {
-            s.push("gas energy");
-        }
-        s.push("grid rebuild + sort");
-        s.push(density);
-        if self.drag && self.dust_density_each_step {
-            s.push("dust density");
-        }
-        s
     }
 }

@@ -23,6 +23,7 @@ use dustsph_device::kernels::{from_ordered_bits, MAX_FRACTIONS};
 use dustsph_device::sph::Sym3;
 use dustsph_device::threads::{self as th, LawParam, PhaseBufs, StepParams};
 pub use launch::{probe, Cuda, GpuError, Launcher, Rayon};
+use rayon::prelude::*;
 use std::marker::PhantomData;
 
 /// The kernels, as PTX built from `device/` by build.rs (empty when that build was skipped).
@@ -158,8 +159,14 @@ struct DevPhase<L: Launcher> {
     fixed: Option<Buf<L, u8>>,
     id: Buf<L, u64>,
     keys: Buf<L, u64>,
-    /// Counts, then (scanned) the dense start table over combined keys.
+    /// Counts, then (scanned) the dense start table over the search cells.
     dense: Buf<L, u32>,
+    /// Sparse mode: the occupied cells' combined keys (also kept on the host for the IDIC
+    /// union) and their starts; `ncells` = 0 in dense mode.
+    ckeys: Buf<L, u64>,
+    cstart: Buf<L, u32>,
+    ncells: usize,
+    host_ckeys: Vec<u64>,
     cursor: Buf<L, u32>,
     perm: Buf<L, u32>,
     s_v3: Buf<L, V3>,
@@ -212,6 +219,10 @@ impl<L: Launcher> DevPhase<L> {
             id: d.from(&id)?,
             keys: d.buf(n)?,
             dense: d.buf(1)?,
+            ckeys: d.buf(1)?,
+            cstart: d.buf(1)?,
+            ncells: 0,
+            host_ckeys: Vec::new(),
             cursor: d.buf(1)?,
             perm: d.buf(n)?,
             s_v3: d.buf(n)?,
@@ -231,6 +242,9 @@ impl<L: Launcher> DevPhase<L> {
             fixed: d.opt(&self.fixed),
             keys: d.ptr(&self.keys),
             dense: d.ptr(&self.dense),
+            ckeys: d.ptr(&self.ckeys),
+            cstart: d.ptr(&self.cstart),
+            ncells: self.ncells as u32,
             n: self.n as u32,
             groups: self.groups as u32,
             off: self.off,
@@ -246,35 +260,42 @@ impl<L: Launcher> DevPhase<L> {
         sums: &mut Buf<L, u32>,
         extra: &mut [&mut Buf<L, f64>],
         extra_v3: &mut [&mut Buf<L, V3>],
+        sparse: bool,
     ) -> Result<(), GpuError> {
-        // The dense table has one slot per search cell of each group.
-        let nkeys = self.groups * p.stride();
-        d.zeroed(&mut self.dense, nkeys + 1)?;
-        let ka = th::KeysArgs {
-            ph: self.bufs(d),
-            p: *p,
-            counts: d.ptr(&self.dense),
-        };
-        d.run("dustsph_keys", self.n, &ka, th::keys)?;
-        d.scan(&self.dense, nkeys + 1, sums)?;
-        d.zeroed(&mut self.cursor, nkeys)?;
-        let sa = th::ScatterArgs {
-            keys: d.ptr(&self.keys),
-            n: self.n as u32,
-            dense: d.ptr(&self.dense),
-            cursor: d.ptr(&self.cursor),
-            perm: d.ptr(&self.perm),
-            p: *p,
-        };
-        d.run("dustsph_scatter", self.n, &sa, th::scatter)?;
-        let seg = th::SegmentArgs {
-            dense: d.ptr(&self.dense),
-            nkeys: nkeys as u32,
-            perm: d.ptr(&self.perm),
-            keys: d.ptr(&self.keys),
-            n: self.n as u32,
-        };
-        d.run("dustsph_sort_segments", nkeys, &seg, th::sort_segments)?;
+        if sparse {
+            self.sort_on_host(d, p)?;
+        } else {
+            self.ncells = 0;
+            self.host_ckeys.clear();
+            // The dense table has one slot per search cell of each group.
+            let nkeys = self.groups * p.stride();
+            d.zeroed(&mut self.dense, nkeys + 1)?;
+            let ka = th::KeysArgs {
+                ph: self.bufs(d),
+                p: *p,
+                counts: d.ptr(&self.dense),
+            };
+            d.run("dustsph_keys", self.n, &ka, th::keys)?;
+            d.scan(&self.dense, nkeys + 1, sums)?;
+            d.zeroed(&mut self.cursor, nkeys)?;
+            let sa = th::ScatterArgs {
+                keys: d.ptr(&self.keys),
+                n: self.n as u32,
+                dense: d.ptr(&self.dense),
+                cursor: d.ptr(&self.cursor),
+                perm: d.ptr(&self.perm),
+                p: *p,
+            };
+            d.run("dustsph_scatter", self.n, &sa, th::scatter)?;
+            let seg = th::SegmentArgs {
+                dense: d.ptr(&self.dense),
+                nkeys: nkeys as u32,
+                perm: d.ptr(&self.perm),
+                keys: d.ptr(&self.keys),
+                n: self.n as u32,
+            };
+            d.run("dustsph_sort_segments", nkeys, &seg, th::sort_segments)?;
+        }
         let perm = d.ptr(&self.perm);
         let n = self.n;
         macro_rules! carry {
@@ -305,6 +326,38 @@ impl<L: Launcher> DevPhase<L> {
             carry!(**e, self.s_v3, "dustsph_gather_v3");
         }
         Ok(())
+    }
+
+    /// Sparse mode: keys on the device, the (key, index) sort on the host (the dense path's
+    /// order), and the occupied cells' keys and starts uploaded for binary-search lookups.
+    fn sort_on_host(&mut self, d: &Dev<L>, p: &StepParams) -> Result<(), GpuError> {
+        let ka = th::KeysArgs {
+            ph: self.bufs(d),
+            p: *p,
+            counts: std::ptr::null_mut(),
+        };
+        d.run("dustsph_keys", self.n, &ka, th::keys)?;
+        let keys = d.get(&self.keys, self.n)?;
+        let mut kp: Vec<(u64, u32)> = keys
+            .iter()
+            .enumerate()
+            .map(|(i, &k)| (k, i as u32))
+            .collect();
+        kp.par_sort_unstable();
+        let perm: Vec<u32> = kp.iter().map(|&(_, i)| i).collect();
+        let (mut ck, mut cs) = (Vec::new(), Vec::new());
+        for (i, &(k, _)) in kp.iter().enumerate() {
+            if ck.last() != Some(&k) {
+                ck.push(k);
+                cs.push(i as u32);
+            }
+        }
+        cs.push(self.n as u32);
+        self.ncells = ck.len();
+        self.ckeys = d.from(&ck)?;
+        self.cstart = d.from(&cs)?;
+        self.host_ckeys = ck;
+        d.put(&mut self.perm, &perm)
     }
 
     /// Download into host phases (split by group).
@@ -377,12 +430,17 @@ struct DevCells<L: Launcher> {
     t_stop: Buf<L, f64>,
     u_new: Buf<L, V3>,
     heat: Buf<L, f64>,
+    /// Sparse mode: the union was built at the sort (its size); `None`: dense, built by the
+    /// union kernels.
+    sparse: Option<u32>,
 }
 
 impl<L: Launcher> DevCells<L> {
     fn bufs(&self, d: &Dev<L>) -> th::CellBufs {
         th::CellBufs {
             uidx: d.ptr(&self.uidx),
+            sparse: self.sparse.is_some() as u32,
+            sparse_count: self.sparse.unwrap_or(0),
             ukey: d.ptr(&self.ukey),
             gas_mass: d.ptr(&self.gas_mass),
             v_new: d.ptr(&self.v_new),
@@ -419,6 +477,8 @@ pub struct GpuEngine<L: Launcher> {
     dust_density_fresh: bool,
     /// The state's step count (for messages).
     step: u64,
+    /// Always use the sparse cell tables (checks that both forms give the same step).
+    pub force_sparse: bool,
     /// Variable h and IAD (`sph.variable_h`, `sph.gradient = "iad"`).
     sm: DevSmoothing<L>,
     /// The leapfrog (`time.integrator = "kdk"`).
@@ -537,6 +597,7 @@ impl<L: Launcher> GpuEngine<L> {
                 t_stop: d.buf(cap * nf.max(1))?,
                 u_new: d.buf(cap * nf.max(1))?,
                 heat: d.buf(cap)?,
+                sparse: None,
             },
             coupling: if pipe.kernel_coupling {
                 Some(DevCoupling {
@@ -565,6 +626,7 @@ impl<L: Launcher> GpuEngine<L> {
             bounds: d.buf(6)?,
             bad: d.buf(1)?,
             step: state.step,
+            force_sparse: false,
             kdk: {
                 let k = pipe.kdk;
                 let save = k || phys.position_update == PositionUpdate::Old;
@@ -639,6 +701,15 @@ impl<L: Launcher> GpuEngine<L> {
         self.d.0.describe()
     }
 
+    /// Use the sparse cell tables from the next grid rebuild on (and rebuild now).
+    pub fn force_sparse_tables(&mut self) -> Result<(), StepError> {
+        self.force_sparse = true;
+        self.regrid()?;
+        self.gas_density_eos(None)?;
+        self.dust_density_fresh = false;
+        self.dust_density()
+    }
+
     fn params(&self, tau: f64) -> StepParams {
         StepParams {
             geom: self.grid.geom,
@@ -671,14 +742,18 @@ impl<L: Launcher> GpuEngine<L> {
         }
         let support = self.search_support()?;
         self.grid = Grid::from_bounds(&self.phys.domain, self.phys.cell_size, support, b)?;
-        // The start tables are dense over the search cells of the grid box.
+        // Dense start tables over the search cells of the grid box when they are small enough;
+        // else (a few particles flung far away) sorted cell lists and binary searches.
         let search_cells = self.params(0.0).stride() as u64 - 1;
-        if !crate::grid::dense_table_fits(search_cells, self.gas.n + self.dust.n) {
+        let sparse = self.force_sparse
+            || !crate::grid::dense_table_fits(search_cells, self.gas.n + self.dust.n);
+        let groups = (self.gas.groups.max(self.dust.groups)) as u128;
+        if groups * (self.grid.total_cells() as u128 + 1) >= 1u128 << 64 {
             return Err(StepError::Grid(crate::grid::GridError(format!(
-                "step {}: the particles span {search_cells} search cells, too many for the dense \
-                 cell tables ({} particles): the cloud has spread too far for this smoothing length",
+                "step {}: the particles span {} cells: too many for 64-bit keys of {groups} \
+                 groups (the cloud has spread too far for this cell size)",
                 self.step,
-                self.gas.n + self.dust.n
+                self.grid.total_cells()
             ))));
         }
         let p = self.params(0.0);
@@ -704,10 +779,27 @@ impl<L: Launcher> GpuEngine<L> {
                 extra.push(v);
             }
         }
-        self.gas
-            .sort(&self.d, &p, &mut self.sums, &mut extra, &mut extra_v3)?;
+        self.gas.sort(
+            &self.d,
+            &p,
+            &mut self.sums,
+            &mut extra,
+            &mut extra_v3,
+            sparse,
+        )?;
         self.dust
-            .sort(&self.d, &p, &mut self.sums, &mut [], &mut [])?;
+            .sort(&self.d, &p, &mut self.sums, &mut [], &mut [], sparse)?;
+        self.cells.sparse = None;
+        if sparse {
+            // The IDIC union: every occupied cell of any phase, sorted.
+            let ks = self.grid.total_cells() + 1;
+            let mut u: Vec<u64> = self.gas.host_ckeys.clone();
+            u.extend(self.dust.host_ckeys.iter().map(|&c| c % ks));
+            u.par_sort_unstable();
+            u.dedup();
+            self.d.put(&mut self.cells.ukey, &u)?;
+            self.cells.sparse = Some(u.len() as u32);
+        }
         Ok(())
     }
 
@@ -967,7 +1059,7 @@ impl<L: Launcher> GpuEngine<L> {
                 iad: d.ptr(&self.sm.iad),
                 p,
             };
-            timers.time("gas IAD matrices", || {
+            timers.time("gas IAD matrices (Garcia-Senz et al. 2012)", || {
                 d.run("dustsph_iad_matrix", self.gas.n, &a, th::iad_matrix)
             })?;
         }
@@ -985,9 +1077,15 @@ impl<L: Launcher> GpuEngine<L> {
             vsig: d.opt(&self.kdk.vsig),
             p,
         };
-        timers.time("gas forces", || {
-            d.run("dustsph_forces", self.gas.n, &a, th::forces)
-        })?;
+        let name = match (self.phys.av.is_some(), mode) {
+            (false, 0) => "gas forces (pressure)",
+            (true, 0) => "gas forces (pressure + artificial viscosity)",
+            (false, 1) => "gas forces (pressure, grad-h)",
+            (true, 1) => "gas forces (pressure + artificial viscosity, grad-h)",
+            (false, _) => "gas forces (pressure, IAD gradient)",
+            (true, _) => "gas forces (pressure + artificial viscosity, IAD gradient)",
+        };
+        timers.time(name, || d.run("dustsph_forces", self.gas.n, &a, th::forces))?;
         let l = d.get(&self.limits, 2)?;
         let dec = |b: u64| if b == 0 { 0.0 } else { from_ordered_bits(b) };
         Ok(Forces {
@@ -1003,6 +1101,9 @@ impl<L: Launcher> GpuEngine<L> {
         let d = &self.d;
         let p = self.params(tau);
         let nb = p.stride();
+        if self.cells.sparse.is_some() {
+            return self.cell_step_on_union(tau, acc_zero);
+        }
         d.zeroed(&mut self.cells.uidx, nb)?;
         let mut ua = th::UnionArgs {
             gas: self.gas.bufs(d),
@@ -1015,6 +1116,13 @@ impl<L: Launcher> GpuEngine<L> {
         d.scan(&self.cells.uidx, nb, &mut self.sums)?;
         ua.ukey = d.ptr(&self.cells.ukey);
         d.run("dustsph_union_keys", nb - 1, &ua, th::union_keys)?;
+        self.cell_step_on_union(tau, acc_zero)
+    }
+
+    /// The IDIC cell step over the union built for this layer.
+    fn cell_step_on_union(&mut self, tau: f64, acc_zero: bool) -> Result<(), GpuError> {
+        let d = &self.d;
+        let p = self.params(tau);
         let ca = th::CellArgs {
             gas: self.gas.bufs(d),
             dust: self.dust.bufs(d),
@@ -1149,25 +1257,38 @@ impl<L: Launcher> GpuEngine<L> {
     /// updates, or without dust v = v + dt·A. With `heat`, the drag heat per union cell is left
     /// in `cells.heat` for [`Self::energy_step`].
     fn kick(&mut self, timers: &mut Timers, dt: f64, heat: bool) -> Result<(), StepError> {
+        // The stage names are what summary.json lists as the run's pipeline.
         let drag = self.pipe.drag;
         if self.phys.ext_dust.iter().any(|a| *a != 0.0) && self.dust.n > 0 {
             let a = th::DustAccelArgs {
                 ph: self.dust.bufs(&self.d),
                 p: self.params(dt),
             };
-            self.d
-                .run("dustsph_dust_accel", self.dust.n, &a, th::dust_accel)?;
+            timers.time("external dust acceleration (ũ = u + τB)", || {
+                self.d
+                    .run("dustsph_dust_accel", self.dust.n, &a, th::dust_accel)
+            })?;
         }
         if drag && self.coupling.is_some() {
-            // The kernel coupling updates the velocities itself.
-            return Ok(timers.time("idic (kernel coupling)", || self.kernel_coupling(dt, heat))?);
+            // The kernel coupling updates the velocities (and spreads the heat) itself.
+            let name = if heat {
+                "IDIC drag, kernel coupling (gas particles as cells) + drag heating"
+            } else {
+                "IDIC drag, kernel coupling (gas particles as cells)"
+            };
+            return Ok(timers.time(name, || self.kernel_coupling(dt, heat))?);
         }
-        if drag {
-            timers.time("idic", || self.cell_step(dt, false))?;
-        }
-        let d = &self.d;
-        let p = self.params(dt);
-        timers.time("idic", || -> Result<(), GpuError> {
+        let name = match (drag, self.pipe.explicit_drag) {
+            (false, _) => "gas velocities (v + τA, no dust)",
+            (true, false) => "IDIC drag (cell sums, implicit cell solve, particle velocities)",
+            (true, true) => "explicit drag (cell means, forward-Euler particle velocities)",
+        };
+        timers.time(name, || -> Result<(), GpuError> {
+            if drag {
+                self.cell_step(dt, false)?;
+            }
+            let d = &self.d;
+            let p = self.params(dt);
             let ga = th::KickArgs {
                 ph: self.gas.bufs(d),
                 acc: d.ptr(&self.acc),
@@ -1193,21 +1314,24 @@ impl<L: Launcher> GpuEngine<L> {
                     ..ga
                 };
                 d.run("dustsph_dust_kick", self.dust.n, &da, th::dust_kick)?;
-                if heat {
-                    let ha = th::HeatArgs {
-                        gas: self.gas.bufs(d),
-                        dust: self.dust.bufs(d),
-                        loss_gas: d.opt(&self.gas.loss),
-                        loss_dust: d.opt(&self.dust.loss),
-                        cells: self.cells.bufs(d),
-                        heat: d.ptr(&self.cells.heat),
-                        p,
-                    };
-                    d.run("dustsph_heat", self.cells.ukey.len, &ha, th::heat)?;
-                }
             }
             Ok(())
         })?;
+        if drag && heat {
+            let d = &self.d;
+            let ha = th::HeatArgs {
+                gas: self.gas.bufs(d),
+                dust: self.dust.bufs(d),
+                loss_gas: d.opt(&self.gas.loss),
+                loss_dust: d.opt(&self.dust.loss),
+                cells: self.cells.bufs(d),
+                heat: d.ptr(&self.cells.heat),
+                p: self.params(dt),
+            };
+            timers.time("drag heating (the kinetic energy lost, to the gas)", || {
+                d.run("dustsph_heat", self.cells.ukey.len, &ha, th::heat)
+            })?;
+        }
         Ok(())
     }
 
@@ -1243,10 +1367,22 @@ impl<L: Launcher> GpuEngine<L> {
     ) -> Result<(), StepError> {
         timers.time("grid rebuild + sort", || self.regrid())?;
         before_density(self)?;
-        timers.time("gas density + EOS", || self.gas_density_eos(Some(tau)))?;
+        let name = if self.pipe.variable_h {
+            "gas h and density (variable h, Newton–Raphson) + EOS"
+        } else if self.pipe.continuity_density {
+            "gas density (continuity equation) + EOS"
+        } else {
+            "gas density + EOS"
+        };
+        timers.time(name, || self.gas_density_eos(Some(tau)))?;
         self.dust_density_fresh = false;
         if self.pipe.dust_density_each_step {
-            timers.time("dust density", || self.dust_density())?;
+            let name = if self.pipe.variable_h {
+                "dust density (variable h)"
+            } else {
+                "dust density"
+            };
+            timers.time(name, || self.dust_density())?;
         }
         Ok(())
     }
@@ -1276,7 +1412,13 @@ impl<L: Launcher> GpuEngine<L> {
         }
         let heat = self.pipe.heating && self.pipe.drag;
         self.kick(timers, tau, heat)?;
-        timers.time("positions + energy", || -> Result<(), GpuError> {
+        let name = match (self.e.is_some(), old) {
+            (false, false) => "positions (x + τv^{n+1})",
+            (true, false) => "positions (x + τv^{n+1}) + gas energy",
+            (false, true) => "positions (x + τv^n, the authors' update)",
+            (true, true) => "positions (x + τv^n, the authors' update) + gas energy",
+        };
+        timers.time(name, || -> Result<(), GpuError> {
             if old {
                 std::mem::swap(&mut self.gas.v, &mut self.kdk.v_save);
                 std::mem::swap(&mut self.dust.v, &mut self.kdk.u_save);
@@ -1300,7 +1442,12 @@ impl<L: Launcher> GpuEngine<L> {
         let half = 0.5 * tau;
         let heat = self.pipe.heating && self.pipe.drag;
         self.kick(timers, half, heat)?;
-        timers.time("positions + energy", || -> Result<(), GpuError> {
+        let name = if self.e.is_some() {
+            "leapfrog: gas energy half step + positions (x + τv^{n+1/2})"
+        } else {
+            "leapfrog: positions (x + τv^{n+1/2})"
+        };
+        timers.time(name, || -> Result<(), GpuError> {
             self.energy_step(half, heat)?;
             self.drift(&self.gas, tau)?;
             self.drift(&self.dust, tau)
@@ -1317,8 +1464,14 @@ impl<L: Launcher> GpuEngine<L> {
         d.copy(&self.gas.v, &self.kdk.v_save, self.gas.n)?;
         d.copy(&self.dust.v, &self.kdk.u_save, self.dust.n)?;
         // Predicted velocities v*, u* (drag included: for stiff drag the undragged prediction
-        // would be off by O(1)).
-        self.kick(timers, half, false)?;
+        // would be off by O(1)), timed apart from the two half kicks.
+        let mut pred = Timers::default();
+        self.kick(&mut pred, half, false)?;
+        let t_pred: f64 = pred.entries().iter().map(|e| e.1).sum();
+        timers.add(
+            "leapfrog: predicted v*, u* at the new layer (half kick + drag)",
+            t_pred,
+        );
         self.kdk.closing = None;
         let f1 = self.compute_forces(timers)?;
         std::mem::swap(&mut self.gas.v, &mut self.kdk.v_save);
@@ -1327,13 +1480,12 @@ impl<L: Launcher> GpuEngine<L> {
             std::mem::swap(e, save);
         }
         self.kick(timers, half, heat)?;
-        timers.time("positions + energy", || -> Result<(), GpuError> {
-            self.energy_step(half, heat)?;
-            if self.e.is_some() {
-                self.eos()?;
-            }
-            Ok(())
-        })?;
+        if self.e.is_some() {
+            timers.time("leapfrog: closing gas energy half step + EOS", || {
+                self.energy_step(half, heat)?;
+                self.eos()
+            })?;
+        }
         self.kdk.closing = Some((f1.vsig_max, f1.acc_max));
         Ok(())
     }
@@ -1388,8 +1540,12 @@ impl<L: Launcher> GpuEngine<L> {
         let d = &self.d;
         let p = self.params(0.0);
         let (nb, ks) = (p.stride(), self.grid.total_cells() + 1);
-        let ubidx = d.get(&self.cells.uidx, nb)?;
-        let nu = ubidx[nb - 1] as usize;
+        let sparse = self.cells.sparse;
+        let ubidx = match sparse {
+            Some(_) => Vec::new(),
+            None => d.get(&self.cells.uidx, nb)?,
+        };
+        let nu = sparse.map_or_else(|| ubidx[nb - 1] as usize, |n| n as usize);
         let ukey = d.get(&self.cells.ukey, nu)?;
         let nf = self.dust.groups;
         let ts = d.get(&self.cells.t_stop, nu * nf)?;
@@ -1399,7 +1555,11 @@ impl<L: Launcher> GpuEngine<L> {
             .map(|g| {
                 (self.dust.off[g] as usize..self.dust.off[g + 1] as usize)
                     .map(|j| {
-                        let u = th::union_index(&ubidx, &ukey, sc, keys[j] % ks);
+                        let k = keys[j] % ks;
+                        let u = match sparse {
+                            Some(_) => ukey.binary_search(&k).ok(),
+                            None => th::union_index(&ubidx, &ukey, sc, k),
+                        };
                         ts[u.expect("a dust particle's cell is occupied") * nf + g]
                     })
                     .collect()
