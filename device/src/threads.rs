@@ -300,6 +300,17 @@ impl PhaseBufs {
     }
 }
 
+/// Atomic max on a u64 shared by every thread of a launch: a plain read first, and the
+/// read-modify-write only when it would raise the value. The maximum settles early, so most
+/// threads only read (no contention on the one address, on the GPU or on the CPU's cores).
+#[inline(always)]
+unsafe fn atomic_max_u64(p: *mut u64, v: u64) {
+    let a = AtomicU64::from_ptr(p);
+    if a.load(Ordering::Relaxed) < v {
+        a.fetch_max(v, Ordering::Relaxed);
+    }
+}
+
 /// Atomic add on a u32 in memory (the counting sort's per-cell counters).
 #[inline(always)]
 unsafe fn atomic_add_u32(p: *mut u32, v: u32) -> u32 {
@@ -610,8 +621,8 @@ pub unsafe fn forces(t: usize, a: &ForcesArgs) {
         *a.vsig.add(t) = r.vsig;
     }
     let am = Real::sqrt(dot(r.acc, r.acc));
-    AtomicU64::from_ptr(a.limits).fetch_max(kernels::ordered_bits(r.vsig), Ordering::Relaxed);
-    AtomicU64::from_ptr(a.limits.add(1)).fetch_max(kernels::ordered_bits(am), Ordering::Relaxed);
+    atomic_max_u64(a.limits, kernels::ordered_bits(r.vsig));
+    atomic_max_u64(a.limits.add(1), kernels::ordered_bits(am));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -910,7 +921,7 @@ pub unsafe fn explicit_limit(t: usize, a: &LimitArgs) {
         *r = if ts.is_finite() { 1.0 / ts } else { 0.0 };
     }
     let rate = drag::explicit_rate(sl(a.cells.eps.add(t * nf), nf), &inv_t[..nf]);
-    AtomicU64::from_ptr(a.rate).fetch_max(kernels::ordered_bits(rate), Ordering::Relaxed);
+    atomic_max_u64(a.rate, kernels::ordered_bits(rate));
 }
 
 #[repr(C)]
