@@ -193,3 +193,31 @@ fn an_unknown_coupling_is_refused_naming_the_key() {
     let e = err("dustybox", &["external.wind=[1.0, 0.0, 0.0]"]);
     assert!(e.to_string().contains("wind"), "{e}");
 }
+
+/// Issue 13: a section given as an array is not read by position; a scene's name cannot lead
+/// the output outside output/; a fixed step that would never reach t_end is refused.
+#[test]
+fn arrays_for_tables_path_names_and_endless_steps_are_refused() {
+    let cases: &[(&str, &[&str], &str)] = &[
+        ("dustywave", &["idic=[0.5]"], "idic"),
+        ("dustywave", &["sph=[64, 1.2]"], "sph"),
+        (
+            "dustywave",
+            &["dust.fractions=[[1.0, 2.0]]"],
+            "dust.fractions.0",
+        ),
+        ("dustywave", &["scene.name=\"../x\""], "scene.name"),
+        ("dustywave", &["scene.name=\"/tmp/x\""], "scene.name"),
+        ("dustywave", &["scene.name=\"a\\\\b\""], "scene.name"),
+        ("dustywave", &["time.cfl=", "time.dt=1e-300"], "time.dt"),
+        ("dustybox", &["time.dt=1e-12"], "time.dt"),
+    ];
+    for (scene, sets, key) in cases {
+        let e = err(scene, sets);
+        assert_eq!(e.key.as_deref(), Some(*key), "{scene} {sets:?}: {e}");
+        assert!(e.file.ends_with(format!("{scene}.toml")), "{e}");
+    }
+    // The limits are limits, not bans: a plain name and a long but finite run are fine.
+    load(&config("dustywave"), &["scene.name=\"wave-2.b_1\"".into()]).unwrap();
+    load(&config("dustybox"), &["time.dt=1e-8".into()]).unwrap();
+}

@@ -40,6 +40,38 @@ pub struct LoadedScene {
     pub overrides: Vec<String>,
 }
 
+/// Every section of a scene is a table, and so is every `[[dust.fractions]]` entry: serde would
+/// otherwise read an array (`idic = [0.5]`) into the section's fields by position.
+fn check_tables(root: &toml::Table) -> Result<(), (String, String)> {
+    let not_table = |key: &str, v: &toml::Value| {
+        (
+            key.to_string(),
+            format!(
+                "must be a table (a [section] of key = value lines, or {{ key = value, … }}), not {} {v}",
+                match v {
+                    toml::Value::Array(_) => "the array",
+                    _ => "the value",
+                }
+            ),
+        )
+    };
+    for (k, v) in root {
+        let Some(t) = v.as_table() else {
+            return Err(not_table(k, v));
+        };
+        if k == "dust" {
+            if let Some(toml::Value::Array(fr)) = t.get("fractions") {
+                for (i, f) in fr.iter().enumerate() {
+                    if !f.is_table() {
+                        return Err(not_table(&format!("dust.fractions.{i}"), f));
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Read, override and validate a scene file.
 pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScene, SceneError> {
     let text = std::fs::read_to_string(path).map_err(|e| SceneError {
@@ -69,6 +101,7 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
     for ov in overrides {
         apply_override(&mut table, ov).map_err(|(key, msg)| err(key, msg))?;
     }
+    check_tables(&table).map_err(|(key, msg)| err(Some(key), msg))?;
     let value = toml::Value::Table(table);
     let scene: Scene = serde_path_to_error::deserialize(value).map_err(|e| {
         // serde writes sequence indices as `a[0].b`; scene keys are `a.0.b` everywhere.

@@ -336,6 +336,9 @@ pub enum PositionUpdate {
     New,
 }
 
+/// The most steps a fixed `time.dt` may ask for (1e9: days of a small run).
+pub const MAX_FIXED_STEPS: f64 = 1e9;
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TimeCfg {
@@ -491,10 +494,23 @@ impl Scene {
     }
 
     /// Semantic checks; returns (key, message) for the first failure.
+    ///
+    /// (`MAX_FIXED_STEPS` bounds a fixed step's count: `time.dt = 1e-300` would never end.)
     pub fn validate(&self) -> VResult {
         let s = &self.scene;
         if s.name.trim().is_empty() {
             return Err(("scene.name".into(), "must not be empty".into()));
+        }
+        // The default output folder is output/<name>: a name must not lead anywhere else.
+        if s.name.contains(['/', '\\', '\0']) || s.name == "." || s.name.contains("..") {
+            return Err((
+                "scene.name".into(),
+                format!(
+                    "{:?} is not a plain name: no path separators or \"..\" (it names the \
+                     output folder output/<name>; use --out for another place)",
+                    s.name
+                ),
+            ));
         }
         if !(1..=3).contains(&s.dim) {
             return Err((
@@ -799,7 +815,20 @@ impl Scene {
                     "give time.dt (fixed step) or time.cfl".into(),
                 ))
             }
-            (Some(dt), None) => positive("time.dt", dt)?,
+            (Some(dt), None) => {
+                positive("time.dt", dt)?;
+                let steps = (t.t_end / dt).ceil();
+                if !(steps <= MAX_FIXED_STEPS) {
+                    return Err((
+                        "time.dt".into(),
+                        format!(
+                            "{steps:e} steps of {dt:e} to time.t_end = {}: more than {MAX_FIXED_STEPS:e}; \
+                             a larger time.dt or time.cfl",
+                            t.t_end
+                        ),
+                    ));
+                }
+            }
             (None, Some(c)) => {
                 positive("time.cfl", c)?;
                 if c > 1.0 {
