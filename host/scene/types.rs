@@ -818,7 +818,7 @@ impl Scene {
             (Some(dt), None) => {
                 positive("time.dt", dt)?;
                 let steps = (t.t_end / dt).ceil();
-                if !(steps <= MAX_FIXED_STEPS) {
+                if steps.is_nan() || steps > MAX_FIXED_STEPS {
                     return Err((
                         "time.dt".into(),
                         format!(
