@@ -221,3 +221,37 @@ fn arrays_for_tables_path_names_and_endless_steps_are_refused() {
     load(&config("dustywave"), &["scene.name=\"wave-2.b_1\"".into()]).unwrap();
     load(&config("dustybox"), &["time.dt=1e-8".into()]).unwrap();
 }
+
+/// Issue 13: an absurd resolution is refused before anything is allocated, naming `sph.n` and
+/// the estimate (it used to abort on a 24 PB allocation, overflow, or grow until killed).
+#[test]
+fn absurd_sizes_are_refused_before_allocating() {
+    for (scene, sets) in [
+        ("dustybox", vec!["scene.dim=3", "sph.n=100000"]),
+        ("dustybox", vec!["sph.n=9223372036854775807"]),
+        ("dusty_ball", vec!["sph.n=2000"]),
+        ("dusty_ball", vec!["sph.n=1000"]),
+        ("dustyshock", vec!["sph.n=9000000000000"]),
+        ("dustywave", vec!["sph.n=1000000000000"]),
+        ("dustysettle", vec!["sph.n=1000000000000"]),
+    ] {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        let loaded = load(&config(scene), &sets).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("never");
+        let opts = dustsph::run::RunOptions {
+            out: out.clone(),
+            force: false,
+            verbose: false,
+            device: dustsph::engine::backend::DeviceChoice::Cpu,
+        };
+        let e = dustsph::run::run(&loaded, &opts).unwrap_err();
+        assert!(matches!(e, dustsph::run::RunError::Input(_)), "{e}");
+        let m = e.to_string();
+        assert!(
+            m.contains("sph.n") && m.contains("particles"),
+            "{scene} {sets:?}: {m}"
+        );
+        assert!(!out.exists());
+    }
+}

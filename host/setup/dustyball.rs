@@ -10,7 +10,17 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let p = scene.gas.p.unwrap_or(0.0);
     let dx = 1.0 / scene.sph.n as f64;
     let h = smoothing_length(scene, dx);
-    let nmax = (b.radius / dx).floor() as i64;
+    let nmax_f = (b.radius / dx).floor();
+    // The ball fills π/6 of its bounding cube (π/4 of the square in 2D).
+    let fill = [
+        1.0,
+        1.0,
+        std::f64::consts::FRAC_PI_4,
+        std::f64::consts::PI / 6.0,
+    ][dim as usize];
+    let per_phase = fill * (2.0 * nmax_f + 1.0).powi(dim as i32);
+    super::check_size(per_phase, 1 + scene.n_fractions(), "sph.n")?;
+    let nmax = nmax_f as i64;
     let r2 = b.radius * b.radius;
     let span = |used: bool| if used { -nmax..=nmax } else { 0..=0 };
     let mut x = Vec::new();

@@ -6,7 +6,9 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let b = scene.dustybox.as_ref().expect("validated");
     let dim = scene.dim();
     let rho = scene.gas.rho.expect("validated");
-    let n_axis = ((scene.sph.n as f64 * b.length).round() as usize).max(2);
+    let n_f = (scene.sph.n as f64 * b.length).round().max(2.0);
+    super::check_size(n_f.powi(dim as i32), 1 + scene.n_fractions(), "sph.n")?;
+    let n_axis = n_f as usize;
     let dx = b.length / n_axis as f64;
     let (x, len) = match (b.lattice, dim) {
         (Lattice::Closepacked, 2 | 3) => {

@@ -54,6 +54,7 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
             msg: "the column is too tall for its scale height".into(),
         });
     }
+    super::check_size((m_hi - m_lo) / m + 1.0, 1 + scene.n_fractions(), "sph.n")?;
     let i_lo = (m_lo / m).floor() as i64;
     let i_hi = (m_hi / m).ceil() as i64;
     let x: Vec<[f64; 3]> = (i_lo..i_hi)

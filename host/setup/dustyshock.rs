@@ -24,6 +24,9 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
             ),
         });
     }
+    // Both sides and the walls, at the finer spacing: an upper bound.
+    let per_phase = (len + 2.0 * wall) / dx_l.min(dx_r);
+    super::check_size(per_phase, 1 + scene.n_fractions(), "sph.n")?;
     let m = s.left.rho * dx_l;
     let mut x = Vec::new();
     let mut rho = Vec::new();

@@ -163,7 +163,10 @@ fn stretch(x0: &[[f64; 3]], length: f64, rho0: f64, amp: f64, rho_hat: C, k: f64
 pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     let w = scene.dustywave.as_ref().expect("validated");
     let dim = scene.dim();
-    let n = ((scene.sph.n as f64 * w.length).round() as usize).max(2);
+    let n_f = (scene.sph.n as f64 * w.length).round().max(2.0);
+    let rows = (w.layers as f64).powi(dim as i32 - 1);
+    super::check_size(n_f * rows, 1 + scene.n_fractions(), "sph.n")?;
+    let n = n_f as usize;
     let dx = w.length / n as f64;
     let (x0, len) = lattice(dim, w.lattice, n, w.length, w.layers);
     let np = x0.len();

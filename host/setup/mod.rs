@@ -46,6 +46,46 @@ impl Setup {
     }
 }
 
+/// Memory a particle costs a run (gas or dust: the step's buffers, the host state, output
+/// copies). Measured: 3D box, 5 × 64 000 particles, 116 MB peak (≈ 360 B each); 600 B leaves a
+/// margin for the union-cell arrays of many fractions and for the kernel coupling.
+pub const BYTES_PER_PARTICLE: f64 = 600.0;
+
+/// The memory this machine can give a run (Linux: MemAvailable), if known.
+fn available_memory() -> Option<f64> {
+    let m = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = m.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024.0)
+}
+
+/// Before any allocation: refuse a lattice of `per_phase` particles in each of `phases` phases
+/// that the particle indices (u32) or this machine's memory cannot hold, naming `key` and the
+/// estimate (an absurd `sph.n` must not abort the process).
+pub(crate) fn check_size(per_phase: f64, phases: usize, key: &str) -> Result<(), SetupError> {
+    let total = per_phase * phases as f64;
+    let need = total * BYTES_PER_PARTICLE;
+    let fail = |why: String| {
+        Err(SetupError {
+            key: key.into(),
+            msg: format!(
+                "about {total:.3e} particles ({per_phase:.3e} per phase × {phases}) {why}; lower {key}"
+            ),
+        })
+    };
+    if !total.is_finite() || per_phase >= u32::MAX as f64 {
+        return fail(format!("exceed the {} a phase can index", u32::MAX));
+    }
+    match available_memory() {
+        Some(avail) if need > avail => fail(format!(
+            "need about {:.1} GB, more than the {:.1} GB available",
+            need / 1e9,
+            avail / 1e9
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// A set-up error names the scene key at fault.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SetupError {
