@@ -339,3 +339,49 @@ fn ball_run_writes_xdmf_profiles_and_figures_and_profile_command_works() {
     }
     assert!(d.join("my_plot.png").exists());
 }
+
+/// The README's exit-code table, held: 0 success, 1 a run-time stop (with the snapshots kept),
+/// 2 bad input (nothing written); 130 (interrupted, checkpoint written) is held by
+/// tests/resume.rs.
+#[test]
+fn exit_codes_hold_the_readme_table() {
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
+    for row in ["| 0 |", "| 1 |", "| 2 |", "| 130 |"] {
+        assert!(readme.contains(row), "README lacks the exit-code row {row}");
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let out = |d: &str| tmp.path().join(d).display().to_string();
+    let ok = dustsph(&["run", "configs/dustybox.toml", "--out", &out("ok"), "-q"]);
+    assert_eq!(ok.status.code(), Some(0));
+    let bad = dustsph(&[
+        "run",
+        "configs/dustybox.toml",
+        "--set",
+        "sph.hfact=-1",
+        "--out",
+        &out("bad"),
+        "-q",
+    ]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(!Path::new(&out("bad")).exists());
+    // A CFL step that collapses (c_s = 1e12: 2e14 steps) stops at once, naming the step, the
+    // limit and the particles that set it.
+    let stop = dustsph(&[
+        "run",
+        "configs/dustywave.toml",
+        "--set",
+        "gas.cs=1e12",
+        "--out",
+        &out("stop"),
+        "-q",
+    ]);
+    assert_eq!(stop.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&stop.stderr);
+    assert!(
+        err.contains("step 0") && err.contains("collapsed") && err.contains("gas particle id"),
+        "{err}"
+    );
+    assert!(Path::new(&out("stop")).join("snapshot_0000.h5").exists());
+    assert!(!Path::new(&out("stop")).join("summary.json").exists());
+}

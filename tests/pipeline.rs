@@ -228,3 +228,34 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
         );
     }
 }
+
+/// Issue 13: a grid that cannot be built (a particle flung absurdly far) stops naming the step,
+/// the time and the particle, as the bad-value check does.
+#[test]
+fn a_grid_that_cannot_be_built_names_step_time_and_particle() {
+    let loaded = dustsph::scene::load(
+        &config("dustybox"),
+        &[
+            "scene.dim=3".to_string(),
+            "sph.n=8".to_string(),
+            "sph.hfact=1.2".to_string(),
+        ],
+    )
+    .unwrap();
+    let su = dustsph::setup::build(&loaded.scene).unwrap();
+    let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
+    let mut st = su.state;
+    // The box is periodic: the far particle goes into an open 3D ball-like domain instead.
+    let mut phys = phys;
+    phys.domain.periodic = [None; 3];
+    let far_id = st.gas.ph.id[7];
+    st.gas.ph.x[7] = [3e19, -3e19, 1e19];
+    let e = match Backend::new(DeviceChoice::Cpu, phys, &mut st) {
+        Ok(_) => panic!("a grid over 1e19 with cells of 0.05 was built"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        e.contains("step 0, t = 0") && e.contains(&format!("gas particle id {far_id}")),
+        "{e}"
+    );
+}

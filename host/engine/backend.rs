@@ -184,6 +184,11 @@ impl Backend {
         each!(self, e => e.accelerations())
     }
 
+    /// The gas particles that set the time step (largest |A|, largest c_s), for messages.
+    pub fn dt_culprits(&mut self) -> Result<String, StepError> {
+        each!(self, e => e.dt_culprits())
+    }
+
     /// One step of size τ with the gas forces set to zero: the drag pass, the drift and the new
     /// layer alone (for checks of the coupling).
     pub fn advance_drag_only(&mut self, state: &mut State, tau: f64) -> Result<(), StepError> {

@@ -6,7 +6,7 @@ use super::backend::Backend;
 use super::{dt_limits, step_size};
 use super::{Forces, StepError};
 use crate::particles::State;
-use crate::scene::TimeCfg;
+use crate::scene::{TimeCfg, MAX_FIXED_STEPS};
 
 /// What the driver chose for one step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -72,6 +72,25 @@ impl Driver {
                 "step {}, t = {:e}: time step is {dt_free} (no signal speed or force to set it); \
                  give time.dt",
                 state.step, state.t
+            )));
+        }
+        // A CFL step that has collapsed would never reach the end: stop with a diagnosis (the
+        // fixed time.dt has the same bound at validation).
+        let left = self.time.t_end - state.t;
+        if self.time.dt.is_none() && left > 0.0 && left / dt_free > MAX_FIXED_STEPS {
+            let (limit, value) = if dt_cfl <= dt_force {
+                ("CFL (h / max signal speed)", forces.vsig_max)
+            } else {
+                ("force (sqrt(h / max |A|))", forces.acc_max)
+            };
+            return Err(StepError::Blowup(format!(
+                "step {}, t = {:e}: the time step collapsed to {dt_free:e} ({limit}; max = {value:e}): \
+                 {:.1e} more steps to t_end = {}; {}",
+                state.step,
+                state.t,
+                left / dt_free,
+                self.time.t_end,
+                eng.dt_culprits()?
             )));
         }
         let landing = state.t + dt_free >= t_target - 1e-9 * dt_free;

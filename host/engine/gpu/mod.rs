@@ -475,8 +475,9 @@ pub struct GpuEngine<L: Launcher> {
     bounds: Buf<L, u64>,
     bad: Buf<L, u32>,
     dust_density_fresh: bool,
-    /// The state's step count (for messages).
+    /// The state's step count and time (for messages).
     step: u64,
+    t: f64,
     /// Always use the sparse cell tables (checks that both forms give the same step).
     pub force_sparse: bool,
     /// Variable h and IAD (`sph.variable_h`, `sph.gradient = "iad"`).
@@ -626,6 +627,7 @@ impl<L: Launcher> GpuEngine<L> {
             bounds: d.buf(6)?,
             bad: d.buf(1)?,
             step: state.step,
+            t: state.t,
             force_sparse: false,
             kdk: {
                 let k = pipe.kdk;
@@ -701,6 +703,36 @@ impl<L: Launcher> GpuEngine<L> {
         self.d.0.describe()
     }
 
+    /// The particle farthest from the origin (or with a non-finite position): phase, id and
+    /// position, for the message of a grid that cannot be built.
+    fn farthest_particle(&self) -> Result<String, GpuError> {
+        let d = &self.d;
+        let mut best: Option<(f64, String)> = None;
+        for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
+            if ph.n == 0 {
+                continue;
+            }
+            let x = d.get(&ph.x, ph.n)?;
+            let id = d.get(&ph.id, ph.n)?;
+            for (i, p) in x.iter().enumerate() {
+                let r = p.iter().map(|c| c.abs()).fold(0.0, f64::max);
+                let r = if r.is_finite() { r } else { f64::INFINITY };
+                if best.as_ref().is_none_or(|b| r > b.0) {
+                    let what = if gas {
+                        "gas".to_string()
+                    } else {
+                        let g = (0..ph.groups)
+                            .find(|&g| i < ph.off[g + 1] as usize)
+                            .unwrap_or(0);
+                        format!("dust fraction {g}")
+                    };
+                    best = Some((r, format!("{what} particle id {} at {:?}", id[i], p)));
+                }
+            }
+        }
+        Ok(best.map_or_else(|| "none".into(), |b| b.1))
+    }
+
     /// Use the sparse cell tables from the next grid rebuild on (and rebuild now).
     pub fn force_sparse_tables(&mut self) -> Result<(), StepError> {
         self.force_sparse = true;
@@ -741,7 +773,18 @@ impl<L: Launcher> GpuEngine<L> {
             b = merge_bounds(b, ([dec(0), dec(1), dec(2)], [dec(3), dec(4), dec(5)]));
         }
         let support = self.search_support()?;
-        self.grid = Grid::from_bounds(&self.phys.domain, self.phys.cell_size, support, b)?;
+        self.grid = match Grid::from_bounds(&self.phys.domain, self.phys.cell_size, support, b) {
+            Ok(g) => g,
+            // A run-time stop names the step, the time and the particle that caused it.
+            Err(e) => {
+                return Err(StepError::Grid(crate::grid::GridError(format!(
+                    "step {}, t = {:e}: {e}; farthest particle: {}",
+                    self.step,
+                    self.t,
+                    self.farthest_particle()?
+                ))))
+            }
+        };
         // Dense start tables over the search cells of the grid box when they are small enough;
         // else (a few particles flung far away) sorted cell lists and binary searches.
         let search_cells = self.params(0.0).stride() as u64 - 1;
@@ -1011,6 +1054,37 @@ impl<L: Launcher> GpuEngine<L> {
         self.timers = timers;
         r?;
         Ok(self.d.get(&self.acc, self.gas.n)?)
+    }
+
+    /// The gas particles that set the time step: the largest |A| (force limit) and the largest
+    /// sound speed (CFL limit), with their ids and positions, for a collapsing step's message.
+    pub fn dt_culprits(&mut self) -> Result<String, StepError> {
+        let acc = self.accelerations()?;
+        let d = &self.d;
+        let n = self.gas.n;
+        let (cs, id, x) = (
+            d.get(&self.cs, n)?,
+            d.get(&self.gas.id, n)?,
+            d.get(&self.gas.x, n)?,
+        );
+        let argmax = |v: &dyn Fn(usize) -> f64| (0..n).max_by(|&a, &b| v(a).total_cmp(&v(b)));
+        let amag = |i: usize| acc[i].iter().map(|a| a * a).sum::<f64>().sqrt();
+        let mut out = Vec::new();
+        if let Some(i) = argmax(&amag) {
+            out.push(format!(
+                "largest |A| = {:e} at gas particle id {} (x = {:?})",
+                amag(i),
+                id[i],
+                x[i]
+            ));
+        }
+        if let Some(i) = argmax(&|i| cs[i]) {
+            out.push(format!(
+                "largest c_s = {:e} at gas particle id {} (x = {:?})",
+                cs[i], id[i], x[i]
+            ));
+        }
+        Ok(out.join("; "))
     }
 
     /// Set the gas forces of the coming step to zero (A = 0, ė = 0): the step that follows is
@@ -1400,6 +1474,7 @@ impl<L: Launcher> GpuEngine<L> {
         state.t += tau;
         state.step += 1;
         self.step = state.step;
+        self.t = state.t;
         self.check(state)
     }
 
