@@ -115,9 +115,23 @@ pub fn compare_tables(
     device: DeviceChoice,
     sparse: bool,
 ) -> Result<Parity, String> {
+    compare_scenes(loaded, loaded, steps, device, sparse)
+}
+
+/// [`compare_tables`] with the device stepping `device_scene`, a variant of the reference
+/// scene in how it computes (e.g. the kernel coupling's scatter deposits against the gather):
+/// the same particles, the same plan, arrays compared after every step.
+pub fn compare_scenes(
+    loaded: &LoadedScene,
+    device_scene: &LoadedScene,
+    steps: u64,
+    device: DeviceChoice,
+    sparse: bool,
+) -> Result<Parity, String> {
     let scene = &loaded.scene;
     let su = setup::build(scene).map_err(|e| e.to_string())?;
     let phys = Physics::from_scene(scene, su.h, su.domain);
+    let phys_dev = Physics::from_scene(&device_scene.scene, su.h, su.domain);
     let (device, _) = backend::select(device)?;
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
@@ -129,7 +143,7 @@ pub fn compare_tables(
     let mut cpu = one
         .install(|| Backend::new(DeviceChoice::Cpu, phys.clone(), &mut s_cpu))
         .map_err(err)?;
-    let mut dev = Backend::new(device, phys.clone(), &mut s_dev).map_err(err)?;
+    let mut dev = Backend::new(device, phys_dev, &mut s_dev).map_err(err)?;
     if sparse {
         dev.force_sparse_tables(&mut s_dev).map_err(err)?;
     }
