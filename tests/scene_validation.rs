@@ -195,7 +195,8 @@ fn an_unknown_coupling_is_refused_naming_the_key() {
 }
 
 /// Issue 13: a section given as an array is not read by position; a scene's name cannot lead
-/// the output outside output/; a fixed step that would never reach t_end is refused.
+/// the output outside output/; a fixed step that would never reach t_end is refused; so are
+/// magnitudes beyond 1e±100.
 #[test]
 fn arrays_for_tables_path_names_and_endless_steps_are_refused() {
     let cases: &[(&str, &[&str], &str)] = &[
@@ -211,6 +212,9 @@ fn arrays_for_tables_path_names_and_endless_steps_are_refused() {
         ("dustywave", &["scene.name=\"a\\\\b\""], "scene.name"),
         ("dustywave", &["time.cfl=", "time.dt=1e-300"], "time.dt"),
         ("dustybox", &["time.dt=1e-12"], "time.dt"),
+        // Magnitudes whose products overflow (a summary would hold NaN, written as null).
+        ("dustybox", &["gas.rho=1e300"], "gas.rho"),
+        ("dustybox", &["gas.rho=1e-300"], "gas.rho"),
     ];
     for (scene, sets, key) in cases {
         let e = err(scene, sets);

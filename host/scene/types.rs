@@ -12,34 +12,51 @@ pub fn num(v: f64) -> String {
     }
 }
 
+/// Magnitudes a scene value may have: products of a few of them (masses × velocities², sums
+/// over 1e9 particles) must stay finite in f64, so that every number of a summary is a number.
+const MAX_MAGNITUDE: f64 = 1e100;
+
 fn positive(key: &str, v: f64) -> VResult {
-    if v.is_finite() && v > 0.0 {
-        Ok(())
-    } else {
-        Err((
+    if !(v.is_finite() && v > 0.0) {
+        return Err((
             key.into(),
             format!("must be a finite number > 0 (got {})", num(v)),
-        ))
+        ));
     }
+    in_range(key, v)
+}
+
+/// |v| within [1/MAX_MAGNITUDE, MAX_MAGNITUDE] (or 0).
+fn in_range(key: &str, v: f64) -> VResult {
+    let a = v.abs();
+    if a != 0.0 && !(1.0 / MAX_MAGNITUDE..=MAX_MAGNITUDE).contains(&a) {
+        return Err((
+            key.into(),
+            format!(
+                "{} is outside [1e-100, 1e100] in magnitude: the run's derived quantities \
+                 (masses, momenta, energies) would overflow; change the units",
+                num(v)
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn non_negative(key: &str, v: f64) -> VResult {
-    if v.is_finite() && v >= 0.0 {
-        Ok(())
-    } else {
-        Err((
+    if !(v.is_finite() && v >= 0.0) {
+        return Err((
             key.into(),
             format!("must be a finite number ≥ 0 (got {})", num(v)),
-        ))
+        ));
     }
+    in_range(key, v)
 }
 
 fn finite(key: &str, v: f64) -> VResult {
-    if v.is_finite() {
-        Ok(())
-    } else {
-        Err((key.into(), format!("must be finite (got {})", num(v))))
+    if !v.is_finite() {
+        return Err((key.into(), format!("must be finite (got {})", num(v))));
     }
+    in_range(key, v)
 }
 
 #[derive(Debug, Clone, Deserialize)]
