@@ -322,9 +322,10 @@ impl Runner {
     /// Continue a run from `DIR/checkpoint.h5`.
     pub fn resume(dir: &Path, verbose: bool, device: DeviceChoice) -> Result<Runner, RunError> {
         let ck = dir.join(io::checkpoint::CHECKPOINT_NAME);
+        // Everything resume checks is input: on a mismatch it exits 2 and changes nothing.
         let (state, meta) =
-            io::checkpoint::read_checkpoint(&ck).map_err(|e| RunError::Io(e.to_string()))?;
-        let bad = |e: String| RunError::Io(format!("{}: {e}", ck.display()));
+            io::checkpoint::read_checkpoint(&ck).map_err(|e| RunError::Input(e.to_string()))?;
+        let bad = |e: String| RunError::Input(format!("{}: {e}", ck.display()));
         let overrides: Vec<String> =
             serde_json::from_str(&meta.overrides_json).map_err(|e| bad(e.to_string()))?;
         let file = PathBuf::from(&meta.scene_file);
@@ -338,6 +339,7 @@ impl Runner {
         };
         let prog: Progress =
             serde_json::from_str(&meta.progress_json).map_err(|e| bad(e.to_string()))?;
+        verify_resume(dir, &state, &loaded, &prog).map_err(bad)?;
         let (eng, state, box_size) = Self::engine(&loaded, Some(state), device, verbose)?;
         Ok(Runner {
             times: output_times(&loaded),
@@ -681,6 +683,81 @@ impl Runner {
             .map_err(|e| RunError::Io(e.to_string()))?;
         Ok((summary, state))
     }
+}
+
+/// A checkpoint may continue only the run it was written by, in its own directory: its
+/// particles agree with its own scene (counts per phase, unused coordinates zero), every
+/// snapshot its progress lists is there and was written by the same scene with the same
+/// particle counts no later than the checkpoint, and no other snapshot would be overwritten.
+fn verify_resume(
+    dir: &Path,
+    state: &State,
+    loaded: &LoadedScene,
+    prog: &Progress,
+) -> Result<(), String> {
+    let scene = &loaded.scene;
+    let su = setup::build(scene).map_err(|e| format!("its scene cannot be set up: {e}"))?;
+    let counts = |s: &State| -> (usize, Vec<usize>) {
+        (s.gas.ph.len(), s.dust.iter().map(|d| d.len()).collect())
+    };
+    let (want, have) = (counts(&su.state), counts(state));
+    if want != have {
+        return Err(format!(
+            "its particles (gas {}, dust {:?}) do not match its own scene (gas {}, dust {:?})",
+            have.0, have.1, want.0, want.1
+        ));
+    }
+    let dim = scene.dim() as usize;
+    let phases = std::iter::once(&state.gas.ph).chain(&state.dust);
+    if dim < 3
+        && phases
+            .flat_map(|p| &p.x)
+            .any(|x| x[dim..].iter().any(|c| *c != 0.0))
+    {
+        return Err(format!(
+            "its particles are not {dim}-dimensional as its scene (scene.dim = {dim}) says"
+        ));
+    }
+    let n_dust: usize = have.1.iter().sum();
+    for name in &prog.snapshots {
+        let p = dir.join(name);
+        let h = io::snapshot::read_header(&p).map_err(|e| {
+            format!("the snapshot {name} its run wrote is missing or unreadable ({e})")
+        })?;
+        let same_scene = h.scene_text == loaded.text;
+        let same_counts = h.num_part[io::snapshot::GAS_TYPE] as usize == have.0
+            && h.num_part[io::snapshot::DUST_TYPE] as usize == n_dust;
+        if !same_scene || !same_counts || h.dim as usize != dim {
+            return Err(format!(
+                "{name} in {} was written by another run (scene {}, particles {:?}): the \
+                 checkpoint belongs elsewhere",
+                dir.display(),
+                if same_scene { "the same" } else { "different" },
+                h.num_part
+            ));
+        }
+        if h.time > state.t {
+            return Err(format!(
+                "{name} is at t = {} after the checkpoint's t = {}: the checkpoint is older \
+                 than the run's output",
+                h.time, state.t
+            ));
+        }
+    }
+    let listed: std::collections::HashSet<&str> =
+        prog.snapshots.iter().map(|s| s.as_str()).collect();
+    let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        if io::output_dir::is_snapshot_name(&name) && !listed.contains(name.as_str()) {
+            return Err(format!(
+                "{name} in {} is not one the checkpoint's run wrote; resuming would overwrite \
+                 it (move it away, or resume in the run's own directory)",
+                dir.display()
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Progress in units of 1e-4 of t_end.

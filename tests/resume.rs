@@ -134,19 +134,22 @@ fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
         assert!(t0.elapsed().as_secs() < 60, "no first snapshot");
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
-    std::thread::sleep(std::time::Duration::from_millis(300));
+    // At once: the run (80 steps, ≈4 s on 2 cores) is then a few steps in at most.
     let killed = Command::new("kill")
         .args(["-INT", &child.id().to_string()])
         .status()
         .unwrap();
     assert!(killed.success());
     let status = child.wait().unwrap();
-    if status.code() == Some(0) {
-        // Finished before the signal arrived (a very fast machine): nothing to resume.
-        return;
-    }
+    // The interrupt must have happened: a run that finished first would test nothing.
     assert_eq!(status.code(), Some(130), "interrupted run exits with 130");
     assert!(out.join("checkpoint.h5").exists());
+    let (ck, _) = dustsph::io::checkpoint::read_checkpoint(&out.join("checkpoint.h5")).unwrap();
+    assert!(
+        ck.step < 80 && ck.t < 0.4,
+        "interrupted at step {}",
+        ck.step
+    );
     assert!(
         !out.join("summary.json").exists(),
         "no summary for an unfinished run"
@@ -161,4 +164,90 @@ fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(s["t_final"], 0.4);
     assert_eq!(s["snapshots"].as_array().unwrap().len(), 9);
+}
+
+/// Run `scene` for `steps` steps into `dir` and leave a checkpoint there.
+fn checkpointed(scene: &str, sets: &[&str], dir: &std::path::Path, steps: u64) {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    let loaded = dustsph::scene::load(&config(scene), &sets).unwrap();
+    let opts = RunOptions {
+        out: dir.to_path_buf(),
+        force: false,
+        verbose: false,
+        device: dustsph::engine::backend::DeviceChoice::Cpu,
+    };
+    let mut r = Runner::start(&loaded, &opts).unwrap();
+    r.advance(Some(steps), None, None).unwrap();
+    r.checkpoint().unwrap();
+}
+
+/// Every file of a directory with its bytes, to show that a refused resume changed nothing.
+fn contents(dir: &std::path::Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .map(|e| {
+            (
+                e.file_name().to_string_lossy().to_string(),
+                std::fs::read(e.path()).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+fn resume_refused(dir: &std::path::Path, why: &str) {
+    let before = contents(dir);
+    let o = Command::new(env!("CARGO_BIN_EXE_dustsph"))
+        .args(["resume", &dir.display().to_string(), "-q"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains(why), "expected «{why}» in: {err}");
+    assert_eq!(
+        contents(dir),
+        before,
+        "a refused resume changed the directory"
+    );
+}
+
+/// Issue 13: resume continues only the run a whole checkpoint belongs to.
+#[test]
+fn resume_refuses_a_foreign_altered_or_inconsistent_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    checkpointed("dustywave", &["time.output_dt=0.05"], &a, 30);
+    checkpointed("dustybox", &[], &b, 3);
+    // Another scene's checkpoint among this run's snapshots.
+    let ck = dustsph::io::checkpoint::CHECKPOINT_NAME;
+    std::fs::copy(b.join(ck), a.join(ck)).unwrap();
+    resume_refused(&a, "written by another run");
+    // A checkpoint cut short or altered: the digest no longer matches.
+    let (state, meta) = dustsph::io::checkpoint::read_checkpoint(&b.join(ck)).unwrap();
+    {
+        let f = hdf5::File::open_rw(b.join(ck)).unwrap();
+        let ds = f.dataset("gas/m").unwrap();
+        let mut m: Vec<f64> = ds.read_raw().unwrap();
+        m[0] *= 1.0 + 1e-15;
+        ds.write_raw(&m).unwrap();
+    }
+    resume_refused(&b, "checksum mismatch");
+    // A whole checkpoint whose particles disagree with its own scene.
+    let mut other = meta.clone();
+    other.scene_text = other.scene_text.replace("n = ", "n = 1");
+    assert_ne!(other.scene_text, meta.scene_text);
+    dustsph::io::checkpoint::write_checkpoint(&b.join(ck), &state, &other).unwrap();
+    for s in std::fs::read_dir(&b).unwrap().flatten() {
+        if s.file_name().to_string_lossy().starts_with("snapshot_") {
+            std::fs::remove_file(s.path()).unwrap();
+        }
+    }
+    let mut prog: serde_json::Value = serde_json::from_str(&other.progress_json).unwrap();
+    prog["snapshots"] = serde_json::json!([]);
+    other.progress_json = prog.to_string();
+    dustsph::io::checkpoint::write_checkpoint(&b.join(ck), &state, &other).unwrap();
+    resume_refused(&b, "do not match its own scene");
 }

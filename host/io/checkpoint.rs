@@ -60,6 +60,66 @@ fn get_phase(file: &File, name: &str, path: &Path) -> Result<(Group, Phase), IoE
     Ok((g, ph))
 }
 
+/// FNV-1a over every number and text of a checkpoint in a fixed order: a checkpoint whose
+/// arrays were cut short or altered no longer matches the digest stored in it.
+pub fn digest(state: &State, meta: &CheckpointMeta) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    let f = |v: &[f64], eat: &mut dyn FnMut(&[u8])| {
+        eat(&(v.len() as u64).to_le_bytes());
+        for x in v {
+            eat(&x.to_bits().to_le_bytes());
+        }
+    };
+    let phase = |ph: &Phase, eat: &mut dyn FnMut(&[u8])| {
+        let flat = |v: &[[f64; 3]]| -> Vec<f64> { v.iter().flatten().copied().collect() };
+        f(&flat(&ph.x), eat);
+        f(&flat(&ph.v), eat);
+        f(&ph.m, eat);
+        f(&ph.rho, eat);
+        for i in &ph.id {
+            eat(&i.to_le_bytes());
+        }
+        if let Some(fx) = &ph.fixed {
+            eat(&fx.iter().map(|&b| b as u8).collect::<Vec<u8>>());
+        }
+    };
+    eat(&state.t.to_bits().to_le_bytes());
+    eat(&state.step.to_le_bytes());
+    phase(&state.gas.ph, &mut eat);
+    f(&state.gas.p, &mut eat);
+    f(&state.gas.c, &mut eat);
+    for o in [&state.gas.e, &state.gas.h, &state.gas.omega] {
+        if let Some(v) = o {
+            f(v, &mut eat);
+        }
+    }
+    if let Some(nf) = &state.gas.next_forces {
+        f(
+            &nf.iter().flatten().copied().collect::<Vec<f64>>(),
+            &mut eat,
+        );
+    }
+    for d in &state.dust {
+        phase(d, &mut eat);
+    }
+    for t in [
+        &meta.scene_text,
+        &meta.scene_file,
+        &meta.overrides_json,
+        &meta.progress_json,
+    ] {
+        eat(t.as_bytes());
+        eat(&[0]);
+    }
+    h
+}
+
 /// Write `state` and `meta` to `path` atomically (temporary name, then rename).
 pub fn write_checkpoint(path: &Path, state: &State, meta: &CheckpointMeta) -> Result<(), IoError> {
     require_parent_dir(path)?;
@@ -75,6 +135,7 @@ pub fn write_checkpoint(path: &Path, state: &State, meta: &CheckpointMeta) -> Re
         put_scalar(&root, "scene_file", &vlu(path, &meta.scene_file)?, path)?;
         put_scalar(&root, "overrides", &vlu(path, &meta.overrides_json)?, path)?;
         put_scalar(&root, "progress", &vlu(path, &meta.progress_json)?, path)?;
+        put_scalar(&root, "checksum", &digest(state, meta), path)?;
         let g = put_phase(&file, "gas", &state.gas.ph, path)?;
         put_dataset(&g, "p", &state.gas.p, 1, path)?;
         put_dataset(&g, "c", &state.gas.c, 1, path)?;
@@ -144,6 +205,23 @@ pub fn read_checkpoint(path: &Path) -> Result<(State, CheckpointMeta), IoError> 
         overrides_json: get_string(&root, "overrides", path)?,
         progress_json: get_string(&root, "progress", path)?,
     };
+    // A checkpoint is whole only if its digest matches what it holds.
+    let stored: u64 = get_scalar(&root, "checksum", path).map_err(|_| {
+        IoError::invalid(
+            path,
+            "no checksum: not a whole dustsph checkpoint (or one written before checksums)",
+        )
+    })?;
+    let now = digest(&state, &meta);
+    if stored != now {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "checksum mismatch (stored {stored:016x}, contents {now:016x}): the checkpoint \
+                 was altered or is incomplete"
+            ),
+        ));
+    }
     Ok((state, meta))
 }
 

@@ -15,7 +15,7 @@ pub fn snapshot_name(index: usize) -> String {
 
 /// True for exactly the names [`snapshot_name`] produces, so "snapshot_7.h5" or
 /// "snapshot_00012.h5" (never ours) are left alone.
-fn is_snapshot_name(name: &str) -> bool {
+pub fn is_snapshot_name(name: &str) -> bool {
     name.strip_prefix("snapshot_")
         .and_then(|s| s.strip_suffix(".h5"))
         .filter(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))

@@ -18,8 +18,8 @@ const CODE_LEN: usize = CODE_NAME.len();
 pub const HEADER_GROUP: &str = "Header";
 pub const GAS_GROUP: &str = "PartType0";
 pub const DUST_GROUP: &str = "PartType3";
-const GAS_TYPE: usize = 0;
-const DUST_TYPE: usize = 3;
+pub const GAS_TYPE: usize = 0;
+pub const DUST_TYPE: usize = 3;
 
 pub const COORDINATES: &str = "Coordinates";
 pub const VELOCITIES: &str = "Velocities";
@@ -396,6 +396,31 @@ pub(crate) fn put_dataset<T: H5Type>(
     };
     builder.create(name).map_err(h5err(path, &obj))?;
     Ok(())
+}
+
+/// What a snapshot's header says about the run that wrote it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SnapshotHeader {
+    pub time: f64,
+    pub dim: u32,
+    pub scene_text: String,
+    pub num_part: [u64; 6],
+}
+
+/// The header of a snapshot only (no particle arrays).
+pub fn read_header(path: &Path) -> Result<SnapshotHeader, IoError> {
+    fs::metadata(path).with_path(path)?;
+    let file = File::open(path).map_err(h5err(path, ""))?;
+    let obj = format!("/{HEADER_GROUP}");
+    let header = file.group(HEADER_GROUP).map_err(h5err(path, &obj))?;
+    let dim: i32 = get_scalar(&header, "Dimension", path)?;
+    Ok(SnapshotHeader {
+        time: get_scalar(&header, "Time", path)?,
+        dim: u32::try_from(dim)
+            .map_err(|_| IoError::invalid(path, format!("/Header/Dimension is {dim}")))?,
+        scene_text: get_string(&header, "Scene", path)?,
+        num_part: get_counts(&header, "NumPart_Total", path)?,
+    })
 }
 
 /// Reads a snapshot written by [`write_snapshot`].
