@@ -94,10 +94,11 @@ pub fn digest(state: &State, meta: &CheckpointMeta) -> u64 {
     phase(&state.gas.ph, &mut eat);
     f(&state.gas.p, &mut eat);
     f(&state.gas.c, &mut eat);
-    for o in [&state.gas.e, &state.gas.h, &state.gas.omega] {
-        if let Some(v) = o {
-            f(v, &mut eat);
-        }
+    for v in [&state.gas.e, &state.gas.h, &state.gas.omega]
+        .into_iter()
+        .flatten()
+    {
+        f(v, &mut eat);
     }
     if let Some(nf) = &state.gas.next_forces {
         f(
