@@ -31,8 +31,30 @@ fn phantom_wave_3d_matches_the_exact_solution_with_a_step_independent_of_k() {
             assert!(e < 0.007, "{what} {f}: {e:e}");
         }
         assert!(s.conservation.momentum_drift_relative < 1e-12);
-        assert!(s.conservation.energy.relative.abs() < 1e-8);
+        // Energy against the wave's own: the thermal energy is ≈ 5e7 times the wave's kinetic
+        // energy, so a relative drift of the total says nothing. Without drag heating the drag
+        // dissipates: measured |ΔE| = 1.6e-4 (K = 1e5) and 7.5e-3 (K = 1e3) of the initial
+        // wave kinetic energy at n = 32; losing the wave would be ≈ 1.
+        let de = (s.conservation.energy.r#final - s.conservation.energy.initial).abs();
+        let ke = wave_kinetic_energy(&[SMALL[0], SMALL[1]]);
+        let bound = if what == "K = 1e5" { 1e-3 } else { 2e-2 };
+        assert!(
+            de < bound * ke,
+            "{what}: |ΔE| = {de:e} against the wave's {ke:e}"
+        );
     }
+}
+
+/// ½ Σ m v² of the wave's initial state (gas and dust).
+fn wave_kinetic_energy(sets: &[&str]) -> f64 {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    let loaded = dustsph::scene::load(&config("dustywave_phantom"), &sets).unwrap();
+    let st = dustsph::setup::build(&loaded.scene).unwrap().state;
+    std::iter::once(&st.gas.ph)
+        .chain(&st.dust)
+        .flat_map(|p| p.m.iter().zip(&p.v))
+        .map(|(m, v)| 0.5 * m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+        .sum()
 }
 
 #[test]

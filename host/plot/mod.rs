@@ -704,9 +704,20 @@ mod tests {
     }
 
     #[test]
-    fn embedded_font_registers() {
+    fn embedded_font_draws_text() {
+        // Registering twice is harmless, and the font then puts ink on the page.
         ensure_font();
         ensure_font();
+        let (w, h) = (120u32, 30u32);
+        let mut rgb = vec![255u8; (w * h * 3) as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area();
+            root.draw_text("dustsph", &(FONT, 20).into_font().color(&BLACK), (2, 2))
+                .unwrap();
+            root.present().unwrap();
+        }
+        let ink = rgb.chunks(3).filter(|p| p[0] < 128).count();
+        assert!(ink > 50, "the text left {ink} dark pixels");
     }
 
     #[test]
