@@ -1,7 +1,7 @@
 //! The formulas of `dustsph-device` against independent solutions: kernel normalisation and
 //! gradient, and the IDIC cell solve (method.md §3.3 properties 1–4).
 use dustsph_device::drag::{cell_solve, dust_update, gas_update};
-use dustsph_device::kernel;
+use dustsph_device::kernel::KernelAt;
 
 /// Small deterministic generator (xorshift64*), so the tests need no extra crate.
 struct Rng(u64);
@@ -36,29 +36,40 @@ fn kernel_is_normalised_in_1d_2d_3d() {
                 2 => 2.0 * std::f64::consts::PI * r,
                 _ => 4.0 * std::f64::consts::PI * r * r,
             };
-            s += kernel::w(r, h, dim) * shell * dr;
+            s += KernelAt::new(h, dim).w(r) * shell * dr;
         }
         assert!((s - 1.0).abs() < 1e-9, "dim {dim}: ∫W = {s}");
     }
 }
 
+/// The kernel the engine evaluates ([`KernelAt`]): its gradient factor and ∂W/∂h against
+/// finite differences of its W, in 1D, 2D and 3D.
 #[test]
-fn kernel_gradient_matches_finite_difference() {
+fn kernel_gradient_and_h_derivative_match_finite_differences() {
     let h = 0.3;
     for dim in 1..=3u32 {
+        let k = KernelAt::new(h, dim);
         for i in 1..60 {
             let r = i as f64 * 2.0 * h / 60.0;
             let d = 1e-6;
-            let fd = (kernel::w(r + d, h, dim) - kernel::w(r - d, h, dim)) / (2.0 * d);
+            let fd = (k.w(r + d) - k.w(r - d)) / (2.0 * d);
             // ∇W = F r_vec, so dW/dr = F r.
-            let an = kernel::grad_w_factor(r, h, dim) * r;
+            let an = k.grad_factor(r) * r;
             assert!(
                 (fd - an).abs() < 1e-6 * (1.0 + an.abs()),
                 "dim {dim} r {r}: {fd} vs {an}"
             );
+            let dh = 1e-7;
+            let fdh =
+                (KernelAt::new(h + dh, dim).w(r) - KernelAt::new(h - dh, dim).w(r)) / (2.0 * dh);
+            let anh = k.dw_dh(r);
+            assert!(
+                (fdh - anh).abs() < 1e-5 * (1.0 + anh.abs()),
+                "dim {dim} r {r}: ∂W/∂h {fdh} vs {anh}"
+            );
         }
+        assert_eq!(k.w(2.0 * h), 0.0, "compact support 2h");
     }
-    assert_eq!(kernel::grad_w_factor(0.0, h, 3), 0.0);
 }
 
 /// Dense Gaussian elimination of the (N+1)×(N+1) backward-Euler system for one velocity

@@ -53,29 +53,6 @@ pub fn dshape<R: Real>(q: R) -> R {
     }
 }
 
-/// W(r, h) in `dim` dimensions.
-#[inline(always)]
-pub fn w<R: Real>(r: R, h: R, dim: u32) -> R {
-    sigma::<R>(dim) / pow_dim(h, dim) * shape(r / h)
-}
-
-/// The scalar F with ∇_a W_ab = F · r_ab (r_ab = r_a − r_b, |r_ab| = r). F = 0 at r = 0.
-#[inline(always)]
-pub fn grad_w_factor<R: Real>(r: R, h: R, dim: u32) -> R {
-    if r <= R::ZERO {
-        return R::ZERO;
-    }
-    sigma::<R>(dim) / (pow_dim(h, dim) * h) * dshape(r / h) / r
-}
-
-/// ∂W/∂h at separation r: −σ_d/h^(d+1) · (d f(q) + q f'(q)), q = r/h (variable-h SPH).
-#[inline(always)]
-pub fn dw_dh<R: Real>(r: R, h: R, dim: u32) -> R {
-    let q = r / h;
-    -(sigma::<R>(dim) / (pow_dim(h, dim) * h))
-        * (R::from_f64(dim as f64) * shape(q) + q * dshape(q))
-}
-
 /// h^d (for the variable-h density ρ = m (hfact/h)^d).
 #[inline(always)]
 pub fn h_pow_dim<R: Real>(h: R, dim: u32) -> R {

@@ -24,12 +24,6 @@ pub struct GasState<R> {
     pub c: R,
 }
 
-/// Contribution of a neighbour at distance `r` to a density sum: m_b W_ab.
-#[inline(always)]
-pub fn density_term<R: Real>(m_b: R, r: R, h: R, dim: u32) -> R {
-    m_b * kernel::w(r, h, dim)
-}
-
 /// Contribution of a neighbour b at separation r_ab (|r_ab| = r) to the continuity-equation
 /// density rate of a: m_b (v_a − v_b)·∇_a W_ab (zero for b = a, where ∇W = 0).
 #[inline(always)]
