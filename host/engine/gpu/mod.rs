@@ -328,6 +328,17 @@ impl<L: Launcher> DevPhase<L> {
         Ok(())
     }
 
+    /// "gas", or "dust fraction k" for particle i of the dust buffer (for messages).
+    fn phase_name(&self, gas: bool, i: usize) -> String {
+        if gas {
+            return "gas".into();
+        }
+        let g = (0..self.groups)
+            .find(|&g| i < self.off[g + 1] as usize)
+            .unwrap_or(0);
+        format!("dust fraction {g}")
+    }
+
     /// Sparse mode: keys on the device, the (key, index) sort on the host (the dense path's
     /// order), and the occupied cells' keys and starts uploaded for binary-search lookups.
     fn sort_on_host(&mut self, d: &Dev<L>, p: &StepParams) -> Result<(), GpuError> {
@@ -718,14 +729,7 @@ impl<L: Launcher> GpuEngine<L> {
                 let r = p.iter().map(|c| c.abs()).fold(0.0, f64::max);
                 let r = if r.is_finite() { r } else { f64::INFINITY };
                 if best.as_ref().is_none_or(|b| r > b.0) {
-                    let what = if gas {
-                        "gas".to_string()
-                    } else {
-                        let g = (0..ph.groups)
-                            .find(|&g| i < ph.off[g + 1] as usize)
-                            .unwrap_or(0);
-                        format!("dust fraction {g}")
-                    };
+                    let what = ph.phase_name(gas, i);
                     best = Some((r, format!("{what} particle id {} at {:?}", id[i], p)));
                 }
             }
@@ -929,14 +933,7 @@ impl<L: Launcher> GpuEngine<L> {
             }
             let ids = d.get(&ph.id, i + 1)?;
             let h = d.get(&self.sm.h_new, i + 1)?[i];
-            let what = if gas {
-                "gas".to_string()
-            } else {
-                let g = (0..ph.groups)
-                    .find(|&g| i < ph.off[g + 1] as usize)
-                    .unwrap_or(0);
-                format!("dust fraction {g}")
-            };
+            let what = ph.phase_name(gas, i);
             return Err(StepError::Blowup(format!(
                 "step {step}: variable h did not converge for {what} particle id {} (h = {h:e})",
                 ids[i]
