@@ -409,35 +409,39 @@ pub struct SnapshotHeader {
 
 /// The header of a snapshot only (no particle arrays).
 pub fn read_header(path: &Path) -> Result<SnapshotHeader, IoError> {
+    Ok(open_header(path)?.1)
+}
+
+/// The file and its header (a plain stat first gives "No such file" instead of an opaque HDF5
+/// message).
+fn open_header(path: &Path) -> Result<(File, SnapshotHeader), IoError> {
     fs::metadata(path).with_path(path)?;
     let file = File::open(path).map_err(h5err(path, ""))?;
     let obj = format!("/{HEADER_GROUP}");
     let header = file.group(HEADER_GROUP).map_err(h5err(path, &obj))?;
     let dim: i32 = get_scalar(&header, "Dimension", path)?;
-    Ok(SnapshotHeader {
+    let h = SnapshotHeader {
         time: get_scalar(&header, "Time", path)?,
         dim: u32::try_from(dim)
             .map_err(|_| IoError::invalid(path, format!("/Header/Dimension is {dim}")))?,
         scene_text: get_string(&header, "Scene", path)?,
         num_part: get_counts(&header, "NumPart_Total", path)?,
-    })
+    };
+    Ok((file, h))
 }
 
 /// Reads a snapshot written by [`write_snapshot`].
 pub fn read_snapshot(path: &Path) -> Result<SnapshotData, IoError> {
-    // A plain stat first gives "No such file" instead of an opaque HDF5 message.
-    fs::metadata(path).with_path(path)?;
-    let file = File::open(path).map_err(h5err(path, ""))?;
+    let (file, h) = open_header(path)?;
     let obj = format!("/{HEADER_GROUP}");
     let header = file.group(HEADER_GROUP).map_err(h5err(path, &obj))?;
-
-    let time: f64 = get_scalar(&header, "Time", path)?;
     let box_size: f64 = get_scalar(&header, "BoxSize", path)?;
-    let dim: i32 = get_scalar(&header, "Dimension", path)?;
-    let dim = u32::try_from(dim)
-        .map_err(|_| IoError::invalid(path, format!("/Header/Dimension is {dim}")))?;
-    let scene_text = get_string(&header, "Scene", path)?;
-    let num_part = get_counts(&header, "NumPart_Total", path)?;
+    let SnapshotHeader {
+        time,
+        dim,
+        scene_text,
+        num_part,
+    } = h;
     let this_file = get_counts(&header, "NumPart_ThisFile", path)?;
     if this_file != num_part {
         return Err(IoError::invalid(
