@@ -17,6 +17,7 @@ use super::{Physics, Pipeline};
 use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
 use crate::particles::{Phase, State};
 use crate::scene::PositionUpdate;
+use bytemuck::Pod;
 use dustsph_device::eos::Eos;
 use dustsph_device::kernel::{KernelAt, SUPPORT};
 use dustsph_device::kernels::{from_ordered_bits, MAX_FRACTIONS};
@@ -42,16 +43,6 @@ pub struct Buf<L: Launcher, T> {
     _t: PhantomData<T>,
 }
 
-fn bytes_of<T: Copy>(s: &[T]) -> &[u8] {
-    // SAFETY: T is one of f64, u64, u32, u8, [f64; 3]: plain data without padding.
-    unsafe { std::slice::from_raw_parts(s.as_ptr() as *const u8, std::mem::size_of_val(s)) }
-}
-
-fn bytes_of_mut<T: Copy>(s: &mut [T]) -> &mut [u8] {
-    // SAFETY: as in `bytes_of`; every bit pattern is a valid value of these types.
-    unsafe { std::slice::from_raw_parts_mut(s.as_mut_ptr() as *mut u8, std::mem::size_of_val(s)) }
-}
-
 struct Dev<L: Launcher>(L);
 
 impl<L: Launcher> Dev<L> {
@@ -62,19 +53,21 @@ impl<L: Launcher> Dev<L> {
             _t: PhantomData,
         })
     }
-    fn from<T: Copy>(&self, data: &[T]) -> Result<Buf<L, T>, GpuError> {
+    // Host ↔ device copies take plain-old-data only (bytemuck::Pod: no padding, every bit
+    // pattern valid); kernel-only buffers (e.g. per-particle kernels) are never copied.
+    fn from<T: Pod>(&self, data: &[T]) -> Result<Buf<L, T>, GpuError> {
         let mut b = self.buf(data.len())?;
         self.put(&mut b, data)?;
         Ok(b)
     }
-    fn put<T: Copy>(&self, b: &mut Buf<L, T>, data: &[T]) -> Result<(), GpuError> {
+    fn put<T: Pod>(&self, b: &mut Buf<L, T>, data: &[T]) -> Result<(), GpuError> {
         assert!(data.len() <= b.len, "upload larger than the buffer");
-        self.0.upload(&mut b.mem, bytes_of(data))
+        self.0.upload(&mut b.mem, bytemuck::cast_slice(data))
     }
-    fn get<T: Copy + Default>(&self, b: &Buf<L, T>, n: usize) -> Result<Vec<T>, GpuError> {
+    fn get<T: Pod>(&self, b: &Buf<L, T>, n: usize) -> Result<Vec<T>, GpuError> {
         assert!(n <= b.len, "download larger than the buffer");
-        let mut v = vec![T::default(); n];
-        self.0.download(&b.mem, bytes_of_mut(&mut v))?;
+        let mut v = vec![T::zeroed(); n];
+        self.0.download(&b.mem, bytemuck::cast_slice_mut(&mut v))?;
         Ok(v)
     }
     fn ptr<T>(&self, b: &Buf<L, T>) -> *mut T {
