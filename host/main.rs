@@ -143,11 +143,23 @@ fn report(s: &Summary, out: &std::path::Path) {
         let r = &last.reference;
         println!("  vs {}", r.split(';').next().unwrap_or(r));
         for f in &last.fields {
-            println!(
-                "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",
-                f.field, f.norms.l1, f.norms.l2, f.norms.linf
-            );
+            print_field(f);
         }
+    }
+}
+
+/// One line of an error table; a constant offset (one number) reads as one.
+fn print_field(f: &dustsph::analysis::FieldError) {
+    if f.field.ends_with(" offset") {
+        println!(
+            "  {:>8}: {:.3e} (constant, removed from the errors above)",
+            f.field, f.norms.l1
+        );
+    } else {
+        println!(
+            "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",
+            f.field, f.norms.l1, f.norms.l2, f.norms.linf
+        );
     }
 }
 
@@ -322,10 +334,7 @@ fn main() -> ExitCode {
                     for e in &r.errors {
                         println!("errors against {}", e.reference);
                         for f in &e.fields {
-                            println!(
-                                "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",
-                                f.field, f.norms.l1, f.norms.l2, f.norms.linf
-                            );
+                            print_field(f);
                         }
                     }
                     if let Some(s) = &r.symmetry {
