@@ -135,9 +135,23 @@ pub fn solve_h_at<R: Real>(
         // f(h) = Σ m W(h) − m (hfact/h)^d;  f'(h) = Σ m ∂W/∂h + d ρ_h / h.
         let f = sum - rho_h;
         let df = dsum + d * rho_h / h;
-        let h_new = h - f / df;
+        // A Newton step is kept within [h/2, 2h]: from a guess far off (the reference h on the
+        // dense side of a shock tube, 8× too large) the plain step lands at h < 0. Steps that
+        // small never change a converging solve.
+        let h_new = if df > R::ZERO {
+            (h - f / df)
+                .max(h * R::from_f64(0.5))
+                .min(h * R::from_f64(2.0))
+        } else if f > R::ZERO {
+            // f'(h) ≤ 0 (across a density jump, widening h takes in much thinner gas): no
+            // Newton step; halve h while the kernel sum exceeds ρ(h), double it otherwise, until
+            // the Newton step applies again (no libm root: the GPU build links none).
+            h * R::from_f64(0.5)
+        } else {
+            h + h
+        };
         let done = (h_new - h).abs() < tol * h;
-        let bad = !(h_new > R::ZERO && h_new <= h_max && df > R::ZERO) || it >= 30;
+        let bad = !(h_new > R::ZERO && h_new <= h_max) || it >= 30;
         if done || bad {
             let hh = if bad { h } else { h_new };
             let rho = mhd / crate::kernel::h_pow_dim(hh, dim);
