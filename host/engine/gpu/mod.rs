@@ -64,6 +64,13 @@ impl<L: Launcher> Dev<L> {
         assert!(data.len() <= b.len, "upload larger than the buffer");
         self.0.upload(&mut b.mem, bytemuck::cast_slice(data))
     }
+    /// Upload into `b`, reallocating (with room to grow) only when it is too small.
+    fn put_growing<T: Pod>(&self, b: &mut Buf<L, T>, data: &[T]) -> Result<(), GpuError> {
+        if b.len < data.len() {
+            *b = self.buf(data.len() + data.len() / 2)?;
+        }
+        self.put(b, data)
+    }
     fn get<T: Pod>(&self, b: &Buf<L, T>, n: usize) -> Result<Vec<T>, GpuError> {
         assert!(n <= b.len, "download larger than the buffer");
         let mut v = vec![T::zeroed(); n];
@@ -358,8 +365,8 @@ impl<L: Launcher> DevPhase<L> {
         }
         cs.push(self.n as u32);
         self.ncells = ck.len();
-        self.ckeys = d.from(&ck)?;
-        self.cstart = d.from(&cs)?;
+        d.put_growing(&mut self.ckeys, &ck)?;
+        d.put_growing(&mut self.cstart, &cs)?;
         self.host_ckeys = ck;
         d.put(&mut self.perm, &perm)
     }
@@ -906,15 +913,19 @@ impl<L: Launcher> GpuEngine<L> {
             let bad = d.get(&self.bad, 1)?[0];
             if bad == u32::MAX {
                 if gas {
-                    let n = self.gas.n;
-                    let (hn, on) = (
-                        d.buf(n.max(self.dust.n).max(1))?,
-                        d.buf(n.max(self.dust.n).max(1))?,
-                    );
-                    let h_new = std::mem::replace(&mut self.sm.h_new, hn);
-                    let o_new = std::mem::replace(&mut self.sm.omega_new, on);
-                    self.sm.gas_h = Some(h_new);
-                    self.sm.gas_omega = Some(o_new);
+                    // The solved h and Ω become the gas's; its old buffers become the next
+                    // scratch (no allocation in the step, once both are of the scratch's size).
+                    let len = self.sm.h_new.len;
+                    for (cur, new) in [
+                        (&mut self.sm.gas_h, &mut self.sm.h_new),
+                        (&mut self.sm.gas_omega, &mut self.sm.omega_new),
+                    ] {
+                        let spare = match cur.take() {
+                            Some(b) if b.len == len => b,
+                            _ => d.buf(len)?,
+                        };
+                        *cur = Some(std::mem::replace(new, spare));
+                    }
                 }
                 return Ok(());
             }
