@@ -2,6 +2,7 @@
 use clap::{Parser, Subcommand};
 use dustsph::engine::backend::DeviceChoice;
 use dustsph::run::{RunError, RunOptions, Runner, Stop, Summary};
+use dustsph::scene::Precision;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -43,6 +44,10 @@ enum Cmd {
         /// CUDA GPU (cuda). The same step and kernels on either.
         #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
         device: DeviceChoice,
+        /// The float type of the step: f64 (the reference) or f32 (docs/accuracy.md); the
+        /// same as --set numerics.precision=…
+        #[arg(long, value_enum)]
+        precision: Option<Precision>,
     },
     /// The GPU path: how its kernels were built, whether a device is usable; optionally write
     /// the embedded PTX (for `ptxas`).
@@ -57,6 +62,9 @@ enum Cmd {
         /// The device to check against the one-thread CPU reference (cuda; or cpu: every core)
         #[arg(long, value_enum, default_value_t = DeviceChoice::Cuda)]
         device: DeviceChoice,
+        /// Check the f32 kernels instead of the f64 ones
+        #[arg(long, value_enum, default_value_t = Precision::F64)]
+        precision: Precision,
     },
     /// CPU speed: a uniform 3D box at ≈60 neighbours and the 3D ball, on 1 and 2 threads.
     Bench {
@@ -76,6 +84,9 @@ enum Cmd {
         /// Where to run: cpu (default) or cuda
         #[arg(long, value_enum, default_value_t = DeviceChoice::Cpu)]
         device: DeviceChoice,
+        /// The float type of the step (f64 or f32)
+        #[arg(long, value_enum, default_value_t = Precision::F64)]
+        precision: Precision,
     },
     /// Radial profiles (CSV) and figures (PNG) of a snapshot, written next to it; for the ball
     /// also the errors against the 1D reference and the spherical-symmetry check.
@@ -215,7 +226,12 @@ fn main() -> ExitCode {
             checkpoint_every,
             quiet,
             device,
+            precision,
         } => {
+            let mut set = set;
+            if let Some(p) = precision {
+                set.push(format!("numerics.precision=\"{}\"", p.name()));
+            }
             let loaded = match dustsph::scene::load(&scene, &set) {
                 Ok(l) => l,
                 Err(e) => {
@@ -241,6 +257,7 @@ fn main() -> ExitCode {
             full,
             box_n,
             device,
+            precision,
         } => {
             let mut cases: Vec<(String, &str, Vec<String>)> = box_n
                 .iter()
@@ -286,6 +303,8 @@ fn main() -> ExitCode {
             let mut where_ = String::new();
             for (name, file, sets) in cases {
                 let name = name.as_str();
+                let mut sets = sets;
+                sets.push(format!("numerics.precision=\"{}\"", precision.name()));
                 let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
                     Ok(l) => l,
                     Err(e) => {
@@ -460,10 +479,11 @@ fn main() -> ExitCode {
             }
             drive(Runner::resume(&dir, !quiet, device), checkpoint_every)
         }
-        Cmd::Parity { device } => {
+        Cmd::Parity { device, precision } => {
             let mut all_ok = true;
             for (label, file, sets, steps) in dustsph::parity::CASES {
-                let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+                let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+                sets.push(format!("numerics.precision=\"{}\"", precision.name()));
                 let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
                     Ok(l) => l,
                     Err(e) => {

@@ -43,6 +43,12 @@ struct Acc(Vec<FieldDiff>);
 impl Acc {
     fn add(&mut self, field: String, a: &[f64], b: &[f64]) {
         let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        self.add_scaled(field, a, b, scale);
+    }
+
+    /// As `add`, relative to `scale` (a vector's components share their vector's scale: a
+    /// component that is zero up to round-off is not its own yardstick).
+    fn add_scaled(&mut self, field: String, a: &[f64], b: &[f64], scale: f64) {
         let mut bitwise = a.len() == b.len();
         let mut d = if bitwise { 0.0f64 } else { f64::INFINITY };
         for (x, y) in a.iter().zip(b) {
@@ -66,9 +72,10 @@ impl Acc {
     }
 
     fn v3(&mut self, field: &str, a: &[[f64; 3]], b: &[[f64; 3]]) {
+        let scale = a.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
         for k in 0..3 {
             let pick = |v: &[[f64; 3]]| v.iter().map(|x| x[k]).collect::<Vec<_>>();
-            self.add(format!("{field}[{k}]"), &pick(a), &pick(b));
+            self.add_scaled(format!("{field}[{k}]"), &pick(a), &pick(b), scale);
         }
     }
 

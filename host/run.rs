@@ -633,7 +633,7 @@ impl Runner {
             overrides: loaded.overrides.clone(),
             dimension: scene.dim(),
             backend: eng.describe(),
-            precision: "f64",
+            precision: eng.phys().precision.name(),
             particles: prog.counts.clone(),
             h: eng.phys().h,
             idic_cell: eng.phys().cell_size,

@@ -395,6 +395,7 @@ fn slab() -> (Physics, State, f64, f64) {
         variable_h: None,
         gradient: crate::scene::GradientMethod::Standard,
         integrator: crate::scene::Integrator::FirstOrder,
+        precision: crate::scene::Precision::F64,
     };
     (phys, st, 1e-3, 0.5)
 }

@@ -973,8 +973,18 @@ impl Study {
         );
         let _ = writeln!(
             s,
-            "- Backend: CPU (rayon, {} thread(s)), f64. **step s** = wall time of the time-step loop, the cost plotted and ranked; **cpu s** = CPU time of that loop on its one thread (single-threaded studies; a cpu s well below step s means other load slowed the run; the CPU clock read here ticks in milliseconds, so it is rough for the shortest runs); **total s** (wall) adds set-up, initial densities and the error evaluation. Times are the median of up to {} runs when the first step loop took < {} s (column *runs*).",
+            "- Backend: CPU (rayon, {} thread(s)), {}. **step s** = wall time of the time-step loop, the cost plotted and ranked; **cpu s** = CPU time of that loop on its one thread (single-threaded studies; a cpu s well below step s means other load slowed the run; the CPU clock read here ticks in milliseconds, so it is rough for the shortest runs); **total s** (wall) adds set-up, initial densities and the error evaluation. Times are the median of up to {} runs when the first step loop took < {} s (column *runs*).",
             c.threads,
+            {
+                let mut p: Vec<&str> = self
+                    .points
+                    .iter()
+                    .map(|p| p.scene.numerics.precision.name())
+                    .collect();
+                p.sort_unstable();
+                p.dedup();
+                p.join(" and ")
+            },
             c.repeat,
             c.repeat_below
         );

@@ -9,7 +9,10 @@
 //!    of every `.entry` equals the size of its host-side argument struct.
 mod common;
 use dustsph::engine::backend::DeviceChoice;
-use dustsph::engine::gpu::{self, launch::KERNELS};
+use dustsph::engine::gpu::{
+    self,
+    launch::{KERNELS, KERNELS_F32},
+};
 use dustsph::parity::{compare, compare_scenes, compare_tables, CASES};
 use dustsph_device::threads as th;
 use std::path::PathBuf;
@@ -181,66 +184,209 @@ fn ptx_entry_points_take_the_host_argument_structs() {
         return;
     }
     use std::mem::size_of;
-    let want: &[(&str, usize)] = &[
-        ("dustsph_bounds", size_of::<th::BoundsArgs>()),
-        ("dustsph_keys", size_of::<th::KeysArgs>()),
-        ("dustsph_scan_sums", size_of::<th::ScanArgs>()),
-        ("dustsph_scan_totals", size_of::<th::ScanArgs>()),
-        ("dustsph_scan_chunks", size_of::<th::ScanArgs>()),
-        ("dustsph_scatter", size_of::<th::ScatterArgs>()),
-        ("dustsph_sort_segments", size_of::<th::SegmentArgs>()),
-        ("dustsph_gather_v3", size_of::<th::GatherArgs<[f64; 3]>>()),
-        ("dustsph_gather_f64", size_of::<th::GatherArgs<f64>>()),
-        ("dustsph_gather_u64", size_of::<th::GatherArgs<u64>>()),
-        ("dustsph_gather_u8", size_of::<th::GatherArgs<u8>>()),
-        ("dustsph_density", size_of::<th::DensityArgs>()),
-        ("dustsph_eos", size_of::<th::EosArgs>()),
-        ("dustsph_forces", size_of::<th::ForcesArgs>()),
-        ("dustsph_union_flags", size_of::<th::UnionArgs>()),
-        ("dustsph_union_keys", size_of::<th::UnionArgs>()),
-        ("dustsph_solve_h", size_of::<th::HSolveArgs>()),
-        ("dustsph_force_prep", size_of::<th::PrepArgs>()),
-        ("dustsph_iad_matrix", size_of::<th::IadArgs>()),
-        ("dustsph_max_of", size_of::<th::MaxArgs>()),
-        ("dustsph_copy_v3", size_of::<th::CopyArgs<[f64; 3]>>()),
-        ("dustsph_copy_f64", size_of::<th::CopyArgs<f64>>()),
-        ("dustsph_density_continuity", size_of::<th::DensityArgs>()),
-        ("dustsph_explicit_limit", size_of::<th::LimitArgs>()),
-        ("dustsph_cell_step", size_of::<th::CellArgs>()),
-        ("dustsph_gas_kick", size_of::<th::KickArgs>()),
-        ("dustsph_dust_kick", size_of::<th::KickArgs>()),
-        ("dustsph_heat", size_of::<th::HeatArgs>()),
-        ("dustsph_drift", size_of::<th::DriftArgs>()),
-        ("dustsph_energy", size_of::<th::EnergyArgs>()),
-        ("dustsph_check", size_of::<th::CheckArgs>()),
-        ("dustsph_dust_accel", size_of::<th::DustAccelArgs>()),
-        ("dustsph_coupling_norm", size_of::<th::NormArgs>()),
-        ("dustsph_coupling_solve", size_of::<th::CoupleArgs>()),
-        ("dustsph_coupling_return", size_of::<th::ReturnArgs>()),
-        ("dustsph_coupling_tstop", size_of::<th::ReturnArgs>()),
-        ("dustsph_coupling_heat", size_of::<th::CouplingHeatArgs>()),
+    // (f64 entry, its parameter bytes, the f32 entry's parameter bytes where there is one)
+    let want: &[(&str, usize, Option<usize>)] = &[
+        (
+            "dustsph_bounds",
+            size_of::<th::BoundsArgs<f64>>(),
+            Some(size_of::<th::BoundsArgs<f32>>()),
+        ),
+        (
+            "dustsph_keys",
+            size_of::<th::KeysArgs<f64>>(),
+            Some(size_of::<th::KeysArgs<f32>>()),
+        ),
+        ("dustsph_scan_sums", size_of::<th::ScanArgs>(), None),
+        ("dustsph_scan_totals", size_of::<th::ScanArgs>(), None),
+        ("dustsph_scan_chunks", size_of::<th::ScanArgs>(), None),
+        (
+            "dustsph_scatter",
+            size_of::<th::ScatterArgs<f64>>(),
+            Some(size_of::<th::ScatterArgs<f32>>()),
+        ),
+        ("dustsph_sort_segments", size_of::<th::SegmentArgs>(), None),
+        (
+            "dustsph_gather_v3",
+            size_of::<th::GatherArgs<[f64; 3]>>(),
+            Some(size_of::<th::GatherArgs<[f32; 3]>>()),
+        ),
+        (
+            "dustsph_gather_f64",
+            size_of::<th::GatherArgs<f64>>(),
+            Some(size_of::<th::GatherArgs<f32>>()),
+        ),
+        ("dustsph_gather_u64", size_of::<th::GatherArgs<u64>>(), None),
+        ("dustsph_gather_u8", size_of::<th::GatherArgs<u8>>(), None),
+        (
+            "dustsph_density",
+            size_of::<th::DensityArgs<f64>>(),
+            Some(size_of::<th::DensityArgs<f32>>()),
+        ),
+        (
+            "dustsph_eos",
+            size_of::<th::EosArgs<f64>>(),
+            Some(size_of::<th::EosArgs<f32>>()),
+        ),
+        (
+            "dustsph_forces",
+            size_of::<th::ForcesArgs<f64>>(),
+            Some(size_of::<th::ForcesArgs<f32>>()),
+        ),
+        (
+            "dustsph_union_flags",
+            size_of::<th::UnionArgs<f64>>(),
+            Some(size_of::<th::UnionArgs<f32>>()),
+        ),
+        (
+            "dustsph_union_keys",
+            size_of::<th::UnionArgs<f64>>(),
+            Some(size_of::<th::UnionArgs<f32>>()),
+        ),
+        (
+            "dustsph_solve_h",
+            size_of::<th::HSolveArgs<f64>>(),
+            Some(size_of::<th::HSolveArgs<f32>>()),
+        ),
+        (
+            "dustsph_force_prep",
+            size_of::<th::PrepArgs<f64>>(),
+            Some(size_of::<th::PrepArgs<f32>>()),
+        ),
+        (
+            "dustsph_iad_matrix",
+            size_of::<th::IadArgs<f64>>(),
+            Some(size_of::<th::IadArgs<f32>>()),
+        ),
+        (
+            "dustsph_max_of",
+            size_of::<th::MaxArgs<f64>>(),
+            Some(size_of::<th::MaxArgs<f32>>()),
+        ),
+        (
+            "dustsph_copy_v3",
+            size_of::<th::CopyArgs<[f64; 3]>>(),
+            Some(size_of::<th::CopyArgs<[f32; 3]>>()),
+        ),
+        (
+            "dustsph_copy_f64",
+            size_of::<th::CopyArgs<f64>>(),
+            Some(size_of::<th::CopyArgs<f32>>()),
+        ),
+        (
+            "dustsph_density_continuity",
+            size_of::<th::DensityArgs<f64>>(),
+            Some(size_of::<th::DensityArgs<f32>>()),
+        ),
+        (
+            "dustsph_explicit_limit",
+            size_of::<th::LimitArgs<f64>>(),
+            Some(size_of::<th::LimitArgs<f32>>()),
+        ),
+        (
+            "dustsph_cell_step",
+            size_of::<th::CellArgs<f64>>(),
+            Some(size_of::<th::CellArgs<f32>>()),
+        ),
+        (
+            "dustsph_gas_kick",
+            size_of::<th::KickArgs<f64>>(),
+            Some(size_of::<th::KickArgs<f32>>()),
+        ),
+        (
+            "dustsph_dust_kick",
+            size_of::<th::KickArgs<f64>>(),
+            Some(size_of::<th::KickArgs<f32>>()),
+        ),
+        (
+            "dustsph_heat",
+            size_of::<th::HeatArgs<f64>>(),
+            Some(size_of::<th::HeatArgs<f32>>()),
+        ),
+        (
+            "dustsph_drift",
+            size_of::<th::DriftArgs<f64>>(),
+            Some(size_of::<th::DriftArgs<f32>>()),
+        ),
+        (
+            "dustsph_energy",
+            size_of::<th::EnergyArgs<f64>>(),
+            Some(size_of::<th::EnergyArgs<f32>>()),
+        ),
+        (
+            "dustsph_check",
+            size_of::<th::CheckArgs<f64>>(),
+            Some(size_of::<th::CheckArgs<f32>>()),
+        ),
+        (
+            "dustsph_dust_accel",
+            size_of::<th::DustAccelArgs<f64>>(),
+            Some(size_of::<th::DustAccelArgs<f32>>()),
+        ),
+        (
+            "dustsph_coupling_norm",
+            size_of::<th::NormArgs<f64>>(),
+            Some(size_of::<th::NormArgs<f32>>()),
+        ),
+        (
+            "dustsph_coupling_solve",
+            size_of::<th::CoupleArgs<f64>>(),
+            Some(size_of::<th::CoupleArgs<f32>>()),
+        ),
+        (
+            "dustsph_coupling_return",
+            size_of::<th::ReturnArgs<f64>>(),
+            Some(size_of::<th::ReturnArgs<f32>>()),
+        ),
+        (
+            "dustsph_coupling_tstop",
+            size_of::<th::ReturnArgs<f64>>(),
+            Some(size_of::<th::ReturnArgs<f32>>()),
+        ),
+        (
+            "dustsph_coupling_heat",
+            size_of::<th::CouplingHeatArgs<f64>>(),
+            Some(size_of::<th::CouplingHeatArgs<f32>>()),
+        ),
         (
             "dustsph_coupling_scatter",
-            size_of::<th::ScatterDepositArgs>(),
+            size_of::<th::ScatterDepositArgs<f64>>(),
+            Some(size_of::<th::ScatterDepositArgs<f32>>()),
         ),
         (
             "dustsph_coupling_solve_sums",
-            size_of::<th::ScatterDepositArgs>(),
+            size_of::<th::ScatterDepositArgs<f64>>(),
+            Some(size_of::<th::ScatterDepositArgs<f32>>()),
         ),
     ];
     let got = entry_param_sizes(gpu::PTX);
-    assert_eq!(got.len(), KERNELS.len(), "entry points in the PTX: {got:?}");
-    for (name, size) in want {
+    assert_eq!(
+        got.len(),
+        KERNELS.len() + KERNELS_F32.len(),
+        "entry points in the PTX: {got:?}"
+    );
+    let size_of_entry = |n: &str| got.iter().find(|(g, _)| g == n).map(|g| g.1);
+    for (name, size, size32) in want {
         assert!(
             KERNELS.contains(name),
             "{name} is not in the launcher's list"
         );
-        let g = got.iter().find(|(n, _)| n == name);
         assert_eq!(
-            g.map(|g| g.1),
+            size_of_entry(name),
             Some(*size),
             "{name}: PTX parameter bytes vs host struct"
         );
+        let n32 = gpu::launch::f32_name(name);
+        match size32 {
+            Some(s) => {
+                assert!(KERNELS_F32.contains(&n32), "{name} has no f32 entry");
+                assert_eq!(
+                    size_of_entry(n32),
+                    Some(*s),
+                    "{n32}: PTX bytes vs host struct"
+                );
+            }
+            None => assert_eq!(n32, *name, "{name} needs no f32 entry"),
+        }
     }
     assert!(
         !gpu::PTX.contains(".extern"),
@@ -292,6 +438,76 @@ fn sparse_cell_tables_give_the_same_step() {
                 f.bitwise,
                 "{label}, sparse tables: {} differs (max relative {:.3e})",
                 f.field, f.max_relative
+            );
+        }
+    }
+}
+
+/// The f32 kernels (`numerics.precision = "f32"`) on every scene and option: every core
+/// against one thread, bit for bit (the same f32 operations in the same order; the PTX has
+/// no contraction and IEEE-rounded div/sqrt, so a GPU must meet this too).
+#[test]
+fn f32_kernels_are_bit_identical_across_threads_on_every_case() {
+    for (label, file, sets, steps) in CASES {
+        let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        sets.push("numerics.precision=\"f32\"".into());
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
+        let loaded = dustsph::scene::load(&path, &sets).unwrap();
+        let p = compare(&loaded, (*steps).min(8), DeviceChoice::Cpu).unwrap();
+        assert!(p.device.contains("f32"), "{label}: ran on {}", p.device);
+        for f in &p.fields {
+            assert!(
+                f.bitwise,
+                "{label}, f32: {} differs (max relative {:.3e})",
+                f.field, f.max_relative
+            );
+        }
+    }
+}
+
+/// The f32 step against the f64 step from the same particles: different (it really runs in
+/// f32), and within single-precision round-off after a few steps. Bounds (measured, with
+/// ≈4× margin or more): 1e-5 of each field's scale; the Phantom wave's velocities 5e-2 and
+/// largest acceleration 0.2, as their signal is 1e-4 of the sound speed and the pressure whose f32 round-off
+/// (≈1e-7 of them) it carries (docs/accuracy.md); the uniform box's max |A| is itself
+/// round-off of zero and is not compared.
+#[test]
+fn f32_step_follows_the_f64_step_to_single_precision() {
+    for i in [0, 3, 4, 11, 14] {
+        let (label, file, sets, steps) = CASES[i];
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        let mut sets32 = sets.clone();
+        sets32.push("numerics.precision=\"f32\"".into());
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
+        let f64_scene = dustsph::scene::load(&path, &sets).unwrap();
+        let f32_scene = dustsph::scene::load(&path, &sets32).unwrap();
+        let p = compare_scenes(
+            &f64_scene,
+            &f32_scene,
+            steps.min(8),
+            DeviceChoice::Cpu,
+            false,
+        )
+        .unwrap();
+        assert!(
+            !p.bitwise(),
+            "{label}: f32 equals f64 bit for bit (is it running?)"
+        );
+        let wave = label.contains("Phantom wave");
+        for f in &p.fields {
+            if i == 0 && f.field == "max |A|" {
+                continue;
+            }
+            let bound = match (wave, f.field.as_str()) {
+                (true, "max |A|") => 0.2,
+                (true, v) if v.contains(" v[") => 5e-2,
+                _ => 1e-5,
+            };
+            assert!(
+                f.max_relative < bound,
+                "{label}: f32 {} differs from f64 by {:.3e} (bound {bound:e})",
+                f.field,
+                f.max_relative
             );
         }
     }

@@ -114,6 +114,7 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
         variable_h: None,
         gradient: dustsph::scene::GradientMethod::Standard,
         integrator: dustsph::scene::Integrator::FirstOrder,
+        precision: dustsph::scene::Precision::F64,
     };
     let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     let mut pscale: f64 = 0.0;
@@ -215,6 +216,7 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
         variable_h: None,
         gradient: dustsph::scene::GradientMethod::Standard,
         integrator: dustsph::scene::Integrator::FirstOrder,
+        precision: dustsph::scene::Precision::F64,
     };
     let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     for _ in 0..10 {

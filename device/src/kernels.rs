@@ -544,8 +544,9 @@ pub fn drift_at<R: Real>(
 /// Order-preserving map of a float to an unsigned integer (for atomic min/max of bounds and
 /// time-step limits on the GPU): a < b ⇔ key(a) < key(b) for all non-NaN values.
 #[inline(always)]
-pub fn ordered_bits(x: f64) -> u64 {
-    let b = x.to_bits();
+pub fn ordered_bits<R: Real>(x: R) -> u64 {
+    // Widening f32 → f64 is exact and keeps the order (and a NaN's sign).
+    let b = x.to_f64().to_bits();
     if b >> 63 == 1 {
         !b
     } else {

@@ -26,19 +26,17 @@ use crate::{dot, drag, update, Real, Vec3};
 use core::slice;
 use core::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
-type V3 = Vec3<f64>;
-
 /// A stopping-time law as plain data: `kind` 0 = constant t (value t), 1 = constant K (value K),
 /// 2 = Epstein (value s·ρ_s).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct LawParam {
+pub struct LawParam<R> {
     pub kind: u32,
-    pub value: f64,
+    pub value: R,
 }
 
-impl LawParam {
-    pub fn from_law(l: &StoppingLaw<f64>) -> LawParam {
+impl<R: Real> LawParam<R> {
+    pub fn from_law(l: &StoppingLaw<R>) -> LawParam<R> {
         match *l {
             StoppingLaw::ConstantTime { t_stop } => LawParam {
                 kind: 0,
@@ -53,7 +51,7 @@ impl LawParam {
     }
 
     #[inline(always)]
-    pub fn law(&self) -> StoppingLaw<f64> {
+    pub fn law(&self) -> StoppingLaw<R> {
         match self.kind {
             0 => StoppingLaw::ConstantTime { t_stop: self.value },
             1 => StoppingLaw::ConstantK { k: self.value },
@@ -65,34 +63,34 @@ impl LawParam {
 /// The physics and grid of one step, by value in every kernel that needs it.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct StepParams {
-    pub geom: GridGeom<f64>,
+pub struct StepParams<R> {
+    pub geom: GridGeom<R>,
     /// Cells in the grid box (T); combined keys run over groups · (T + 1).
     pub total: u64,
-    pub h: f64,
-    pub tau: f64,
+    pub h: R,
+    pub tau: R,
     pub dim: u32,
     /// 0 isothermal (value c_s), 1 adiabatic (value γ).
     pub eos_kind: u32,
-    pub eos_value: f64,
+    pub eos_value: R,
     /// 1 when artificial viscosity is on.
     pub av: u32,
-    pub alpha: f64,
-    pub beta: f64,
-    pub nu2_factor: f64,
+    pub alpha: R,
+    pub beta: R,
+    pub nu2_factor: R,
     pub nf: u32,
     pub needs_gas_state: u32,
-    pub laws: [LawParam; MAX_FRACTIONS],
+    pub laws: [LawParam<R>; MAX_FRACTIONS],
     /// Constant external accelerations of the gas (added to A^n) and of the dust (B^n).
-    pub ext_gas: V3,
-    pub ext_dust: V3,
+    pub ext_gas: Vec3<R>,
+    pub ext_dust: Vec3<R>,
     /// 1: the explicit (forward-Euler) drag baseline instead of IDIC.
     pub explicit_drag: u32,
 }
 
-impl StepParams {
+impl<R: Real> StepParams<R> {
     #[inline(always)]
-    pub fn eos(&self) -> Eos<f64> {
+    pub fn eos(&self) -> Eos<R> {
         if self.eos_kind == 0 {
             Eos::Isothermal { cs: self.eos_value }
         } else {
@@ -103,7 +101,7 @@ impl StepParams {
     }
 
     #[inline(always)]
-    pub fn viscosity(&self) -> Option<Viscosity<f64>> {
+    pub fn viscosity(&self) -> Option<Viscosity<R>> {
         (self.av != 0).then_some(Viscosity {
             alpha: self.alpha,
             beta: self.beta,
@@ -111,10 +109,37 @@ impl StepParams {
         })
     }
 
+    /// The same step in another precision (the host builds it in f64).
+    pub fn cast<S: Real>(&self) -> StepParams<S> {
+        let c = |x: R| S::from_f64(x.to_f64());
+        StepParams {
+            geom: self.geom.cast(),
+            total: self.total,
+            h: c(self.h),
+            tau: c(self.tau),
+            dim: self.dim,
+            eos_kind: self.eos_kind,
+            eos_value: c(self.eos_value),
+            av: self.av,
+            alpha: c(self.alpha),
+            beta: c(self.beta),
+            nu2_factor: c(self.nu2_factor),
+            nf: self.nf,
+            needs_gas_state: self.needs_gas_state,
+            laws: self.laws.map(|l| LawParam {
+                kind: l.kind,
+                value: c(l.value),
+            }),
+            ext_gas: self.ext_gas.map(c),
+            ext_dust: self.ext_dust.map(c),
+            explicit_drag: self.explicit_drag,
+        }
+    }
+
     /// The stopping-time laws of the fractions.
     #[inline(always)]
-    pub fn stopping_laws(&self) -> [StoppingLaw<f64>; MAX_FRACTIONS] {
-        let mut l = [StoppingLaw::ConstantTime { t_stop: 0.0 }; MAX_FRACTIONS];
+    pub fn stopping_laws(&self) -> [StoppingLaw<R>; MAX_FRACTIONS] {
+        let mut l = [StoppingLaw::ConstantTime { t_stop: R::ZERO }; MAX_FRACTIONS];
         for (l, p) in l.iter_mut().zip(&self.laws).take(self.nf as usize) {
             *l = p.law();
         }
@@ -165,11 +190,11 @@ pub fn union_index(ubidx: &[u32], ukey: &[u64], sub_cells: usize, k: u64) -> Opt
 /// One phase buffer on the device (or in host memory, for the emulated backend).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct PhaseBufs {
-    pub x: *mut V3,
-    pub v: *mut V3,
-    pub m: *mut f64,
-    pub rho: *mut f64,
+pub struct PhaseBufs<R> {
+    pub x: *mut Vec3<R>,
+    pub v: *mut Vec3<R>,
+    pub m: *mut R,
+    pub rho: *mut R,
     /// 0/1 per particle; null when no particle is fixed.
     pub fixed: *mut u8,
     /// Combined sort key per particle.
@@ -206,25 +231,25 @@ unsafe fn sl_mut<'a, T>(p: *mut T, n: usize) -> &'a mut [T] {
     }
 }
 
-impl PhaseBufs {
+impl<R: Real> PhaseBufs<R> {
     #[inline(always)]
     fn len(&self) -> usize {
         self.n as usize
     }
     #[inline(always)]
-    unsafe fn x(&self) -> &[V3] {
+    unsafe fn x(&self) -> &[Vec3<R>] {
         sl(self.x, self.len())
     }
     #[inline(always)]
-    unsafe fn v(&self) -> &[V3] {
+    unsafe fn v(&self) -> &[Vec3<R>] {
         sl(self.v, self.len())
     }
     #[inline(always)]
-    unsafe fn m(&self) -> &[f64] {
+    unsafe fn m(&self) -> &[R] {
         sl(self.m, self.len())
     }
     #[inline(always)]
-    unsafe fn rho(&self) -> &[f64] {
+    unsafe fn rho(&self) -> &[R] {
         sl(self.rho, self.len())
     }
     #[inline(always)]
@@ -233,7 +258,7 @@ impl PhaseBufs {
         sl(self.fixed as *const bool, self.len())
     }
     #[inline(always)]
-    unsafe fn dense(&self, p: &StepParams) -> &[u32] {
+    unsafe fn dense(&self, p: &StepParams<R>) -> &[u32] {
         sl(self.dense, self.groups as usize * p.stride() + 1)
     }
     /// Group of particle i (≤ 32 groups: a linear scan).
@@ -247,7 +272,7 @@ impl PhaseBufs {
     }
     /// The neighbour-walk view of group g.
     #[inline(always)]
-    unsafe fn sorted<'a>(&'a self, p: &'a StepParams, g: usize) -> Sorted<'a, f64> {
+    unsafe fn sorted<'a>(&'a self, p: &'a StepParams<R>, g: usize) -> Sorted<'a, R> {
         if self.ncells > 0 {
             let nc = self.ncells as usize;
             return Sorted {
@@ -278,7 +303,7 @@ impl PhaseBufs {
     /// Particle range of group g in the IDIC cell with (grid) key k: its search cell's range
     /// from the dense table, then the run of key k inside it (sorted by key).
     #[inline(always)]
-    unsafe fn cell_range(&self, p: &StepParams, g: usize, k: u64) -> (usize, usize) {
+    unsafe fn cell_range(&self, p: &StepParams<R>, g: usize, k: u64) -> (usize, usize) {
         let c = (g * p.key_stride()) as u64 + k;
         if self.ncells > 0 {
             let nc = self.ncells as usize;
@@ -322,8 +347,8 @@ unsafe fn atomic_add_u32(p: *mut u32, v: u32) -> u32 {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct BoundsArgs {
-    pub x: *const V3,
+pub struct BoundsArgs<R> {
+    pub x: *const Vec3<R>,
     pub n: u32,
     /// Particles per thread.
     pub chunk: u32,
@@ -332,7 +357,7 @@ pub struct BoundsArgs {
     pub out: *mut u64,
 }
 
-pub unsafe fn bounds(t: usize, a: &BoundsArgs) {
+pub unsafe fn bounds<R: Real>(t: usize, a: &BoundsArgs<R>) {
     let x = sl(a.x, a.n as usize);
     let lo = t * a.chunk as usize;
     if lo >= x.len() {
@@ -358,14 +383,14 @@ pub unsafe fn bounds(t: usize, a: &BoundsArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct KeysArgs {
-    pub ph: PhaseBufs,
-    pub p: StepParams,
+pub struct KeysArgs<R> {
+    pub ph: PhaseBufs<R>,
+    pub p: StepParams<R>,
     /// groups · stride + 1 counters (one per search cell of each group), zeroed.
     pub counts: *mut u32,
 }
 
-pub unsafe fn keys(t: usize, a: &KeysArgs) {
+pub unsafe fn keys<R: Real>(t: usize, a: &KeysArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
         return;
@@ -429,7 +454,7 @@ pub unsafe fn scan_chunks(t: usize, a: &ScanArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct ScatterArgs {
+pub struct ScatterArgs<R> {
     pub keys: *const u64,
     pub n: u32,
     pub dense: *const u32,
@@ -437,10 +462,10 @@ pub struct ScatterArgs {
     pub cursor: *mut u32,
     /// New → old particle index.
     pub perm: *mut u32,
-    pub p: StepParams,
+    pub p: StepParams<R>,
 }
 
-pub unsafe fn scatter(t: usize, a: &ScatterArgs) {
+pub unsafe fn scatter<R: Real>(t: usize, a: &ScatterArgs<R>) {
     if t >= a.n as usize {
         return;
     }
@@ -508,13 +533,13 @@ pub unsafe fn gather<T: Copy>(t: usize, a: &GatherArgs<T>) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct DensityArgs {
-    pub ph: PhaseBufs,
-    pub p: StepParams,
+pub struct DensityArgs<R> {
+    pub ph: PhaseBufs<R>,
+    pub p: StepParams<R>,
 }
 
 /// Density of particle t by summation over its own group (fixed particles keep theirs).
-pub unsafe fn density(t: usize, a: &DensityArgs) {
+pub unsafe fn density<R: Real>(t: usize, a: &DensityArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
         return;
@@ -528,7 +553,7 @@ pub unsafe fn density(t: usize, a: &DensityArgs) {
 
 /// Continuity equation: ρ_t ← ρ_t + τ dρ_t/dt at the current positions and velocities
 /// ([`kernels::density_rate_at`] reads only x, v and m, so the update is in place).
-pub unsafe fn density_continuity(t: usize, a: &DensityArgs) {
+pub unsafe fn density_continuity<R: Real>(t: usize, a: &DensityArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
         return;
@@ -541,21 +566,21 @@ pub unsafe fn density_continuity(t: usize, a: &DensityArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct EosArgs {
-    pub rho: *const f64,
+pub struct EosArgs<R> {
+    pub rho: *const R,
     /// Null for isothermal gas.
-    pub e: *const f64,
-    pub pres: *mut f64,
-    pub c: *mut f64,
+    pub e: *const R,
+    pub pres: *mut R,
+    pub c: *mut R,
     pub n: u32,
-    pub p: StepParams,
+    pub p: StepParams<R>,
 }
 
-pub unsafe fn eos(t: usize, a: &EosArgs) {
+pub unsafe fn eos<R: Real>(t: usize, a: &EosArgs<R>) {
     if t >= a.n as usize {
         return;
     }
-    let e = if a.e.is_null() { 0.0 } else { *a.e.add(t) };
+    let e = if a.e.is_null() { R::ZERO } else { *a.e.add(t) };
     let (p, c) = kernels::eos_at(&a.p.eos(), *a.rho.add(t), e);
     *a.pres.add(t) = p;
     *a.c.add(t) = c;
@@ -563,28 +588,28 @@ pub unsafe fn eos(t: usize, a: &EosArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct ForcesArgs {
-    pub gas: PhaseBufs,
-    pub pres: *const f64,
-    pub c: *const f64,
-    pub acc: *mut V3,
+pub struct ForcesArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub pres: *const R,
+    pub c: *const R,
+    pub acc: *mut Vec3<R>,
     /// Null when there is no energy equation.
-    pub dedt: *mut f64,
+    pub dedt: *mut R,
     /// [max signal speed, max |A|] as [`kernels::ordered_bits`], zeroed.
     pub limits: *mut u64,
     /// 0: fixed h, standard gradient; 1: variable h (grad-h); 2: IAD gradient. Modes 1 and 2
     /// read the per-particle kernels `kat` and pressure terms `pt` ([`force_prep`]); 2 also
     /// the IAD matrices `iad` ([`iad_matrix`]).
     pub mode: u32,
-    pub kat: *const KernelAt<f64>,
-    pub pt: *const f64,
-    pub iad: *const Sym3<f64>,
+    pub kat: *const KernelAt<R>,
+    pub pt: *const R,
+    pub iad: *const Sym3<R>,
     /// Per-particle signal speed (the leapfrog keeps its closing forces whole); null: not kept.
-    pub vsig: *mut f64,
-    pub p: StepParams,
+    pub vsig: *mut R,
+    pub p: StepParams<R>,
 }
 
-pub unsafe fn forces(t: usize, a: &ForcesArgs) {
+pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
     let g = &a.gas;
     if t >= g.len() {
         return;
@@ -631,25 +656,25 @@ pub unsafe fn forces(t: usize, a: &ForcesArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct HSolveArgs {
-    pub ph: PhaseBufs,
+pub struct HSolveArgs<R> {
+    pub ph: PhaseBufs<R>,
     /// Initial h per particle; null: the reference h for all (the dust, solved afresh).
-    pub h0: *const f64,
+    pub h0: *const R,
     /// Out: h, Ω (null for the dust), Newton iterations; ρ goes to the phase's `rho`.
-    pub h: *mut f64,
-    pub omega: *mut f64,
+    pub h: *mut R,
+    pub omega: *mut R,
     pub iters: *mut u32,
     /// Smallest index of a particle whose solve failed; initialise to u32::MAX.
     pub bad: *mut u32,
-    pub hfact: f64,
+    pub hfact: R,
     /// Half the grid's search radius: h must stay below it.
-    pub h_max: f64,
-    pub tol: f64,
-    pub p: StepParams,
+    pub h_max: R,
+    pub tol: R,
+    pub p: StepParams<R>,
 }
 
 /// h, ρ and Ω of particle t by Newton–Raphson over its own group ([`kernels::solve_h_at`]).
-pub unsafe fn solve_h(t: usize, a: &HSolveArgs) {
+pub unsafe fn solve_h<R: Real>(t: usize, a: &HSolveArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
         return;
@@ -682,20 +707,20 @@ pub unsafe fn solve_h(t: usize, a: &HSolveArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct PrepArgs {
-    pub gas: PhaseBufs,
+pub struct PrepArgs<R> {
+    pub gas: PhaseBufs<R>,
     /// h per particle, or null (the reference h).
-    pub h: *const f64,
+    pub h: *const R,
     /// Ω per particle (grad-h: pt = p/(Ω ρ²)), or null (IAD: pt = p/ρ²).
-    pub omega: *const f64,
-    pub pres: *const f64,
-    pub kat: *mut KernelAt<f64>,
-    pub pt: *mut f64,
-    pub p: StepParams,
+    pub omega: *const R,
+    pub pres: *const R,
+    pub kat: *mut KernelAt<R>,
+    pub pt: *mut R,
+    pub p: StepParams<R>,
 }
 
 /// Kernel constants and pressure term of gas particle t, once per force evaluation.
-pub unsafe fn force_prep(t: usize, a: &PrepArgs) {
+pub unsafe fn force_prep<R: Real>(t: usize, a: &PrepArgs<R>) {
     let g = &a.gas;
     if t >= g.len() {
         return;
@@ -712,15 +737,15 @@ pub unsafe fn force_prep(t: usize, a: &PrepArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct IadArgs {
-    pub gas: PhaseBufs,
-    pub kat: *const KernelAt<f64>,
-    pub iad: *mut Sym3<f64>,
-    pub p: StepParams,
+pub struct IadArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub kat: *const KernelAt<R>,
+    pub iad: *mut Sym3<R>,
+    pub p: StepParams<R>,
 }
 
 /// IAD matrix C_t of gas particle t ([`kernels::iad_matrix_at`]).
-pub unsafe fn iad_matrix(t: usize, a: &IadArgs) {
+pub unsafe fn iad_matrix<R: Real>(t: usize, a: &IadArgs<R>) {
     let g = &a.gas;
     if t >= g.len() {
         return;
@@ -731,8 +756,8 @@ pub unsafe fn iad_matrix(t: usize, a: &IadArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct MaxArgs {
-    pub x: *const f64,
+pub struct MaxArgs<R> {
+    pub x: *const R,
     pub n: u32,
     pub chunk: u32,
     /// The maximum as [`kernels::ordered_bits`]; zeroed before the launch.
@@ -740,13 +765,13 @@ pub struct MaxArgs {
 }
 
 /// Maximum of x over chunk t (the largest h sets the search radius).
-pub unsafe fn max_of(t: usize, a: &MaxArgs) {
+pub unsafe fn max_of<R: Real>(t: usize, a: &MaxArgs<R>) {
     let (lo, n) = (t * a.chunk as usize, a.n as usize);
     if lo >= n {
         return;
     }
     let hi = (lo + a.chunk as usize).min(n);
-    let mut m = f64::NEG_INFINITY;
+    let mut m = R::from_f64(f64::NEG_INFINITY);
     for i in lo..hi {
         m = m.max(*a.x.add(i));
     }
@@ -758,27 +783,27 @@ pub unsafe fn max_of(t: usize, a: &MaxArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct UnionArgs {
-    pub gas: PhaseBufs,
-    pub dust: PhaseBufs,
+pub struct UnionArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub dust: PhaseBufs<R>,
     /// stride flags: the number of IDIC cells of search cell t that any phase occupies (the
     /// last stays 0); scanned afterwards into `ubidx`, where search cell t's occupied cells
     /// start in the union.
     pub flags: *mut u32,
     /// The union's keys, written by [`union_keys`] (null for [`union_flags`]).
     pub ukey: *mut u64,
-    pub p: StepParams,
+    pub p: StepParams<R>,
 }
 
 #[inline(always)]
-unsafe fn occupied(ph: &PhaseBufs, p: &StepParams, g: usize, k: u64) -> bool {
+unsafe fn occupied<R: Real>(ph: &PhaseBufs<R>, p: &StepParams<R>, g: usize, k: u64) -> bool {
     let (a, b) = ph.cell_range(p, g, k);
     b > a
 }
 
 /// Calls `f(i, k)` for the i-th occupied IDIC cell k (in key order) of search cell t.
 #[inline(always)]
-unsafe fn occupied_cells(a: &UnionArgs, t: usize, mut f: impl FnMut(usize, u64)) {
+unsafe fn occupied_cells<R: Real>(a: &UnionArgs<R>, t: usize, mut f: impl FnMut(usize, u64)) {
     let sc = a.p.sub_cells();
     let mut i = 0;
     for s in 0..sc {
@@ -794,7 +819,7 @@ unsafe fn occupied_cells(a: &UnionArgs, t: usize, mut f: impl FnMut(usize, u64))
     }
 }
 
-pub unsafe fn union_flags(t: usize, a: &UnionArgs) {
+pub unsafe fn union_flags<R: Real>(t: usize, a: &UnionArgs<R>) {
     let nb = a.p.stride() - 1;
     if t > nb {
         return;
@@ -807,7 +832,7 @@ pub unsafe fn union_flags(t: usize, a: &UnionArgs) {
 }
 
 /// Search cell t writes its occupied IDIC cells' keys into the union, in key order.
-pub unsafe fn union_keys(t: usize, a: &UnionArgs) {
+pub unsafe fn union_keys<R: Real>(t: usize, a: &UnionArgs<R>) {
     if t >= a.p.stride() - 1 {
         return;
     }
@@ -818,7 +843,7 @@ pub unsafe fn union_keys(t: usize, a: &UnionArgs) {
 /// Per union cell: gas mass, v*^{n+1}, and per fraction ε, β, t*, u*^{n+1} (at u · nf + k).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct CellBufs {
+pub struct CellBufs<R> {
     /// Where each search cell's occupied IDIC cells start in the union (stride entries; the
     /// last is the union count), and the union's keys. In sparse mode (`sparse_count` > 0
     /// or the phases' tables sparse) `uidx` is unused and the union has `sparse_count` keys.
@@ -826,28 +851,28 @@ pub struct CellBufs {
     pub sparse: u32,
     pub sparse_count: u32,
     pub ukey: *const u64,
-    pub gas_mass: *mut f64,
-    pub v_new: *mut V3,
-    pub eps: *mut f64,
-    pub beta: *mut f64,
-    pub t_stop: *mut f64,
-    pub u_new: *mut V3,
+    pub gas_mass: *mut R,
+    pub v_new: *mut Vec3<R>,
+    pub eps: *mut R,
+    pub beta: *mut R,
+    pub t_stop: *mut R,
+    pub u_new: *mut Vec3<R>,
 }
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct CellArgs {
-    pub gas: PhaseBufs,
-    pub dust: PhaseBufs,
-    pub pres: *const f64,
-    pub acc: *const V3,
-    pub cells: CellBufs,
-    pub p: StepParams,
+pub struct CellArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub dust: PhaseBufs<R>,
+    pub pres: *const R,
+    pub acc: *const Vec3<R>,
+    pub cells: CellBufs<R>,
+    pub p: StepParams<R>,
 }
 
 /// The IDIC cell step of union cell t: sums (in particle order, as on the CPU), ε, t*, β and
 /// the implicit solve.
-pub unsafe fn cell_step(t: usize, a: &CellArgs) {
+pub unsafe fn cell_step<R: Real>(t: usize, a: &CellArgs<R>) {
     let p = &a.p;
     let nu = union_count(&a.cells, p);
     if t >= nu {
@@ -872,7 +897,7 @@ pub unsafe fn cell_step(t: usize, a: &CellArgs) {
     );
     let nf = p.nf as usize;
     let mut ds = [kernels::DustSums::default(); MAX_FRACTIONS];
-    let mut laws = [StoppingLaw::ConstantTime { t_stop: 0.0 }; MAX_FRACTIONS];
+    let mut laws = [StoppingLaw::ConstantTime { t_stop: R::ZERO }; MAX_FRACTIONS];
     for f in 0..nf {
         let (lo, hi) = d.cell_range(p, f, k);
         laws[f] = p.laws[f].law();
@@ -902,23 +927,23 @@ pub unsafe fn cell_step(t: usize, a: &CellArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct LimitArgs {
-    pub cells: CellBufs,
+pub struct LimitArgs<R> {
+    pub cells: CellBufs<R>,
     /// The fastest drag rate Λ of any union cell as [`kernels::ordered_bits`]; zeroed.
     pub rate: *mut u64,
-    pub p: StepParams,
+    pub p: StepParams<R>,
 }
 
 /// The explicit drag's rate bound Λ of union cell t ([`drag::explicit_rate`]), max-reduced.
-pub unsafe fn explicit_limit(t: usize, a: &LimitArgs) {
+pub unsafe fn explicit_limit<R: Real>(t: usize, a: &LimitArgs<R>) {
     if t >= union_count(&a.cells, &a.p) {
         return;
     }
     let nf = a.p.nf as usize;
-    let mut inv_t = [0.0; MAX_FRACTIONS];
+    let mut inv_t = [R::ZERO; MAX_FRACTIONS];
     for (k, r) in inv_t.iter_mut().enumerate().take(nf) {
         let ts = *a.cells.t_stop.add(t * nf + k);
-        *r = if ts.is_finite() { 1.0 / ts } else { 0.0 };
+        *r = if ts.is_finite() { R::ONE / ts } else { R::ZERO };
     }
     let rate = drag::explicit_rate(sl(a.cells.eps.add(t * nf), nf), &inv_t[..nf]);
     atomic_max_u64(a.rate, kernels::ordered_bits(rate));
@@ -926,21 +951,26 @@ pub unsafe fn explicit_limit(t: usize, a: &LimitArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct KickArgs {
-    pub ph: PhaseBufs,
+pub struct KickArgs<R> {
+    pub ph: PhaseBufs<R>,
     /// Gas: A^n (ṽ = v + τA); null for dust (ũ = u).
-    pub acc: *const V3,
+    pub acc: *const Vec3<R>,
     /// 1 when the IDIC update applies (dust in the scene); 0: v^{n+1} = ṽ.
     pub drag: u32,
-    pub cells: CellBufs,
+    pub cells: CellBufs<R>,
     /// Kinetic energy lost per particle (drag heating); null when not needed.
-    pub loss: *mut f64,
-    pub p: StepParams,
+    pub loss: *mut R,
+    pub p: StepParams<R>,
 }
 
 /// Union index of the IDIC cell of particle i (its own cell is occupied, so it is found).
 #[inline(always)]
-unsafe fn cell_of(ph: &PhaseBufs, p: &StepParams, cells: &CellBufs, i: usize) -> usize {
+unsafe fn cell_of<R: Real>(
+    ph: &PhaseBufs<R>,
+    p: &StepParams<R>,
+    cells: &CellBufs<R>,
+    i: usize,
+) -> usize {
     let key = *ph.keys.add(i) % p.key_stride() as u64;
     let ukey = sl(cells.ukey, union_count(cells, p));
     if cells.sparse != 0 {
@@ -952,7 +982,7 @@ unsafe fn cell_of(ph: &PhaseBufs, p: &StepParams, cells: &CellBufs, i: usize) ->
 
 /// Number of occupied IDIC cells in the union.
 #[inline(always)]
-unsafe fn union_count(cells: &CellBufs, p: &StepParams) -> usize {
+unsafe fn union_count<R: Real>(cells: &CellBufs<R>, p: &StepParams<R>) -> usize {
     if cells.sparse != 0 {
         return cells.sparse_count as usize;
     }
@@ -960,7 +990,7 @@ unsafe fn union_count(cells: &CellBufs, p: &StepParams) -> usize {
 }
 
 /// Gas velocity update (method.md §3.3) of particle t.
-pub unsafe fn gas_kick(t: usize, a: &KickArgs) {
+pub unsafe fn gas_kick<R: Real>(t: usize, a: &KickArgs<R>) {
     let g = &a.ph;
     if t >= g.len() {
         return;
@@ -994,7 +1024,7 @@ pub unsafe fn gas_kick(t: usize, a: &KickArgs) {
 }
 
 /// Dust velocity update of particle t (its fraction from its group).
-pub unsafe fn dust_kick(t: usize, a: &KickArgs) {
+pub unsafe fn dust_kick<R: Real>(t: usize, a: &KickArgs<R>) {
     let d = &a.ph;
     if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
         return;
@@ -1017,26 +1047,26 @@ pub unsafe fn dust_kick(t: usize, a: &KickArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct HeatArgs {
-    pub gas: PhaseBufs,
-    pub dust: PhaseBufs,
-    pub loss_gas: *const f64,
-    pub loss_dust: *const f64,
-    pub cells: CellBufs,
+pub struct HeatArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub dust: PhaseBufs<R>,
+    pub loss_gas: *const R,
+    pub loss_dust: *const R,
+    pub cells: CellBufs<R>,
     /// Drag heat per unit gas mass of each union cell.
-    pub heat: *mut f64,
-    pub p: StepParams,
+    pub heat: *mut R,
+    pub p: StepParams<R>,
 }
 
 /// Drag heat of union cell t: the kinetic energy its particles lost, per unit gas mass. Summed
 /// gas first, then fraction by fraction, in particle order: the CPU's order.
-pub unsafe fn heat(t: usize, a: &HeatArgs) {
+pub unsafe fn heat<R: Real>(t: usize, a: &HeatArgs<R>) {
     let p = &a.p;
     if t >= union_count(&a.cells, p) {
         return;
     }
     let k = *a.cells.ukey.add(t);
-    let mut q = 0.0;
+    let mut q = R::ZERO;
     let (lo, hi) = a.gas.cell_range(p, 0, k);
     let gf = a.gas.fixed();
     for i in lo..hi {
@@ -1054,18 +1084,18 @@ pub unsafe fn heat(t: usize, a: &HeatArgs) {
         }
     }
     let mg = *a.cells.gas_mass.add(t);
-    *a.heat.add(t) = if mg > 0.0 { q / mg } else { 0.0 };
+    *a.heat.add(t) = if mg > R::ZERO { q / mg } else { R::ZERO };
 }
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct DriftArgs {
-    pub ph: PhaseBufs,
-    pub p: StepParams,
+pub struct DriftArgs<R> {
+    pub ph: PhaseBufs<R>,
+    pub p: StepParams<R>,
 }
 
 /// x ← x + τ v (wrapped); fixed particles stay.
-pub unsafe fn drift(t: usize, a: &DriftArgs) {
+pub unsafe fn drift<R: Real>(t: usize, a: &DriftArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
         return;
@@ -1077,25 +1107,25 @@ pub unsafe fn drift(t: usize, a: &DriftArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct EnergyArgs {
-    pub gas: PhaseBufs,
-    pub e: *mut f64,
-    pub dedt: *const f64,
+pub struct EnergyArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub e: *mut R,
+    pub dedt: *const R,
     /// Drag heat per unit gas mass per union cell (or per gas particle, `heat_per_particle`);
     /// null without heating.
-    pub heat: *const f64,
+    pub heat: *const R,
     pub heat_per_particle: u32,
-    pub cells: CellBufs,
-    pub p: StepParams,
+    pub cells: CellBufs<R>,
+    pub p: StepParams<R>,
 }
 
-pub unsafe fn energy(t: usize, a: &EnergyArgs) {
+pub unsafe fn energy<R: Real>(t: usize, a: &EnergyArgs<R>) {
     let g = &a.gas;
     if t >= g.len() || kernels::is_fixed(g.fixed(), t) {
         return;
     }
     let q = if a.heat.is_null() {
-        0.0
+        R::ZERO
     } else if a.heat_per_particle != 0 {
         *a.heat.add(t)
     } else {
@@ -1107,10 +1137,10 @@ pub unsafe fn energy(t: usize, a: &EnergyArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct CheckArgs {
-    pub ph: PhaseBufs,
+pub struct CheckArgs<R> {
+    pub ph: PhaseBufs<R>,
     /// Internal energy (gas), or null.
-    pub e: *const f64,
+    pub e: *const R,
     pub check_rho: u32,
     /// Smallest index of a bad particle; initialise to u32::MAX.
     pub bad: *mut u32,
@@ -1118,7 +1148,7 @@ pub struct CheckArgs {
 
 /// Flags a particle with a non-finite position or velocity, a non-positive density, or a
 /// negative or non-finite energy (the CPU path's check).
-pub unsafe fn check(t: usize, a: &CheckArgs) {
+pub unsafe fn check<R: Real>(t: usize, a: &CheckArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
         return;
@@ -1127,11 +1157,11 @@ pub unsafe fn check(t: usize, a: &CheckArgs) {
     let mut ok = x.iter().chain(v.iter()).all(|c| c.is_finite());
     if a.check_rho != 0 {
         let r = *ph.rho.add(t);
-        ok &= r.is_finite() && r > 0.0;
+        ok &= r.is_finite() && r > R::ZERO;
     }
     if !a.e.is_null() {
         let e = *a.e.add(t);
-        ok &= e.is_finite() && e >= 0.0;
+        ok &= e.is_finite() && e >= R::ZERO;
     }
     if !ok {
         AtomicU32::from_ptr(a.bad).fetch_min(t as u32, Ordering::Relaxed);
@@ -1143,14 +1173,14 @@ pub unsafe fn check(t: usize, a: &CheckArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct DustAccelArgs {
-    pub ph: PhaseBufs,
-    pub p: StepParams,
+pub struct DustAccelArgs<R> {
+    pub ph: PhaseBufs<R>,
+    pub p: StepParams<R>,
 }
 
 /// ũ = u + τB of dust particle t (B = `ext_dust`; fixed particles keep u): the drag pass then
 /// reads the dust velocities as ũ, as on the CPU.
-pub unsafe fn dust_accel(t: usize, a: &DustAccelArgs) {
+pub unsafe fn dust_accel<R: Real>(t: usize, a: &DustAccelArgs<R>) {
     let d = &a.ph;
     if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
         return;
@@ -1161,28 +1191,28 @@ pub unsafe fn dust_accel(t: usize, a: &DustAccelArgs) {
 /// Per-particle buffers of the kernel coupling.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct CouplingBufs {
+pub struct CouplingBufs<R> {
     /// S of every gas / dust particle (0: fixed or no gas within reach).
-    pub s_gas: *mut f64,
-    pub s_dust: *mut f64,
+    pub s_gas: *mut R,
+    pub s_dust: *mut R,
     /// Per gas particle: new − old mean of the gas, and of fraction k at a·nf + k.
-    pub dv: *mut V3,
-    pub du: *mut V3,
+    pub dv: *mut Vec3<R>,
+    pub du: *mut Vec3<R>,
     /// Per gas particle and fraction (a·nf + k): t_k* of its means (+∞ where uncoupled).
-    pub t_stop: *mut f64,
+    pub t_stop: *mut R,
     /// The gas kernels of the weights, one per gas particle (variable h: W(r, h_a)); null:
     /// one shared kernel at the reference h.
-    pub kat: *const KernelAt<f64>,
+    pub kat: *const KernelAt<R>,
 }
 
 /// Calls `f` with the gas kernels of the weights: one per gas particle, or one shared
 /// ([`kernels::kernel_of`] tells them apart by length, as on the CPU).
 #[inline(always)]
-unsafe fn with_gas_kernels<T>(
-    kat: *const KernelAt<f64>,
+unsafe fn with_gas_kernels<R: Real, T>(
+    kat: *const KernelAt<R>,
     n_gas: usize,
-    p: &StepParams,
-    f: impl FnOnce(&[KernelAt<f64>]) -> T,
+    p: &StepParams<R>,
+    f: impl FnOnce(&[KernelAt<R>]) -> T,
 ) -> T {
     if kat.is_null() {
         f(&[KernelAt::new(p.h, p.dim)])
@@ -1193,24 +1223,24 @@ unsafe fn with_gas_kernels<T>(
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct NormArgs {
-    pub gas: PhaseBufs,
+pub struct NormArgs<R> {
+    pub gas: PhaseBufs<R>,
     /// The phase whose normalisers are computed (the gas itself, or the dust).
-    pub ph: PhaseBufs,
-    pub s: *mut f64,
+    pub ph: PhaseBufs<R>,
+    pub s: *mut R,
     /// As [`CouplingBufs::kat`].
-    pub kat: *const KernelAt<f64>,
-    pub p: StepParams,
+    pub kat: *const KernelAt<R>,
+    pub p: StepParams<R>,
 }
 
 /// S_t = Σ_b W(r_tb, h) over the free gas, for particle t of `ph` (0 when fixed).
-pub unsafe fn coupling_norm(t: usize, a: &NormArgs) {
+pub unsafe fn coupling_norm<R: Real>(t: usize, a: &NormArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
         return;
     }
     let s = if kernels::is_fixed(ph.fixed(), t) {
-        0.0
+        R::ZERO
     } else {
         with_gas_kernels(a.kat, a.gas.len(), &a.p, |k| {
             kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), k, a.gas.fixed(), ph.x()[t])
@@ -1221,19 +1251,19 @@ pub unsafe fn coupling_norm(t: usize, a: &NormArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct CoupleArgs {
-    pub gas: PhaseBufs,
-    pub dust: PhaseBufs,
+pub struct CoupleArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub dust: PhaseBufs<R>,
     /// A^n of the gas (ṽ = v + τ(A + ext_gas)).
-    pub acc: *const V3,
-    pub pres: *const f64,
-    pub cb: CouplingBufs,
-    pub p: StepParams,
+    pub acc: *const Vec3<R>,
+    pub pres: *const R,
+    pub cb: CouplingBufs<R>,
+    pub p: StepParams<R>,
 }
 
 /// Gas particle t: the deposits of the gas and of every fraction on it (gathered by walking
 /// their cells), the implicit solve, and the increments of its means (and its t_k*).
-pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
+pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
     let g = &a.gas;
     if t >= g.len() {
         return;
@@ -1270,7 +1300,7 @@ pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
             xa,
             &k,
             |j| u[j],
-            |_| 0.0,
+            |_| R::ZERO,
         );
     }
     coupling_finish(t, a, &gas_dep, &dust_dep);
@@ -1278,7 +1308,7 @@ pub unsafe fn coupling_solve(t: usize, a: &CoupleArgs) {
 
 /// ṽ_b = v_b + τ(A_b + ext_gas) of gas particle b.
 #[inline(always)]
-unsafe fn gas_base_velocity(a: &CoupleArgs, b: usize) -> V3 {
+unsafe fn gas_base_velocity<R: Real>(a: &CoupleArgs<R>, b: usize) -> Vec3<R> {
     crate::axpy(
         *a.gas.v.add(b),
         a.p.tau,
@@ -1288,23 +1318,23 @@ unsafe fn gas_base_velocity(a: &CoupleArgs, b: usize) -> V3 {
 
 /// sqrt(p/ρ) of gas particle b where a stopping-time law needs it, else 0.
 #[inline(always)]
-unsafe fn gas_sound(a: &CoupleArgs, b: usize) -> f64 {
+unsafe fn gas_sound<R: Real>(a: &CoupleArgs<R>, b: usize) -> R {
     if a.p.needs_gas_state != 0 {
         let rho = *a.gas.rho.add(b);
         a.p.eos().isothermal_speed(rho, *a.pres.add(b))
     } else {
-        0.0
+        R::ZERO
     }
 }
 
 /// The implicit solve of gas particle t from its deposits; writes the increments of its means
 /// and its t_k* (zeros and +∞ for a fixed particle, whose deposits are empty).
 #[inline(always)]
-unsafe fn coupling_finish(
+unsafe fn coupling_finish<R: Real>(
     t: usize,
-    a: &CoupleArgs,
-    gas_dep: &kernels::Deposit<f64>,
-    dust_dep: &[kernels::Deposit<f64>; MAX_FRACTIONS],
+    a: &CoupleArgs<R>,
+    gas_dep: &kernels::Deposit<R>,
+    dust_dep: &[kernels::Deposit<R>; MAX_FRACTIONS],
 ) {
     let p = &a.p;
     let nf = p.nf as usize;
@@ -1328,6 +1358,7 @@ unsafe fn coupling_finish(
 pub const DEPOSIT_SLOTS: usize = 6;
 
 /// Atomic f64 add (compare-and-swap on the bits: the same code for the GPU and its emulation).
+/// The scatter sums stay f64 in every precision: their order is the hardware's anyway.
 #[inline(always)]
 unsafe fn atomic_add_f64(p: *mut f64, v: f64) {
     let a = AtomicU64::from_ptr(p as *mut u64);
@@ -1343,19 +1374,19 @@ unsafe fn atomic_add_f64(p: *mut f64, v: f64) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct ScatterDepositArgs {
-    pub couple: CoupleArgs,
+pub struct ScatterDepositArgs<R> {
+    pub couple: CoupleArgs<R>,
     /// The depositing phase (the gas, or the dust), and 1 when it is the gas.
-    pub ph: PhaseBufs,
+    pub ph: PhaseBufs<R>,
     pub is_gas: u32,
     /// Per gas particle a, phase slot s (0 gas, 1 + k fraction k): DEPOSIT_SLOTS sums at
-    /// (a·(1 + nf) + s)·DEPOSIT_SLOTS; zeroed before the launch.
+    /// (a·(1 + nf) + s)·DEPOSIT_SLOTS; zeroed before the launch. f64 in every precision.
     pub sums: *mut f64,
 }
 
 /// Scatter form of the deposits (the design card's atomicAdd): particle t adds its share to
 /// each gas particle within reach. The sums' order is the hardware's: not bit-reproducible.
-pub unsafe fn coupling_scatter(t: usize, a: &ScatterDepositArgs) {
+pub unsafe fn coupling_scatter<R: Real>(t: usize, a: &ScatterDepositArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() || kernels::is_fixed(ph.fixed(), t) {
         return;
@@ -1368,13 +1399,13 @@ pub unsafe fn coupling_scatter(t: usize, a: &ScatterDepositArgs) {
     } else {
         *c.cb.s_dust.add(t)
     };
-    if s <= 0.0 {
+    if s <= R::ZERO {
         return;
     }
     let (vel, cs, slot) = if gas {
         (gas_base_velocity(c, t), gas_sound(c, t), 0)
     } else {
-        (*ph.v.add(t), 0.0, 1 + ph.group_of(t))
+        (*ph.v.add(t), R::ZERO, 1 + ph.group_of(t))
     };
     let (m, rho) = (*ph.m.add(t), *ph.rho.add(t));
     let stride = 1 + p.nf as usize;
@@ -1382,18 +1413,18 @@ pub unsafe fn coupling_scatter(t: usize, a: &ScatterDepositArgs) {
         kernels::coupling_row_at(&c.gas.sorted(p, 0), k, c.gas.fixed(), ph.x()[t], |g, w| {
             let wm = w / s * m;
             let o = a.sums.add((g * stride + slot) * DEPOSIT_SLOTS);
-            atomic_add_f64(o, wm);
+            atomic_add_f64(o, wm.to_f64());
             for (d, v) in vel.iter().enumerate() {
-                atomic_add_f64(o.add(1 + d), wm * v);
+                atomic_add_f64(o.add(1 + d), (wm * *v).to_f64());
             }
-            atomic_add_f64(o.add(4), wm * rho);
-            atomic_add_f64(o.add(5), wm * cs);
+            atomic_add_f64(o.add(4), (wm * rho).to_f64());
+            atomic_add_f64(o.add(5), (wm * cs).to_f64());
         })
     });
 }
 
 /// The solve of gas particle t from the scatter form's sums.
-pub unsafe fn coupling_solve_sums(t: usize, a: &ScatterDepositArgs) {
+pub unsafe fn coupling_solve_sums<R: Real>(t: usize, a: &ScatterDepositArgs<R>) {
     let c = &a.couple;
     if t >= c.gas.len() {
         return;
@@ -1403,10 +1434,14 @@ pub unsafe fn coupling_solve_sums(t: usize, a: &ScatterDepositArgs) {
     let dep = |slot: usize| {
         let o = a.sums.add((t * stride + slot) * DEPOSIT_SLOTS);
         kernels::Deposit {
-            mass: *o,
-            mom: [*o.add(1), *o.add(2), *o.add(3)],
-            rho: *o.add(4),
-            cs: *o.add(5),
+            mass: R::from_f64(*o),
+            mom: [
+                R::from_f64(*o.add(1)),
+                R::from_f64(*o.add(2)),
+                R::from_f64(*o.add(3)),
+            ],
+            rho: R::from_f64(*o.add(4)),
+            cs: R::from_f64(*o.add(5)),
         }
     };
     let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
@@ -1418,24 +1453,24 @@ pub unsafe fn coupling_solve_sums(t: usize, a: &ScatterDepositArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct ReturnArgs {
-    pub gas: PhaseBufs,
+pub struct ReturnArgs<R> {
+    pub gas: PhaseBufs<R>,
     /// The phase that receives its increments (the gas itself, or the dust).
-    pub ph: PhaseBufs,
+    pub ph: PhaseBufs<R>,
     /// A^n for the gas (its base velocity is ṽ = v + τ(A + ext_gas)); null for the dust (ũ).
-    pub acc: *const V3,
+    pub acc: *const Vec3<R>,
     /// 1: `ph` is the gas.
     pub is_gas: u32,
-    pub cb: CouplingBufs,
+    pub cb: CouplingBufs<R>,
     /// For [`coupling_tstop`]: the stopping time of every particle of `ph`.
-    pub out: *mut f64,
+    pub out: *mut R,
     /// Drag heating: the kinetic energy each particle of `ph` loses; null without heating.
-    pub loss: *mut f64,
-    pub p: StepParams,
+    pub loss: *mut R,
+    pub p: StepParams<R>,
 }
 
 /// Particle t of `ph` gets its base velocity plus Σ_a w_ta Δ_a.
-pub unsafe fn coupling_return(t: usize, a: &ReturnArgs) {
+pub unsafe fn coupling_return<R: Real>(t: usize, a: &ReturnArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() || kernels::is_fixed(ph.fixed(), t) {
         return;
@@ -1467,7 +1502,7 @@ pub unsafe fn coupling_return(t: usize, a: &ReturnArgs) {
 }
 
 /// The stopping time dust particle t feels: Σ_a w_ta t_k,a (+∞ without gas within reach).
-pub unsafe fn coupling_tstop(t: usize, a: &ReturnArgs) {
+pub unsafe fn coupling_tstop<R: Real>(t: usize, a: &ReturnArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
         return;
@@ -1475,13 +1510,13 @@ pub unsafe fn coupling_tstop(t: usize, a: &ReturnArgs) {
     let p = &a.p;
     let nf = p.nf as usize;
     let s = *a.cb.s_dust.add(t);
-    let out = if s <= 0.0 {
-        f64::INFINITY
+    let out = if s <= R::ZERO {
+        R::from_f64(f64::INFINITY)
     } else {
         let f = ph.group_of(t);
         with_gas_kernels(a.cb.kat, a.gas.len(), p, |k| {
             kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
-                [*a.cb.t_stop.add(g * nf + f), 0.0, 0.0]
+                [*a.cb.t_stop.add(g * nf + f), R::ZERO, R::ZERO]
             })[0]
         })
     };
@@ -1490,19 +1525,19 @@ pub unsafe fn coupling_tstop(t: usize, a: &ReturnArgs) {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct CouplingHeatArgs {
-    pub couple: CoupleArgs,
+pub struct CouplingHeatArgs<R> {
+    pub couple: CoupleArgs<R>,
     /// Kinetic energy lost per gas / dust particle in this drag pass ([`coupling_return`]).
-    pub loss_gas: *const f64,
-    pub loss_dust: *const f64,
+    pub loss_gas: *const R,
+    pub loss_dust: *const R,
     /// Out: drag heat per unit mass of every gas particle.
-    pub heat: *mut f64,
+    pub heat: *mut R,
 }
 
 /// Drag heat of gas particle t under the kernel coupling: Σ_q w_qt ΔE_q / m_t, every particle's
 /// loss spread with its own weights (Σ_a w_qa = 1: the gas gains what the particles lose), as
 /// the CPU's deposit of the losses as masses.
-pub unsafe fn coupling_heat(t: usize, a: &CouplingHeatArgs) {
+pub unsafe fn coupling_heat<R: Real>(t: usize, a: &CouplingHeatArgs<R>) {
     let c = &a.couple;
     let g = &c.gas;
     if t >= g.len() {
@@ -1510,12 +1545,12 @@ pub unsafe fn coupling_heat(t: usize, a: &CouplingHeatArgs) {
     }
     let p = &c.p;
     if kernels::is_fixed(g.fixed(), t) {
-        *a.heat.add(t) = 0.0;
+        *a.heat.add(t) = R::ZERO;
         return;
     }
     let ka = with_gas_kernels(c.cb.kat, g.len(), p, |k| kernels::kernel_of(k, t));
     let xa = g.x()[t];
-    let zero = [0.0; 3];
+    let zero = [R::ZERO; 3];
     let mut q = kernels::deposit_at(
         &g.sorted(p, 0),
         sl(c.cb.s_gas, g.len()),
@@ -1525,7 +1560,7 @@ pub unsafe fn coupling_heat(t: usize, a: &CouplingHeatArgs) {
         xa,
         &ka,
         |_| zero,
-        |_| 0.0,
+        |_| R::ZERO,
     )
     .mass;
     let d = &c.dust;
@@ -1539,7 +1574,7 @@ pub unsafe fn coupling_heat(t: usize, a: &CouplingHeatArgs) {
             xa,
             &ka,
             |_| zero,
-            |_| 0.0,
+            |_| R::ZERO,
         )
         .mass;
     }

@@ -4,6 +4,7 @@ use super::gpu::{self, Cuda, GpuEngine, Rayon};
 use super::timers::Timers;
 use super::{Forces, Physics, Pipeline, StepError};
 use crate::particles::State;
+use crate::scene::Precision;
 
 /// What the user asked for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
@@ -19,18 +20,22 @@ pub enum DeviceChoice {
     Emulate,
 }
 
-/// The one step on one of its two launchers.
+/// The one step on one of its two launchers, in one of its two precisions.
 pub enum Backend {
-    Cpu(Box<GpuEngine<Rayon>>),
-    Cuda(Box<GpuEngine<Cuda>>),
+    Cpu(Box<GpuEngine<Rayon, f64>>),
+    Cuda(Box<GpuEngine<Cuda, f64>>),
+    CpuF32(Box<GpuEngine<Rayon, f32>>),
+    CudaF32(Box<GpuEngine<Cuda, f32>>),
 }
 
-/// The same call on either launcher.
+/// The same call on any launcher and precision.
 macro_rules! each {
     ($self:expr, $e:ident => $body:expr) => {
         match $self {
             Backend::Cpu($e) => $body,
             Backend::Cuda($e) => $body,
+            Backend::CpuF32($e) => $body,
+            Backend::CudaF32($e) => $body,
         }
     };
 }
@@ -135,11 +140,17 @@ impl Backend {
         phys: Physics,
         state: &mut State,
     ) -> Result<Backend, StepError> {
+        let f32 = phys.precision == Precision::F32;
         Ok(match choice {
             DeviceChoice::Cuda => {
                 let dev = Cuda::new(0, gpu::PTX)?;
-                Backend::Cuda(Box::new(GpuEngine::new(phys, state, dev)?))
+                if f32 {
+                    Backend::CudaF32(Box::new(GpuEngine::new(phys, state, dev)?))
+                } else {
+                    Backend::Cuda(Box::new(GpuEngine::new(phys, state, dev)?))
+                }
             }
+            _ if f32 => Backend::CpuF32(Box::new(GpuEngine::new(phys, state, Rayon)?)),
             _ => Backend::Cpu(Box::new(GpuEngine::new(phys, state, Rayon)?)),
         })
     }
@@ -160,11 +171,18 @@ impl Backend {
         each!(self, e => &mut e.timers)
     }
 
+    /// Whether the step runs on the CPU's cores (either precision).
+    pub fn is_cpu(&self) -> bool {
+        matches!(self, Backend::Cpu(_) | Backend::CpuF32(_))
+    }
+
     /// Where the run steps, for the summary.
     pub fn describe(&self) -> String {
         match self {
             Backend::Cpu(e) => format!("cpu ({})", e.describe()),
             Backend::Cuda(e) => format!("cuda: {}", e.describe()),
+            Backend::CpuF32(e) => format!("cpu ({}), f32", e.describe()),
+            Backend::CudaF32(e) => format!("cuda: {}, f32", e.describe()),
         }
     }
 
@@ -261,7 +279,7 @@ mod tests {
             },
         )
         .unwrap();
-        assert!(matches!(eng, Backend::Cpu(_)));
+        assert!(eng.is_cpu());
         drop(_cpu);
         let note = note.expect("a note");
         assert!(

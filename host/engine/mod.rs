@@ -14,7 +14,7 @@ pub use step::{check_state, Forces, StepError, SUPPORT};
 use crate::grid::Domain;
 use crate::scene::{
     Coupling, DensityMethod, DragMethod, EosKind, GradientMethod, Integrator, LawKind,
-    PositionUpdate, Scene, TimeCfg,
+    PositionUpdate, Precision, Scene, TimeCfg,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -52,6 +52,8 @@ pub struct Physics {
     /// Standard kernel gradient or IAD in the gas pair terms.
     pub gradient: GradientMethod,
     pub integrator: Integrator,
+    /// The float type of the step's kernels.
+    pub precision: Precision,
 }
 
 impl Physics {
@@ -108,6 +110,7 @@ impl Physics {
             variable_h: scene.sph.variable_h.then(|| scene.sph.hfact.unwrap_or(1.2)),
             gradient: scene.sph.gradient,
             integrator: scene.time.integrator,
+            precision: scene.numerics.precision,
         }
     }
 

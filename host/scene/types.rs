@@ -75,6 +75,9 @@ pub struct Scene {
     #[serde(default)]
     pub external: ExternalCfg,
     pub time: TimeCfg,
+    /// The float type of the step (docs/accuracy.md).
+    #[serde(default)]
+    pub numerics: NumericsCfg,
     #[serde(default)]
     pub dustybox: Option<BoxCfg>,
     #[serde(default)]
@@ -351,6 +354,34 @@ pub enum PositionUpdate {
     /// x^{n+1} = x^n + τ v^{n+1} (symplectic Euler); the default, chosen by measurement.
     #[default]
     New,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NumericsCfg {
+    /// `f64` (the reference) or `f32`; `--precision` on the command line sets it too.
+    #[serde(default)]
+    pub precision: Precision,
+}
+
+/// The float type the step's kernels run in, on the CPU and the GPU alike. The host's time,
+/// step count, grid geometry, conservation sums and output stay f64; f32 is measured against
+/// f64 in docs/accuracy.md.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    #[default]
+    F64,
+    F32,
+}
+
+impl Precision {
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F64 => "f64",
+            Precision::F32 => "f32",
+        }
+    }
 }
 
 /// The most steps a fixed `time.dt` may ask for (1e9: days of a small run).

@@ -170,6 +170,55 @@ pub const KERNELS: &[&str] = &[
     "dustsph_coupling_solve_sums",
 ];
 
+/// Kernels with an f32 instantiation: the f64 entry's name + `_f32` (device/src/ptx.rs); the
+/// others (scans, sorts, integer gathers) serve both precisions.
+pub const KERNELS_F32: &[&str] = &[
+    "dustsph_bounds_f32",
+    "dustsph_keys_f32",
+    "dustsph_scatter_f32",
+    "dustsph_gather_v3_f32",
+    "dustsph_gather_f32",
+    "dustsph_copy_v3_f32",
+    "dustsph_copy_f32",
+    "dustsph_density_f32",
+    "dustsph_density_continuity_f32",
+    "dustsph_explicit_limit_f32",
+    "dustsph_eos_f32",
+    "dustsph_forces_f32",
+    "dustsph_solve_h_f32",
+    "dustsph_force_prep_f32",
+    "dustsph_iad_matrix_f32",
+    "dustsph_max_of_f32",
+    "dustsph_union_flags_f32",
+    "dustsph_union_keys_f32",
+    "dustsph_cell_step_f32",
+    "dustsph_gas_kick_f32",
+    "dustsph_dust_kick_f32",
+    "dustsph_heat_f32",
+    "dustsph_drift_f32",
+    "dustsph_energy_f32",
+    "dustsph_check_f32",
+    "dustsph_dust_accel_f32",
+    "dustsph_coupling_norm_f32",
+    "dustsph_coupling_solve_f32",
+    "dustsph_coupling_return_f32",
+    "dustsph_coupling_tstop_f32",
+    "dustsph_coupling_heat_f32",
+    "dustsph_coupling_scatter_f32",
+    "dustsph_coupling_solve_sums_f32",
+];
+
+/// The f32 entry point of kernel `name`: `name_f32`, or `x_f32` for `x_f64` (the scalar
+/// gather and copy); `name` itself when the kernel has no float data.
+pub fn f32_name(name: &'static str) -> &'static str {
+    let stem = name.strip_suffix("_f64").unwrap_or(name);
+    KERNELS_F32
+        .iter()
+        .find(|k| k.strip_suffix("_f32") == Some(stem))
+        .copied()
+        .unwrap_or(name)
+}
+
 /// An NVIDIA GPU through the CUDA driver (loaded at run time), one stream.
 pub struct Cuda {
     ctx: Arc<CudaContext>,
@@ -207,7 +256,7 @@ impl Cuda {
         let stream = ctx.default_stream();
         let module = ctx.load_module(cudarc::nvrtc::Ptx::from_src(ptx))?;
         let mut funcs = HashMap::new();
-        for &k in KERNELS {
+        for &k in KERNELS.iter().chain(KERNELS_F32) {
             funcs.insert(k, module.load_function(k)?);
         }
         let (free, total) = ctx.mem_get_info()?;

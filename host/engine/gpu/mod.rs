@@ -23,6 +23,7 @@ use dustsph_device::kernel::{KernelAt, SUPPORT};
 use dustsph_device::kernels::{from_ordered_bits, MAX_FRACTIONS};
 use dustsph_device::sph::Sym3;
 use dustsph_device::threads::{self as th, LawParam, PhaseBufs, StepParams};
+use dustsph_device::Real;
 pub use launch::{probe, Cuda, GpuError, Launcher, Rayon};
 use rayon::prelude::*;
 use std::marker::PhantomData;
@@ -36,6 +37,20 @@ const SCAN_CHUNK: usize = 512;
 
 type V3 = [f64; 3];
 
+/// The float type the step runs in (`--precision`, docs/accuracy.md): f64, or f32 with the
+/// same kernels instantiated for it (PTX entry points with the suffix `_f32`). The host's state,
+/// time, step and grid stay f64; buffers are converted at upload and download only.
+pub trait Float: Real + Pod + CopyKernel + std::fmt::Debug + Send + Sync + 'static {
+    /// "f64" or "f32" (summary.json, messages).
+    const NAME: &'static str;
+}
+impl Float for f64 {
+    const NAME: &'static str = "f64";
+}
+impl Float for f32 {
+    const NAME: &'static str = "f32";
+}
+
 /// A typed device buffer of `len` elements.
 pub struct Buf<L: Launcher, T> {
     mem: L::Mem,
@@ -43,7 +58,8 @@ pub struct Buf<L: Launcher, T> {
     _t: PhantomData<T>,
 }
 
-struct Dev<L: Launcher>(L);
+/// The launcher, and whether the kernels are the f32 instantiations.
+struct Dev<L: Launcher>(L, bool);
 
 impl<L: Launcher> Dev<L> {
     fn buf<T: Copy>(&self, len: usize) -> Result<Buf<L, T>, GpuError> {
@@ -70,6 +86,25 @@ impl<L: Launcher> Dev<L> {
             *b = self.buf(data.len() + data.len() / 2)?;
         }
         self.put(b, data)
+    }
+    /// Upload f64 host data into a buffer of the step's precision.
+    fn upload_f64<R: Float>(&self, data: &[f64]) -> Result<Buf<L, R>, GpuError> {
+        self.from(&data.iter().map(|&x| R::from_f64(x)).collect::<Vec<R>>())
+    }
+    fn upload_v3<R: Float>(&self, data: &[V3]) -> Result<Buf<L, [R; 3]>, GpuError> {
+        let c = |v: &V3| v.map(R::from_f64);
+        self.from(&data.iter().map(c).collect::<Vec<_>>())
+    }
+    /// Download a buffer of the step's precision as f64 (exact; for f64 the same vector).
+    fn get_f64<R: Float>(&self, b: &Buf<L, R>, n: usize) -> Result<Vec<f64>, GpuError> {
+        Ok(self.get(b, n)?.into_iter().map(R::to_f64).collect())
+    }
+    fn get_v3<R: Float>(&self, b: &Buf<L, [R; 3]>, n: usize) -> Result<Vec<V3>, GpuError> {
+        Ok(self
+            .get(b, n)?
+            .into_iter()
+            .map(|v| v.map(R::to_f64))
+            .collect())
     }
     fn get<T: Pod>(&self, b: &Buf<L, T>, n: usize) -> Result<Vec<T>, GpuError> {
         assert!(n <= b.len, "download larger than the buffer");
@@ -100,6 +135,7 @@ impl<L: Launcher> Dev<L> {
         a: &A,
         f: unsafe fn(usize, &A),
     ) -> Result<(), GpuError> {
+        let name = if self.1 { launch::f32_name(name) } else { name };
         self.0.launch(name, n, a, f)
     }
 
@@ -137,25 +173,29 @@ impl<L: Launcher> Dev<L> {
 }
 
 /// Element types with a copy kernel.
-trait CopyKernel {
+pub trait CopyKernel {
     const NAME: &'static str;
 }
+// Named as the f64 kernels: `Dev::run` maps them to their `_f32` entry points.
 impl CopyKernel for f64 {
     const NAME: &'static str = "dustsph_copy_f64";
 }
-impl CopyKernel for V3 {
+impl CopyKernel for f32 {
+    const NAME: &'static str = "dustsph_copy_f64";
+}
+impl<R: Float> CopyKernel for [R; 3] {
     const NAME: &'static str = "dustsph_copy_v3";
 }
 
 /// One phase buffer set: gas (one group) or all dust fractions back to back.
-struct DevPhase<L: Launcher> {
+struct DevPhase<L: Launcher, R: Float> {
     n: usize,
     groups: usize,
     off: [u32; MAX_FRACTIONS + 1],
-    x: Buf<L, V3>,
-    v: Buf<L, V3>,
-    m: Buf<L, f64>,
-    rho: Buf<L, f64>,
+    x: Buf<L, [R; 3]>,
+    v: Buf<L, [R; 3]>,
+    m: Buf<L, R>,
+    rho: Buf<L, R>,
     fixed: Option<Buf<L, u8>>,
     id: Buf<L, u64>,
     keys: Buf<L, u64>,
@@ -169,16 +209,16 @@ struct DevPhase<L: Launcher> {
     host_ckeys: Vec<u64>,
     cursor: Buf<L, u32>,
     perm: Buf<L, u32>,
-    s_v3: Buf<L, V3>,
-    s_f64: Buf<L, f64>,
+    s_v3: Buf<L, [R; 3]>,
+    s_f64: Buf<L, R>,
     s_u64: Buf<L, u64>,
     s_u8: Option<Buf<L, u8>>,
     /// Kinetic energy lost in the drag update (drag heating only).
-    loss: Option<Buf<L, f64>>,
+    loss: Option<Buf<L, R>>,
 }
 
-impl<L: Launcher> DevPhase<L> {
-    fn new(d: &Dev<L>, phases: &[&Phase], heating: bool) -> Result<DevPhase<L>, GpuError> {
+impl<L: Launcher, R: Float> DevPhase<L, R> {
+    fn new(d: &Dev<L>, phases: &[&Phase], heating: bool) -> Result<DevPhase<L, R>, GpuError> {
         let cat = |f: &dyn Fn(&Phase) -> Vec<f64>| phases.iter().flat_map(|p| f(p)).collect();
         let x: Vec<V3> = phases.iter().flat_map(|p| p.x.iter().copied()).collect();
         let v: Vec<V3> = phases.iter().flat_map(|p| p.v.iter().copied()).collect();
@@ -211,10 +251,10 @@ impl<L: Launcher> DevPhase<L> {
             n,
             groups: phases.len().max(1),
             off,
-            x: d.from(&x)?,
-            v: d.from(&v)?,
-            m: d.from(&m)?,
-            rho: d.from(&rho)?,
+            x: d.upload_v3(&x)?,
+            v: d.upload_v3(&v)?,
+            m: d.upload_f64(&m)?,
+            rho: d.upload_f64(&rho)?,
             fixed: fixed.as_deref().map(|f| d.from(f)).transpose()?,
             id: d.from(&id)?,
             keys: d.buf(n)?,
@@ -233,7 +273,7 @@ impl<L: Launcher> DevPhase<L> {
         })
     }
 
-    fn bufs(&self, d: &Dev<L>) -> PhaseBufs {
+    fn bufs(&self, d: &Dev<L>) -> PhaseBufs<R> {
         PhaseBufs {
             x: d.ptr(&self.x),
             v: d.ptr(&self.v),
@@ -256,10 +296,10 @@ impl<L: Launcher> DevPhase<L> {
     fn sort(
         &mut self,
         d: &Dev<L>,
-        p: &StepParams,
+        p: &StepParams<R>,
         sums: &mut Buf<L, u32>,
-        extra: &mut [&mut Buf<L, f64>],
-        extra_v3: &mut [&mut Buf<L, V3>],
+        extra: &mut [&mut Buf<L, R>],
+        extra_v3: &mut [&mut Buf<L, [R; 3]>],
         sparse: bool,
     ) -> Result<(), GpuError> {
         if sparse {
@@ -341,7 +381,7 @@ impl<L: Launcher> DevPhase<L> {
 
     /// Sparse mode: keys on the device, the (key, index) sort on the host (the dense path's
     /// order), and the occupied cells' keys and starts uploaded for binary-search lookups.
-    fn sort_on_host(&mut self, d: &Dev<L>, p: &StepParams) -> Result<(), GpuError> {
+    fn sort_on_host(&mut self, d: &Dev<L>, p: &StepParams<R>) -> Result<(), GpuError> {
         let ka = th::KeysArgs {
             ph: self.bufs(d),
             p: *p,
@@ -373,10 +413,10 @@ impl<L: Launcher> DevPhase<L> {
 
     /// Download into host phases (split by group).
     fn download(&self, d: &Dev<L>, phases: &mut [&mut Phase]) -> Result<(), GpuError> {
-        let x = d.get(&self.x, self.n)?;
-        let v = d.get(&self.v, self.n)?;
-        let m = d.get(&self.m, self.n)?;
-        let rho = d.get(&self.rho, self.n)?;
+        let x = d.get_v3(&self.x, self.n)?;
+        let v = d.get_v3(&self.v, self.n)?;
+        let m = d.get_f64(&self.m, self.n)?;
+        let rho = d.get_f64(&self.rho, self.n)?;
         let id = d.get(&self.id, self.n)?;
         let fixed = self.fixed.as_ref().map(|f| d.get(f, self.n)).transpose()?;
         for (g, ph) in phases.iter_mut().enumerate() {
@@ -398,23 +438,24 @@ impl<L: Launcher> DevPhase<L> {
 
 /// The kernel coupling's buffers (docs/method.md §K): normalisers of every particle, the
 /// increments and stopping times of every gas particle's means.
-struct DevCoupling<L: Launcher> {
+struct DevCoupling<L: Launcher, R: Float> {
     /// Scatter form: the deposit sums of every gas particle (`th::DEPOSIT_SLOTS` per phase).
+    /// f64 in every precision (see `th::ScatterDepositArgs::sums`).
     sums: Option<Buf<L, f64>>,
-    s_gas: Buf<L, f64>,
-    s_dust: Buf<L, f64>,
-    dv: Buf<L, V3>,
-    du: Buf<L, V3>,
-    t_stop: Buf<L, f64>,
+    s_gas: Buf<L, R>,
+    s_dust: Buf<L, R>,
+    dv: Buf<L, [R; 3]>,
+    du: Buf<L, [R; 3]>,
+    t_stop: Buf<L, R>,
     /// Drag heating: the heat per unit mass of every gas particle.
-    heat: Option<Buf<L, f64>>,
+    heat: Option<Buf<L, R>>,
     /// Variable h: the weights use each gas particle's kernel (the engine's `sm.kat`).
     per_particle_kernels: bool,
 }
 
-impl<L: Launcher> DevCoupling<L> {
+impl<L: Launcher, R: Float> DevCoupling<L, R> {
     /// `kat`: the engine's per-gas-particle kernels (used with variable h).
-    fn bufs(&self, d: &Dev<L>, kat: &Buf<L, KernelAt<f64>>) -> th::CouplingBufs {
+    fn bufs(&self, d: &Dev<L>, kat: &Buf<L, KernelAt<R>>) -> th::CouplingBufs<R> {
         th::CouplingBufs {
             s_gas: d.ptr(&self.s_gas),
             s_dust: d.ptr(&self.s_dust),
@@ -431,23 +472,23 @@ impl<L: Launcher> DevCoupling<L> {
 }
 
 /// Per union cell results of the IDIC cell step.
-struct DevCells<L: Launcher> {
+struct DevCells<L: Launcher, R: Float> {
     uidx: Buf<L, u32>,
     ukey: Buf<L, u64>,
-    gas_mass: Buf<L, f64>,
-    v_new: Buf<L, V3>,
-    eps: Buf<L, f64>,
-    beta: Buf<L, f64>,
-    t_stop: Buf<L, f64>,
-    u_new: Buf<L, V3>,
-    heat: Buf<L, f64>,
+    gas_mass: Buf<L, R>,
+    v_new: Buf<L, [R; 3]>,
+    eps: Buf<L, R>,
+    beta: Buf<L, R>,
+    t_stop: Buf<L, R>,
+    u_new: Buf<L, [R; 3]>,
+    heat: Buf<L, R>,
     /// Sparse mode: the union was built at the sort (its size); `None`: dense, built by the
     /// union kernels.
     sparse: Option<u32>,
 }
 
-impl<L: Launcher> DevCells<L> {
-    fn bufs(&self, d: &Dev<L>) -> th::CellBufs {
+impl<L: Launcher, R: Float> DevCells<L, R> {
+    fn bufs(&self, d: &Dev<L>) -> th::CellBufs<R> {
         th::CellBufs {
             uidx: d.ptr(&self.uidx),
             sparse: self.sparse.is_some() as u32,
@@ -463,24 +504,25 @@ impl<L: Launcher> DevCells<L> {
     }
 }
 
-pub struct GpuEngine<L: Launcher> {
+pub struct GpuEngine<L: Launcher, R: Float> {
     pub phys: Physics,
     pub pipe: Pipeline,
     pub timers: Timers,
     d: Dev<L>,
-    base: StepParams,
+    /// The step's constants, in f64 (cast to the step's precision per launch).
+    base: StepParams<f64>,
     grid: Grid,
-    gas: DevPhase<L>,
-    dust: DevPhase<L>,
-    pres: Buf<L, f64>,
-    cs: Buf<L, f64>,
-    e: Option<Buf<L, f64>>,
-    acc: Buf<L, V3>,
-    zero_acc: Buf<L, V3>,
-    dedt: Option<Buf<L, f64>>,
-    cells: DevCells<L>,
+    gas: DevPhase<L, R>,
+    dust: DevPhase<L, R>,
+    pres: Buf<L, R>,
+    cs: Buf<L, R>,
+    e: Option<Buf<L, R>>,
+    acc: Buf<L, [R; 3]>,
+    zero_acc: Buf<L, [R; 3]>,
+    dedt: Option<Buf<L, R>>,
+    cells: DevCells<L, R>,
     /// Kernel coupling (`idic.coupling = "kernel"`): its per-particle buffers.
-    coupling: Option<DevCoupling<L>>,
+    coupling: Option<DevCoupling<L, R>>,
     sums: Buf<L, u32>,
     limits: Buf<L, u64>,
     bounds: Buf<L, u64>,
@@ -492,34 +534,34 @@ pub struct GpuEngine<L: Launcher> {
     /// Always use the sparse cell tables (checks that both forms give the same step).
     pub force_sparse: bool,
     /// Variable h and IAD (`sph.variable_h`, `sph.gradient = "iad"`).
-    sm: DevSmoothing<L>,
+    sm: DevSmoothing<L, R>,
     /// The leapfrog (`time.integrator = "kdk"`).
-    kdk: DevKdk<L>,
+    kdk: DevKdk<L, R>,
 }
 
 /// The leapfrog's state: the closing forces' maxima (the forces stay in `acc`, `dedt`, `vsig`)
 /// and the half-step values kept across the predictor.
-struct DevKdk<L: Launcher> {
+struct DevKdk<L: Launcher, R: Float> {
     closing: Option<(f64, f64)>,
-    vsig: Option<Buf<L, f64>>,
-    v_save: Buf<L, V3>,
-    u_save: Buf<L, V3>,
-    e_save: Option<Buf<L, f64>>,
+    vsig: Option<Buf<L, R>>,
+    v_save: Buf<L, [R; 3]>,
+    u_save: Buf<L, [R; 3]>,
+    e_save: Option<Buf<L, R>>,
 }
 
 /// Buffers of variable h and of the IAD gradient (empty when the scene uses neither).
-struct DevSmoothing<L: Launcher> {
+struct DevSmoothing<L: Launcher, R: Float> {
     /// h and Ω of every gas particle (variable h; carried by the sort).
-    gas_h: Option<Buf<L, f64>>,
-    gas_omega: Option<Buf<L, f64>>,
+    gas_h: Option<Buf<L, R>>,
+    gas_omega: Option<Buf<L, R>>,
     /// The solve's outputs (swapped in on success) and its iteration counts.
-    h_new: Buf<L, f64>,
-    omega_new: Buf<L, f64>,
+    h_new: Buf<L, R>,
+    omega_new: Buf<L, R>,
     iters: Buf<L, u32>,
     /// Per gas particle: kernel constants and pressure term (variable h or IAD), IAD matrix.
-    kat: Buf<L, KernelAt<f64>>,
-    pt: Buf<L, f64>,
-    iad: Buf<L, Sym3<f64>>,
+    kat: Buf<L, KernelAt<R>>,
+    pt: Buf<L, R>,
+    iad: Buf<L, Sym3<R>>,
     hmax: Buf<L, u64>,
 }
 
@@ -532,10 +574,14 @@ impl From<GpuError> for StepError {
     }
 }
 
-impl<L: Launcher> GpuEngine<L> {
+impl<L: Launcher, R: Float> GpuEngine<L, R> {
     /// Upload the state, sort it, and compute densities and pressures at the initial layer.
     /// The host `state` is then sorted the same way (as the CPU engine leaves it).
-    pub fn new(phys: Physics, state: &mut State, launcher: L) -> Result<GpuEngine<L>, StepError> {
+    pub fn new(
+        phys: Physics,
+        state: &mut State,
+        launcher: L,
+    ) -> Result<GpuEngine<L, R>, StepError> {
         let pipe = Pipeline::from_physics(&phys);
         let nf = state.dust.len();
         if nf > MAX_FRACTIONS {
@@ -543,7 +589,7 @@ impl<L: Launcher> GpuEngine<L> {
                 "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
             )));
         }
-        let d = Dev(launcher);
+        let d = Dev(launcher, <R as Float>::NAME == "f32");
         let (eos_kind, eos_value) = match phys.eos {
             Eos::Isothermal { cs } => (0, cs),
             Eos::Adiabatic { gamma } => (1, gamma),
@@ -586,17 +632,19 @@ impl<L: Launcher> GpuEngine<L> {
             .filter(|r| pipe.kdk && r.len() == ng);
         let col = |k: usize| rows.map(|r| r.iter().map(|x| x[k]).collect::<Vec<f64>>());
         let mut eng = GpuEngine {
-            pres: d.from(&fill(&g.p, ng))?,
-            cs: d.from(&fill(&g.c, ng))?,
-            e: g.e.as_deref().map(|e| d.from(e)).transpose()?,
+            pres: d.upload_f64(&fill(&g.p, ng))?,
+            cs: d.upload_f64(&fill(&g.c, ng))?,
+            e: g.e.as_deref().map(|e| d.upload_f64(e)).transpose()?,
             acc: match rows {
-                Some(r) => d.from(&r.iter().map(|x| [x[0], x[1], x[2]]).collect::<Vec<V3>>())?,
+                Some(r) => {
+                    d.upload_v3(&r.iter().map(|x| [x[0], x[1], x[2]]).collect::<Vec<V3>>())?
+                }
                 None => d.buf(ng)?,
             },
             zero_acc: d.buf(ng)?,
             dedt: match (pipe.energy, col(3)) {
                 (false, _) => None,
-                (true, Some(c)) => Some(d.from(&c)?),
+                (true, Some(c)) => Some(d.upload_f64(&c)?),
                 (true, None) => Some(d.buf(ng)?),
             },
             cells: DevCells {
@@ -651,7 +699,7 @@ impl<L: Launcher> GpuEngine<L> {
                     closing,
                     vsig: if k {
                         Some(match col(4) {
-                            Some(c) => d.from(&c)?,
+                            Some(c) => d.upload_f64(&c)?,
                             None => d.buf(ng.max(1))?,
                         })
                     } else {
@@ -674,12 +722,12 @@ impl<L: Launcher> GpuEngine<L> {
                 let solve = if vh { ng.max(dust.n).max(1) } else { 1 };
                 DevSmoothing {
                     gas_h: if resumed {
-                        Some(d.from(g.h.as_deref().unwrap_or(&[]))?)
+                        Some(d.upload_f64(g.h.as_deref().unwrap_or(&[]))?)
                     } else {
                         None
                     },
                     gas_omega: if resumed {
-                        Some(d.from(g.omega.as_deref().unwrap_or(&[]))?)
+                        Some(d.upload_f64(g.omega.as_deref().unwrap_or(&[]))?)
                     } else {
                         None
                     },
@@ -723,7 +771,7 @@ impl<L: Launcher> GpuEngine<L> {
             if ph.n == 0 {
                 continue;
             }
-            let x = d.get(&ph.x, ph.n)?;
+            let x = d.get_v3(&ph.x, ph.n)?;
             let id = d.get(&ph.id, ph.n)?;
             for (i, p) in x.iter().enumerate() {
                 let r = p.iter().map(|c| c.abs()).fold(0.0, f64::max);
@@ -746,13 +794,14 @@ impl<L: Launcher> GpuEngine<L> {
         self.dust_density()
     }
 
-    fn params(&self, tau: f64) -> StepParams {
+    fn params(&self, tau: f64) -> StepParams<R> {
         StepParams {
             geom: self.grid.geom,
             total: self.grid.total_cells(),
             tau,
             ..self.base
         }
+        .cast()
     }
 
     /// Rebuild the grid over the current positions and sort every phase by cell.
@@ -804,7 +853,7 @@ impl<L: Launcher> GpuEngine<L> {
             ))));
         }
         let p = self.params(0.0);
-        let mut extra: Vec<&mut Buf<L, f64>> = vec![&mut self.pres, &mut self.cs];
+        let mut extra: Vec<&mut Buf<L, R>> = vec![&mut self.pres, &mut self.cs];
         if let Some(e) = &mut self.e {
             extra.push(e);
         }
@@ -816,7 +865,7 @@ impl<L: Launcher> GpuEngine<L> {
         }
         // The leapfrog's forces follow their particles (the predictor and a resumed first step
         // read them after the sort).
-        let mut extra_v3: Vec<&mut Buf<L, V3>> = Vec::new();
+        let mut extra_v3: Vec<&mut Buf<L, [R; 3]>> = Vec::new();
         if self.pipe.kdk {
             extra_v3.push(&mut self.acc);
             if let Some(dedt) = &mut self.dedt {
@@ -850,7 +899,7 @@ impl<L: Launcher> GpuEngine<L> {
         Ok(())
     }
 
-    fn density(&self, ph: &DevPhase<L>) -> Result<(), GpuError> {
+    fn density(&self, ph: &DevPhase<L, R>) -> Result<(), GpuError> {
         let a = th::DensityArgs {
             ph: ph.bufs(&self.d),
             p: self.params(0.0),
@@ -904,9 +953,9 @@ impl<L: Launcher> GpuEngine<L> {
                 },
                 iters: d.ptr(&self.sm.iters),
                 bad: d.ptr(&self.bad),
-                hfact,
-                h_max: self.grid.geom.support / SUPPORT,
-                tol: H_TOL,
+                hfact: R::from_f64(hfact),
+                h_max: R::from_f64(self.grid.geom.support / SUPPORT),
+                tol: R::from_f64(H_TOL),
                 p: self.params(0.0),
             };
             d.run("dustsph_solve_h", ph.n, &a, th::solve_h)?;
@@ -936,7 +985,7 @@ impl<L: Launcher> GpuEngine<L> {
                 continue;
             }
             let ids = d.get(&ph.id, i + 1)?;
-            let h = d.get(&self.sm.h_new, i + 1)?[i];
+            let h = d.get_f64(&self.sm.h_new, i + 1)?[i];
             let what = ph.phase_name(gas, i);
             return Err(StepError::Blowup(format!(
                 "step {step}: variable h did not converge for {what} particle id {} (h = {h:e})",
@@ -1054,7 +1103,7 @@ impl<L: Launcher> GpuEngine<L> {
         let r = self.compute_forces(&mut timers);
         self.timers = timers;
         r?;
-        Ok(self.d.get(&self.acc, self.gas.n)?)
+        Ok(self.d.get_v3(&self.acc, self.gas.n)?)
     }
 
     /// The gas particles that set the time step: the largest |A| (force limit) and the largest
@@ -1064,9 +1113,9 @@ impl<L: Launcher> GpuEngine<L> {
         let d = &self.d;
         let n = self.gas.n;
         let (cs, id, x) = (
-            d.get(&self.cs, n)?,
+            d.get_f64(&self.cs, n)?,
             d.get(&self.gas.id, n)?,
-            d.get(&self.gas.x, n)?,
+            d.get_v3(&self.gas.x, n)?,
         );
         let argmax = |v: &dyn Fn(usize) -> f64| (0..n).max_by(|&a, &b| v(a).total_cmp(&v(b)));
         let amag = |i: usize| acc[i].iter().map(|a| a * a).sum::<f64>().sqrt();
@@ -1319,7 +1368,7 @@ impl<L: Launcher> GpuEngine<L> {
         Ok(())
     }
 
-    fn drift(&self, ph: &DevPhase<L>, tau: f64) -> Result<(), GpuError> {
+    fn drift(&self, ph: &DevPhase<L, R>, tau: f64) -> Result<(), GpuError> {
         let a = th::DriftArgs {
             ph: ph.bufs(&self.d),
             p: self.params(tau),
@@ -1571,22 +1620,22 @@ impl<L: Launcher> GpuEngine<L> {
         let d = &self.d;
         self.gas.download(d, &mut [&mut state.gas.ph])?;
         let ng = self.gas.n;
-        state.gas.p = d.get(&self.pres, ng)?;
-        state.gas.c = d.get(&self.cs, ng)?;
+        state.gas.p = d.get_f64(&self.pres, ng)?;
+        state.gas.c = d.get_f64(&self.cs, ng)?;
         if let Some(e) = &self.e {
-            state.gas.e = Some(d.get(e, ng)?);
+            state.gas.e = Some(d.get_f64(e, ng)?);
         }
         if let (Some(h), Some(o)) = (&self.sm.gas_h, &self.sm.gas_omega) {
-            state.gas.h = Some(d.get(h, ng)?);
-            state.gas.omega = Some(d.get(o, ng)?);
+            state.gas.h = Some(d.get_f64(h, ng)?);
+            state.gas.omega = Some(d.get_f64(o, ng)?);
         }
         if let (Some(_), Some(vsig)) = (self.kdk.closing, &self.kdk.vsig) {
-            let acc = d.get(&self.acc, ng)?;
+            let acc = d.get_v3(&self.acc, ng)?;
             let dedt = match &self.dedt {
-                Some(b) => d.get(b, ng)?,
+                Some(b) => d.get_f64(b, ng)?,
                 None => vec![0.0; ng],
             };
-            let vsig = d.get(vsig, ng)?;
+            let vsig = d.get_f64(vsig, ng)?;
             state.gas.next_forces = Some(
                 (0..ng)
                     .map(|i| [acc[i][0], acc[i][1], acc[i][2], dedt[i], vsig[i]])
@@ -1624,7 +1673,7 @@ impl<L: Launcher> GpuEngine<L> {
         let nu = sparse.map_or_else(|| ubidx[nb - 1] as usize, |n| n as usize);
         let ukey = d.get(&self.cells.ukey, nu)?;
         let nf = self.dust.groups;
-        let ts = d.get(&self.cells.t_stop, nu * nf)?;
+        let ts = d.get_f64(&self.cells.t_stop, nu * nf)?;
         let keys = d.get(&self.dust.keys, self.dust.n)?;
         let sc = p.sub_cells();
         Ok((0..nf)
@@ -1664,7 +1713,7 @@ impl<L: Launcher> GpuEngine<L> {
             &ca,
             th::coupling_solve,
         )?;
-        let out: Buf<L, f64> = d.buf(self.dust.n.max(1))?;
+        let out: Buf<L, R> = d.buf(self.dust.n.max(1))?;
         let ra = th::ReturnArgs {
             gas: self.gas.bufs(d),
             ph: self.dust.bufs(d),
@@ -1681,7 +1730,7 @@ impl<L: Launcher> GpuEngine<L> {
             &ra,
             th::coupling_tstop,
         )?;
-        let ts = d.get(&out, self.dust.n)?;
+        let ts = d.get_f64(&out, self.dust.n)?;
         Ok((0..self.dust.groups)
             .map(|g| ts[self.dust.off[g] as usize..self.dust.off[g + 1] as usize].to_vec())
             .collect())
