@@ -60,9 +60,11 @@ impl<R: Real> LawParam<R> {
     }
 }
 
-/// The physics and grid of one step, by value in every kernel that needs it.
+/// The physics and grid of one step. Kernels read it through [`Params`] (a pointer to one
+/// copy in device memory), not by value: a by-value struct of ≈1 kB is copied into every
+/// thread's local memory (stack) on the GPU.
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepParams<R> {
     pub geom: GridGeom<R>,
     /// Cells in the grid box (T); combined keys run over groups · (T + 1).
@@ -86,6 +88,22 @@ pub struct StepParams<R> {
     pub ext_dust: Vec3<R>,
     /// 1: the explicit (forward-Euler) drag baseline instead of IDIC.
     pub explicit_drag: u32,
+}
+
+/// Where a kernel finds its [`StepParams`]: one copy in device memory (host memory for the
+/// rayon launcher), shared by every thread; read through `Deref`.
+#[repr(transparent)]
+#[derive(Clone, Copy, Debug)]
+pub struct Params<R>(pub *const StepParams<R>);
+
+impl<R> core::ops::Deref for Params<R> {
+    type Target = StepParams<R>;
+    #[inline(always)]
+    fn deref(&self) -> &StepParams<R> {
+        // SAFETY: the engine passes the address of a live StepParams for the launch (the
+        // kernels' contract, module docs), written before the launch and not during it.
+        unsafe { &*self.0 }
+    }
 }
 
 impl<R: Real> StepParams<R> {
@@ -385,7 +403,7 @@ pub unsafe fn bounds<R: Real>(t: usize, a: &BoundsArgs<R>) {
 #[derive(Clone, Copy, Debug)]
 pub struct KeysArgs<R> {
     pub ph: PhaseBufs<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
     /// groups · stride + 1 counters (one per search cell of each group), zeroed.
     pub counts: *mut u32,
 }
@@ -462,7 +480,7 @@ pub struct ScatterArgs<R> {
     pub cursor: *mut u32,
     /// New → old particle index.
     pub perm: *mut u32,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 pub unsafe fn scatter<R: Real>(t: usize, a: &ScatterArgs<R>) {
@@ -535,7 +553,7 @@ pub unsafe fn gather<T: Copy>(t: usize, a: &GatherArgs<T>) {
 #[derive(Clone, Copy, Debug)]
 pub struct DensityArgs<R> {
     pub ph: PhaseBufs<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// Density of particle t by summation over its own group (fixed particles keep theirs).
@@ -573,7 +591,7 @@ pub struct EosArgs<R> {
     pub pres: *mut R,
     pub c: *mut R,
     pub n: u32,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 pub unsafe fn eos<R: Real>(t: usize, a: &EosArgs<R>) {
@@ -606,7 +624,7 @@ pub struct ForcesArgs<R> {
     pub iad: *const Sym3<R>,
     /// Per-particle signal speed (the leapfrog keeps its closing forces whole); null: not kept.
     pub vsig: *mut R,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
@@ -670,7 +688,7 @@ pub struct HSolveArgs<R> {
     /// Half the grid's search radius: h must stay below it.
     pub h_max: R,
     pub tol: R,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// h, ρ and Ω of particle t by Newton–Raphson over its own group ([`kernels::solve_h_at`]).
@@ -716,7 +734,7 @@ pub struct PrepArgs<R> {
     pub pres: *const R,
     pub kat: *mut KernelAt<R>,
     pub pt: *mut R,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// Kernel constants and pressure term of gas particle t, once per force evaluation.
@@ -741,7 +759,7 @@ pub struct IadArgs<R> {
     pub gas: PhaseBufs<R>,
     pub kat: *const KernelAt<R>,
     pub iad: *mut Sym3<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// IAD matrix C_t of gas particle t ([`kernels::iad_matrix_at`]).
@@ -792,7 +810,7 @@ pub struct UnionArgs<R> {
     pub flags: *mut u32,
     /// The union's keys, written by [`union_keys`] (null for [`union_flags`]).
     pub ukey: *mut u64,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 #[inline(always)]
@@ -867,7 +885,7 @@ pub struct CellArgs<R> {
     pub pres: *const R,
     pub acc: *const Vec3<R>,
     pub cells: CellBufs<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// The IDIC cell step of union cell t: sums (in particle order, as on the CPU), ε, t*, β and
@@ -931,7 +949,7 @@ pub struct LimitArgs<R> {
     pub cells: CellBufs<R>,
     /// The fastest drag rate Λ of any union cell as [`kernels::ordered_bits`]; zeroed.
     pub rate: *mut u64,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// The explicit drag's rate bound Λ of union cell t ([`drag::explicit_rate`]), max-reduced.
@@ -960,7 +978,7 @@ pub struct KickArgs<R> {
     pub cells: CellBufs<R>,
     /// Kinetic energy lost per particle (drag heating); null when not needed.
     pub loss: *mut R,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// Union index of the IDIC cell of particle i (its own cell is occupied, so it is found).
@@ -1055,7 +1073,7 @@ pub struct HeatArgs<R> {
     pub cells: CellBufs<R>,
     /// Drag heat per unit gas mass of each union cell.
     pub heat: *mut R,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// Drag heat of union cell t: the kinetic energy its particles lost, per unit gas mass. Summed
@@ -1091,7 +1109,7 @@ pub unsafe fn heat<R: Real>(t: usize, a: &HeatArgs<R>) {
 #[derive(Clone, Copy, Debug)]
 pub struct DriftArgs<R> {
     pub ph: PhaseBufs<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// x ← x + τ v (wrapped); fixed particles stay.
@@ -1116,7 +1134,7 @@ pub struct EnergyArgs<R> {
     pub heat: *const R,
     pub heat_per_particle: u32,
     pub cells: CellBufs<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 pub unsafe fn energy<R: Real>(t: usize, a: &EnergyArgs<R>) {
@@ -1175,7 +1193,7 @@ pub unsafe fn check<R: Real>(t: usize, a: &CheckArgs<R>) {
 #[derive(Clone, Copy, Debug)]
 pub struct DustAccelArgs<R> {
     pub ph: PhaseBufs<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// ũ = u + τB of dust particle t (B = `ext_dust`; fixed particles keep u): the drag pass then
@@ -1230,7 +1248,7 @@ pub struct NormArgs<R> {
     pub s: *mut R,
     /// As [`CouplingBufs::kat`].
     pub kat: *const KernelAt<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// S_t = Σ_b W(r_tb, h) over the free gas, for particle t of `ph` (0 when fixed).
@@ -1258,7 +1276,7 @@ pub struct CoupleArgs<R> {
     pub acc: *const Vec3<R>,
     pub pres: *const R,
     pub cb: CouplingBufs<R>,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// Gas particle t: the deposits of the gas and of every fraction on it (gathered by walking
@@ -1466,7 +1484,7 @@ pub struct ReturnArgs<R> {
     pub out: *mut R,
     /// Drag heating: the kinetic energy each particle of `ph` loses; null without heating.
     pub loss: *mut R,
-    pub p: StepParams<R>,
+    pub p: Params<R>,
 }
 
 /// Particle t of `ph` gets its base velocity plus Σ_a w_ta Δ_a.

@@ -3,8 +3,8 @@
 //! one pipeline of launches over resident buffers; these are its two launchers, so the CPU
 //! path (`--device cpu`) *is* the GPU step, launches and buffers included.
 use cudarc::driver::{
-    CudaContext, CudaFunction, CudaSlice, CudaStream, DevicePtr, DeviceRepr, LaunchConfig,
-    PushKernelArg,
+    CudaContext, CudaFunction, CudaSlice, CudaStream, DevicePtr, DevicePtrMut, DeviceRepr,
+    LaunchConfig, PushKernelArg,
 };
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -37,6 +37,9 @@ pub trait Launcher {
     fn addr(&self, m: &Self::Mem) -> u64;
     fn upload(&self, m: &mut Self::Mem, bytes: &[u8]) -> Result<(), GpuError>;
     fn download(&self, m: &Self::Mem, out: &mut [u8]) -> Result<(), GpuError>;
+    /// Write one value at the start of `m` (a kernel's parameter block; typed, so the
+    /// struct's padding is never read as bytes on the host).
+    fn upload_value<T: Copy>(&self, m: &mut Self::Mem, v: &T) -> Result<(), GpuError>;
     /// Zero the first `bytes` bytes on the device (no host copy).
     fn zero(&self, m: &mut Self::Mem, bytes: usize) -> Result<(), GpuError>;
     /// Run `threads` threads of kernel `name`, whose per-thread function is `f`.
@@ -90,6 +93,16 @@ impl Launcher for Rayon {
         // SAFETY: as in `upload`.
         let src = unsafe { std::slice::from_raw_parts(m.0.as_ptr() as *const u8, m.0.len() * 8) };
         out.copy_from_slice(&src[..out.len()]);
+        Ok(())
+    }
+
+    fn upload_value<T: Copy>(&self, m: &mut HostMem, v: &T) -> Result<(), GpuError> {
+        assert!(
+            std::mem::size_of::<T>() <= m.0.len() * 8 && std::mem::align_of::<T>() <= 8,
+            "value larger than its buffer"
+        );
+        // SAFETY: the buffer is 8-byte aligned and large enough (checked above).
+        unsafe { std::ptr::write(m.0.as_mut_ptr() as *mut T, *v) };
         Ok(())
     }
 
@@ -316,6 +329,25 @@ impl Launcher for Cuda {
         let view = m.slice(0..out.len());
         self.stream.memcpy_dtoh(&view, out)?;
         self.stream.synchronize()?;
+        Ok(())
+    }
+
+    fn upload_value<T: Copy>(&self, m: &mut CudaSlice<u8>, v: &T) -> Result<(), GpuError> {
+        assert!(
+            std::mem::size_of::<T>() <= m.len(),
+            "value larger than its buffer"
+        );
+        let (dst, _sync) = m.device_ptr_mut(&self.stream);
+        // SAFETY: `dst` holds at least size_of::<T>() bytes (checked); the copy is ordered on
+        // the engine's one stream, after the launches issued before it and before those after
+        // it; from pageable host memory the driver stages `v` before returning.
+        unsafe {
+            cudarc::driver::result::memcpy_htod_async(
+                dst,
+                std::slice::from_ref(v),
+                self.stream.cu_stream(),
+            )
+        }?;
         Ok(())
     }
 

@@ -187,6 +187,31 @@ impl<R: Float> CopyKernel for [R; 3] {
     const NAME: &'static str = "dustsph_copy_v3";
 }
 
+/// A step's parameters: the host's copy (for the host's own arithmetic: table sizes) and the
+/// device copy the kernels read ([`th::Params`]).
+#[derive(Clone, Copy)]
+struct Hp<R> {
+    host: StepParams<R>,
+    dev: th::Params<R>,
+}
+
+impl<R> std::ops::Deref for Hp<R> {
+    type Target = StepParams<R>;
+    fn deref(&self) -> &StepParams<R> {
+        &self.host
+    }
+}
+
+/// Device copies of the step parameters in use: one slot per distinct value, reused while
+/// equal; after 256 distinct values the slots are reused from the first (a launch's
+/// parameters are written on the stream before it, so an earlier launch keeps its own).
+struct ParamSlots<L: Launcher, R> {
+    mem: Vec<L::Mem>,
+    held: Vec<StepParams<R>>,
+}
+
+const PARAM_SLOTS: usize = 256;
+
 /// One phase buffer set: gas (one group) or all dust fractions back to back.
 struct DevPhase<L: Launcher, R: Float> {
     n: usize,
@@ -296,7 +321,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
     fn sort(
         &mut self,
         d: &Dev<L>,
-        p: &StepParams<R>,
+        p: &Hp<R>,
         sums: &mut Buf<L, u32>,
         extra: &mut [&mut Buf<L, R>],
         extra_v3: &mut [&mut Buf<L, [R; 3]>],
@@ -312,7 +337,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
             d.zeroed(&mut self.dense, nkeys + 1)?;
             let ka = th::KeysArgs {
                 ph: self.bufs(d),
-                p: *p,
+                p: p.dev,
                 counts: d.ptr(&self.dense),
             };
             d.run("dustsph_keys", self.n, &ka, th::keys)?;
@@ -324,7 +349,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
                 dense: d.ptr(&self.dense),
                 cursor: d.ptr(&self.cursor),
                 perm: d.ptr(&self.perm),
-                p: *p,
+                p: p.dev,
             };
             d.run("dustsph_scatter", self.n, &sa, th::scatter)?;
             let seg = th::SegmentArgs {
@@ -381,10 +406,10 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
 
     /// Sparse mode: keys on the device, the (key, index) sort on the host (the dense path's
     /// order), and the occupied cells' keys and starts uploaded for binary-search lookups.
-    fn sort_on_host(&mut self, d: &Dev<L>, p: &StepParams<R>) -> Result<(), GpuError> {
+    fn sort_on_host(&mut self, d: &Dev<L>, p: &Hp<R>) -> Result<(), GpuError> {
         let ka = th::KeysArgs {
             ph: self.bufs(d),
-            p: *p,
+            p: p.dev,
             counts: std::ptr::null_mut(),
         };
         d.run("dustsph_keys", self.n, &ka, th::keys)?;
@@ -537,6 +562,7 @@ pub struct GpuEngine<L: Launcher, R: Float> {
     sm: DevSmoothing<L, R>,
     /// The leapfrog (`time.integrator = "kdk"`).
     kdk: DevKdk<L, R>,
+    params: std::cell::RefCell<ParamSlots<L, R>>,
 }
 
 /// The leapfrog's state: the closing forces' maxima (the forces stay in `acc`, `dedt`, `vsig`)
@@ -749,6 +775,10 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             gas,
             dust,
             dust_density_fresh: false,
+            params: std::cell::RefCell::new(ParamSlots {
+                mem: Vec::new(),
+                held: Vec::new(),
+            }),
         };
         eng.regrid()?;
         eng.gas_density_eos(None)?;
@@ -794,7 +824,32 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         self.dust_density()
     }
 
-    fn params(&self, tau: f64) -> StepParams<R> {
+    /// The step's parameters at time step τ, on the host and in device memory.
+    fn params(&self, tau: f64) -> Result<Hp<R>, GpuError> {
+        let host: StepParams<R> = self.host_params(tau);
+        let mut slots = self.params.borrow_mut();
+        let i = match slots.held.iter().position(|q| *q == host) {
+            Some(i) => i,
+            None => {
+                if slots.held.len() == PARAM_SLOTS {
+                    slots.held.clear();
+                }
+                let i = slots.held.len();
+                if slots.mem.len() <= i {
+                    let m = self.d.0.alloc(std::mem::size_of::<StepParams<R>>())?;
+                    slots.mem.push(m);
+                }
+                self.d.0.upload_value(&mut slots.mem[i], &host)?;
+                slots.held.push(host);
+                i
+            }
+        };
+        let dev = th::Params(self.d.0.addr(&slots.mem[i]) as *const StepParams<R>);
+        Ok(Hp { host, dev })
+    }
+
+    /// The host's copy of the step's parameters at time step τ.
+    fn host_params(&self, tau: f64) -> StepParams<R> {
         StepParams {
             geom: self.grid.geom,
             total: self.grid.total_cells(),
@@ -840,7 +895,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         };
         // Dense start tables over the search cells of the grid box when they are small enough;
         // else (a few particles flung far away) sorted cell lists and binary searches.
-        let search_cells = self.params(0.0).stride() as u64 - 1;
+        let search_cells = self.host_params(0.0).stride() as u64 - 1;
         let sparse = self.force_sparse
             || !crate::grid::dense_table_fits(search_cells, self.gas.n + self.dust.n);
         let groups = (self.gas.groups.max(self.dust.groups)) as u128;
@@ -852,7 +907,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 self.grid.total_cells()
             ))));
         }
-        let p = self.params(0.0);
+        let p = self.params(0.0)?;
         let mut extra: Vec<&mut Buf<L, R>> = vec![&mut self.pres, &mut self.cs];
         if let Some(e) = &mut self.e {
             extra.push(e);
@@ -902,7 +957,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     fn density(&self, ph: &DevPhase<L, R>) -> Result<(), GpuError> {
         let a = th::DensityArgs {
             ph: ph.bufs(&self.d),
-            p: self.params(0.0),
+            p: self.params(0.0)?.dev,
         };
         self.d.run("dustsph_density", ph.n, &a, th::density)
     }
@@ -956,7 +1011,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 hfact: R::from_f64(hfact),
                 h_max: R::from_f64(self.grid.geom.support / SUPPORT),
                 tol: R::from_f64(H_TOL),
-                p: self.params(0.0),
+                p: self.params(0.0)?.dev,
             };
             d.run("dustsph_solve_h", ph.n, &a, th::solve_h)?;
             let bad = d.get(&self.bad, 1)?[0];
@@ -1007,7 +1062,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             pres: d.ptr(&self.pres),
             c: d.ptr(&self.cs),
             n: self.gas.n as u32,
-            p: self.params(0.0),
+            p: self.params(0.0)?.dev,
         };
         d.run("dustsph_eos", self.gas.n, &a, th::eos)
     }
@@ -1026,7 +1081,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         } else if let Some(tau) = tau {
             let a = th::DensityArgs {
                 ph: self.gas.bufs(&self.d),
-                p: self.params(tau),
+                p: self.params(tau)?.dev,
             };
             self.d.run(
                 "dustsph_density_continuity",
@@ -1051,7 +1106,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         let a = th::LimitArgs {
             cells: self.cells.bufs(d),
             rate: d.ptr(&self.limits),
-            p: self.params(0.0),
+            p: self.params(0.0)?.dev,
         };
         d.run(
             "dustsph_explicit_limit",
@@ -1153,7 +1208,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     fn compute_forces(&mut self, timers: &mut Timers) -> Result<Forces, StepError> {
         let d = &self.d;
         d.put(&mut self.limits, &[0, 0])?;
-        let p = self.params(0.0);
+        let p = self.params(0.0)?;
         let mode = if self.pipe.iad {
             2
         } else {
@@ -1172,7 +1227,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 pres: d.ptr(&self.pres),
                 kat: d.ptr(&self.sm.kat),
                 pt: d.ptr(&self.sm.pt),
-                p,
+                p: p.dev,
             };
             d.run("dustsph_force_prep", self.gas.n, &a, th::force_prep)?;
         }
@@ -1181,7 +1236,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 gas: self.gas.bufs(d),
                 kat: d.ptr(&self.sm.kat),
                 iad: d.ptr(&self.sm.iad),
-                p,
+                p: p.dev,
             };
             timers.time("gas IAD matrices (Garcia-Senz et al. 2012)", || {
                 d.run("dustsph_iad_matrix", self.gas.n, &a, th::iad_matrix)
@@ -1199,7 +1254,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             pt: d.ptr(&self.sm.pt),
             iad: d.ptr(&self.sm.iad),
             vsig: d.opt(&self.kdk.vsig),
-            p,
+            p: p.dev,
         };
         let name = match (self.phys.av.is_some(), mode) {
             (false, 0) => "gas forces (pressure)",
@@ -1223,7 +1278,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     /// Union of occupied cells and the IDIC cell step at step size τ (velocities ṽ = v + τA).
     fn cell_step(&mut self, tau: f64, acc_zero: bool) -> Result<(), GpuError> {
         let d = &self.d;
-        let p = self.params(tau);
+        let p = self.params(tau)?;
         let nb = p.stride();
         if self.cells.sparse.is_some() {
             return self.cell_step_on_union(tau, acc_zero);
@@ -1234,7 +1289,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             dust: self.dust.bufs(d),
             flags: d.ptr(&self.cells.uidx),
             ukey: std::ptr::null_mut(),
-            p,
+            p: p.dev,
         };
         d.run("dustsph_union_flags", nb, &ua, th::union_flags)?;
         d.scan(&self.cells.uidx, nb, &mut self.sums)?;
@@ -1246,14 +1301,14 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     /// The IDIC cell step over the union built for this layer.
     fn cell_step_on_union(&mut self, tau: f64, acc_zero: bool) -> Result<(), GpuError> {
         let d = &self.d;
-        let p = self.params(tau);
+        let p = self.params(tau)?;
         let ca = th::CellArgs {
             gas: self.gas.bufs(d),
             dust: self.dust.bufs(d),
             pres: d.ptr(&self.pres),
             acc: d.ptr(if acc_zero { &self.zero_acc } else { &self.acc }),
             cells: self.cells.bufs(d),
-            p,
+            p: p.dev,
         };
         // The union count stays on the device: launch one thread per possible cell.
         d.run("dustsph_cell_step", self.cells.ukey.len, &ca, th::cell_step)
@@ -1272,7 +1327,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 pres: d.ptr(&self.pres),
                 kat: d.ptr(&self.sm.kat),
                 pt: d.ptr(&self.sm.pt),
-                p: self.params(0.0),
+                p: self.params(0.0)?.dev,
             };
             d.run("dustsph_force_prep", self.gas.n, &a, th::force_prep)?;
         }
@@ -1282,7 +1337,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 ph: ph.bufs(d),
                 s: d.ptr(s),
                 kat: c.bufs(d, &self.sm.kat).kat,
-                p: self.params(0.0),
+                p: self.params(0.0)?.dev,
             };
             d.run("dustsph_coupling_norm", ph.n, &a, th::coupling_norm)?;
         }
@@ -1300,14 +1355,14 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             d.zeroed(sums, ng * (1 + nf) * th::DEPOSIT_SLOTS)?;
         }
         let c = self.coupling.as_ref().expect("kernel coupling");
-        let p = self.params(tau);
+        let p = self.params(tau)?;
         let ca = th::CoupleArgs {
             gas: self.gas.bufs(d),
             dust: self.dust.bufs(d),
             acc: d.ptr(&self.acc),
             pres: d.ptr(&self.pres),
             cb: c.bufs(d, &self.sm.kat),
-            p,
+            p: p.dev,
         };
         match &c.sums {
             Some(sums) => {
@@ -1352,7 +1407,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 } else {
                     std::ptr::null_mut()
                 },
-                p,
+                p: p.dev,
             };
             d.run("dustsph_coupling_return", ph.n, &ra, th::coupling_return)?;
         }
@@ -1371,7 +1426,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     fn drift(&self, ph: &DevPhase<L, R>, tau: f64) -> Result<(), GpuError> {
         let a = th::DriftArgs {
             ph: ph.bufs(&self.d),
-            p: self.params(tau),
+            p: self.params(tau)?.dev,
         };
         self.d.run("dustsph_drift", ph.n, &a, th::drift)
     }
@@ -1386,7 +1441,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         if self.phys.ext_dust.iter().any(|a| *a != 0.0) && self.dust.n > 0 {
             let a = th::DustAccelArgs {
                 ph: self.dust.bufs(&self.d),
-                p: self.params(dt),
+                p: self.params(dt)?.dev,
             };
             timers.time("external dust acceleration (ũ = u + τB)", || {
                 self.d
@@ -1412,7 +1467,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 self.cell_step(dt, false)?;
             }
             let d = &self.d;
-            let p = self.params(dt);
+            let p = self.params(dt)?;
             let ga = th::KickArgs {
                 ph: self.gas.bufs(d),
                 acc: d.ptr(&self.acc),
@@ -1423,7 +1478,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 } else {
                     std::ptr::null_mut()
                 },
-                p,
+                p: p.dev,
             };
             d.run("dustsph_gas_kick", self.gas.n, &ga, th::gas_kick)?;
             if drag {
@@ -1450,7 +1505,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 loss_dust: d.opt(&self.dust.loss),
                 cells: self.cells.bufs(d),
                 heat: d.ptr(&self.cells.heat),
-                p: self.params(dt),
+                p: self.params(dt)?.dev,
             };
             timers.time("drag heating (the kinetic energy lost, to the gas)", || {
                 d.run("dustsph_heat", self.cells.ukey.len, &ha, th::heat)
@@ -1474,7 +1529,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 },
                 heat_per_particle: self.coupling.is_some() as u32,
                 cells: self.cells.bufs(d),
-                p: self.params(dt),
+                p: self.params(dt)?.dev,
             };
             d.run("dustsph_energy", self.gas.n, &a, th::energy)?;
         }
@@ -1663,7 +1718,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         }
         self.cell_step(0.0, true)?;
         let d = &self.d;
-        let p = self.params(0.0);
+        let p = self.params(0.0)?;
         let (nb, ks) = (p.stride(), self.grid.total_cells() + 1);
         let sparse = self.cells.sparse;
         let ubidx = match sparse {
@@ -1698,14 +1753,14 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         self.coupling_norms()?;
         let d = &self.d;
         let c = self.coupling.as_ref().expect("kernel coupling");
-        let p = self.params(0.0);
+        let p = self.params(0.0)?;
         let ca = th::CoupleArgs {
             gas: self.gas.bufs(d),
             dust: self.dust.bufs(d),
             acc: d.ptr(&self.zero_acc),
             pres: d.ptr(&self.pres),
             cb: c.bufs(d, &self.sm.kat),
-            p,
+            p: p.dev,
         };
         d.run(
             "dustsph_coupling_solve",
@@ -1722,7 +1777,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             cb: c.bufs(d, &self.sm.kat),
             out: d.ptr(&out),
             loss: std::ptr::null_mut(),
-            p,
+            p: p.dev,
         };
         d.run(
             "dustsph_coupling_tstop",
