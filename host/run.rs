@@ -140,13 +140,34 @@ fn write_snapshot(
     loaded: &LoadedScene,
     eng: &mut Backend,
     state: &mut State,
-    box_size: f64,
 ) -> Result<(), RunError> {
     let step_err = |e: crate::engine::StepError| RunError::Step(e.to_string());
     eng.refresh_dust_density(state).map_err(step_err)?;
     let t_stop = eng.dust_stopping_times(state).map_err(step_err)?;
-    let h = eng.phys().h;
+    let phys = eng.phys();
+    let h = phys.h;
     let g = &state.gas;
+    // Variable h: the gas's own h; the dust's from its density (h = hfact (m/ρ)^(1/d), the
+    // relation its solve satisfies); the box margin is the largest support.
+    let dim = loaded.scene.dim();
+    let dust_h: Vec<Option<Vec<f64>>> = state
+        .dust
+        .iter()
+        .map(|d| {
+            phys.variable_h.map(|hf| {
+                d.m.iter()
+                    .zip(&d.rho)
+                    .map(|(m, r)| hf * (m / r).powf(1.0 / dim as f64))
+                    .collect()
+            })
+        })
+        .collect();
+    let gas_h = g.h.as_deref().filter(|_| phys.variable_h.is_some());
+    let h_max = gas_h
+        .iter()
+        .flat_map(|v| v.iter())
+        .chain(dust_h.iter().flatten().flatten())
+        .fold(h, |a, &b| if b.is_finite() { a.max(b) } else { a });
     // The snapshot contract has InternalEnergy for every gas; isothermal gas solves no energy
     // equation, so it gets p/ρ (= c_s²), made here for output only.
     let e_iso: Option<Vec<f64>> =
@@ -154,8 +175,9 @@ fn write_snapshot(
             .then(|| g.p.iter().zip(&g.ph.rho).map(|(p, r)| p / r).collect());
     let view = SnapshotView {
         time: state.t,
-        dim: loaded.scene.dim(),
-        box_size,
+        dim,
+        periodic: phys.domain.periodic,
+        pad: dustsph_device::kernel::SUPPORT * h_max,
         scene_text: &loaded.text,
         gas: Some(PhaseView {
             x: &g.ph.x,
@@ -163,6 +185,7 @@ fn write_snapshot(
             m: &g.ph.m,
             rho: &g.ph.rho,
             h,
+            h_each: gas_h,
             id: &g.ph.id,
             e: g.e.as_deref().or(e_iso.as_deref()),
             p: Some(&g.p),
@@ -172,12 +195,14 @@ fn write_snapshot(
             .dust
             .iter()
             .zip(&t_stop)
-            .map(|(d, ts)| PhaseView {
+            .zip(&dust_h)
+            .map(|((d, ts), dh)| PhaseView {
                 x: &d.x,
                 v: &d.v,
                 m: &d.m,
                 rho: &d.rho,
                 h,
+                h_each: dh.as_deref(),
                 id: &d.id,
                 e: None,
                 p: None,
@@ -250,7 +275,6 @@ pub struct Runner {
     out: PathBuf,
     eng: Backend,
     pub state: State,
-    box_size: f64,
     times: Vec<f64>,
     prog: Progress,
     wall0: Instant,
@@ -260,7 +284,7 @@ pub struct Runner {
 impl Runner {
     /// Validate, set up, and write the t = 0 snapshot.
     pub fn start(loaded: &LoadedScene, opts: &RunOptions) -> Result<Runner, RunError> {
-        let (mut eng, mut state, box_size) = Self::engine(loaded, None, opts.device, opts.verbose)?;
+        let (mut eng, mut state) = Self::engine(loaded, None, opts.device, opts.verbose)?;
         // All input is valid: only now touch the output directory.
         let out = io::prepare_output_dir(&opts.out, opts.force)
             .map_err(|e| RunError::Io(e.to_string()))?;
@@ -301,7 +325,6 @@ impl Runner {
             times: output_times(loaded),
             loaded: loaded.clone(),
             out,
-            box_size,
             prog,
             wall0: Instant::now(),
             verbose: opts.verbose,
@@ -340,14 +363,13 @@ impl Runner {
         let prog: Progress =
             serde_json::from_str(&meta.progress_json).map_err(|e| bad(e.to_string()))?;
         verify_resume(dir, &state, &loaded, &prog).map_err(bad)?;
-        let (eng, state, box_size) = Self::engine(&loaded, Some(state), device, verbose)?;
+        let (eng, state) = Self::engine(&loaded, Some(state), device, verbose)?;
         Ok(Runner {
             times: output_times(&loaded),
             loaded,
             out: dir.to_path_buf(),
             eng,
             state,
-            box_size,
             prog,
             wall0: Instant::now(),
             verbose,
@@ -362,7 +384,7 @@ impl Runner {
         state: Option<State>,
         device: DeviceChoice,
         verbose: bool,
-    ) -> Result<(Backend, State, f64), RunError> {
+    ) -> Result<(Backend, State), RunError> {
         let file = loaded.path.display().to_string();
         let su =
             setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
@@ -395,7 +417,7 @@ impl Runner {
         if let (Some(n), true) = (note, verbose) {
             eprintln!("dustsph: {n}");
         }
-        Ok((eng, state, su.box_size))
+        Ok((eng, state))
     }
 
     pub fn out_dir(&self) -> &Path {
@@ -409,7 +431,6 @@ impl Runner {
             &self.loaded,
             &mut self.eng,
             &mut self.state,
-            self.box_size,
         )?;
         let fixed_dt = self.loaded.scene.time.dt;
         self.prog.errors.extend(analysis::exact_errors(

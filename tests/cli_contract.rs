@@ -78,10 +78,26 @@ fn run_writes_snapshots_at_output_times_and_a_summary() {
             .unwrap(),
         1
     );
-    assert_eq!(
-        h.attr("BoxSize").unwrap().read_scalar::<f64>().unwrap(),
-        1.0
+    // The periodic 1D wave: the box is the period along x, the unused axes 2 supports wide,
+    // and every stored coordinate inside it (GADGET's [0, BoxSize)).
+    let bs: Vec<f64> = h.attr("BoxSizePerAxis").unwrap().read_raw().unwrap();
+    let one: f64 = h.attr("BoxSize").unwrap().read_scalar().unwrap();
+    assert_eq!(one, bs[0].max(bs[1]));
+    let off: Vec<f64> = h.attr("CoordinateOffset").unwrap().read_raw().unwrap();
+    assert_eq!((bs[0], off[0]), (1.0, 0.0));
+    assert!(
+        bs[1] > 0.0 && bs[1] == bs[2] && off[1] == -bs[1] / 2.0,
+        "{bs:?} {off:?}"
     );
+    let c: Vec<f64> = f
+        .dataset("PartType0/Coordinates")
+        .unwrap()
+        .read_raw()
+        .unwrap();
+    assert!(c
+        .iter()
+        .enumerate()
+        .all(|(i, &x)| x >= 0.0 && x < bs[i % 3]));
     for ds in [
         "Coordinates",
         "Velocities",

@@ -307,7 +307,8 @@ pub(crate) mod tests {
         SnapshotData {
             time: 0.2,
             dim: 3,
-            box_size: 4.0,
+            box_size: [4.0; 3],
+            offset: [-2.0; 3],
             scene_text: String::new(),
             num_part: [
                 gas.as_ref().map_or(0, |g| g.x.len() as u64),

@@ -46,8 +46,11 @@ pub struct PhaseView<'a> {
     pub v: &'a [[f64; 3]],
     pub m: &'a [f64],
     pub rho: &'a [f64],
-    /// Global smoothing length, written per particle as `SmoothingLength`.
+    /// Global smoothing length (kernel support 2h), written per particle as `SmoothingLength`
+    /// = 2h, GADGET's convention (the radius where the kernel vanishes).
     pub h: f64,
+    /// Per-particle h where it varies (variable-h gas); overrides `h`.
+    pub h_each: Option<&'a [f64]>,
     pub id: &'a [u64],
     /// Gas internal energy.
     pub e: Option<&'a [f64]>,
@@ -78,6 +81,7 @@ impl PhaseView<'_> {
             ("e", self.e.map(<[f64]>::len)),
             ("p", self.p.map(<[f64]>::len)),
             ("t_stop", self.t_stop.map(<[f64]>::len)),
+            ("h_each", self.h_each.map(<[f64]>::len)),
         ];
         for (name, len) in lens {
             if let Some(len) = len {
@@ -98,7 +102,11 @@ impl PhaseView<'_> {
 pub struct SnapshotView<'a> {
     pub time: f64,
     pub dim: u32,
-    pub box_size: f64,
+    /// Periodic axes (lower end, length); the box of the file is the period there and the
+    /// particles' extent plus `pad` on each side elsewhere.
+    pub periodic: [Option<(f64, f64)>; 3],
+    /// Margin around the particles on open axes (the kernel support).
+    pub pad: f64,
     /// The scene TOML verbatim.
     pub scene_text: &'a str,
     pub gas: Option<PhaseView<'a>>,
@@ -126,7 +134,10 @@ pub struct PhaseData {
 pub struct SnapshotData {
     pub time: f64,
     pub dim: u32,
-    pub box_size: f64,
+    /// The file's box: `Coordinates` lie in [0, box_size) per axis (GADGET's convention); the
+    /// positions read back (`x`) have `offset` added again.
+    pub box_size: [f64; 3],
+    pub offset: [f64; 3],
     pub scene_text: String,
     pub num_part: [u64; 6],
     pub gas: Option<PhaseData>,
@@ -148,6 +159,52 @@ struct Columns<'a> {
     fraction: Option<Vec<u32>>,
 }
 
+/// The box a snapshot is written in: `Coordinates` = position − `offset`, inside [0, `size`)
+/// along every axis, as GADGET readers (yt, …) take the domain to be [0, BoxSize).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Frame {
+    pub offset: [f64; 3],
+    pub size: [f64; 3],
+}
+
+/// `SmoothingLength` / h: GADGET's smoothing length is the kernel's support radius, 2h here.
+pub const SMOOTHING_LENGTH_PER_H: f64 = 2.0;
+
+impl Frame {
+    /// The period on periodic axes; elsewhere the particles' extent plus `pad` (the kernel
+    /// support) on both sides, so no particle's kernel reaches a face; unused axes get a
+    /// width of 2 `pad` with the particles (at 0) in the middle.
+    pub fn of(snap: &SnapshotView) -> Frame {
+        let pad = if snap.pad.is_finite() && snap.pad > 0.0 {
+            snap.pad
+        } else {
+            1.0
+        };
+        let mut f = Frame {
+            offset: [-pad; 3],
+            size: [2.0 * pad; 3],
+        };
+        for k in 0..snap.dim as usize {
+            if let Some((lo, len)) = snap.periodic[k] {
+                (f.offset[k], f.size[k]) = (lo, len);
+                continue;
+            }
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            for ph in snap.gas.iter().chain(&snap.dust) {
+                for x in ph.x {
+                    lo = lo.min(x[k]);
+                    hi = hi.max(x[k]);
+                }
+            }
+            if lo <= hi {
+                f.offset[k] = lo - pad;
+                f.size[k] = hi - lo + 2.0 * pad;
+            }
+        }
+        f
+    }
+}
+
 impl<'a> Columns<'a> {
     fn gas(g: &PhaseView<'a>) -> Self {
         Columns {
@@ -155,7 +212,10 @@ impl<'a> Columns<'a> {
             v: Cow::Borrowed(g.v),
             m: Cow::Borrowed(g.m),
             rho: Cow::Borrowed(g.rho),
-            h: vec![g.h; g.len()],
+            h: match g.h_each {
+                Some(h) => h.iter().map(|h| SMOOTHING_LENGTH_PER_H * h).collect(),
+                None => vec![SMOOTHING_LENGTH_PER_H * g.h; g.len()],
+            },
             id: Cow::Borrowed(g.id),
             e: g.e.map(Cow::Borrowed),
             p: g.p.map(Cow::Borrowed),
@@ -185,7 +245,10 @@ impl<'a> Columns<'a> {
             v.extend_from_slice(f.v);
             m.extend_from_slice(f.m);
             rho.extend_from_slice(f.rho);
-            h.resize(h.len() + f.len(), f.h);
+            match f.h_each {
+                Some(he) => h.extend(he.iter().map(|h| SMOOTHING_LENGTH_PER_H * h)),
+                None => h.resize(h.len() + f.len(), SMOOTHING_LENGTH_PER_H * f.h),
+            }
             id.extend_from_slice(f.id);
             fraction.resize(fraction.len() + f.len(), k);
             if let Some(t) = t_stop.as_mut() {
@@ -211,6 +274,18 @@ impl<'a> Columns<'a> {
 
     fn len(&self) -> usize {
         self.x.len()
+    }
+
+    /// Positions in the file's frame.
+    fn shift(mut self, f: &Frame) -> Self {
+        let o = f.offset;
+        self.x = Cow::Owned(
+            self.x
+                .iter()
+                .map(|x| [x[0] - o[0], x[1] - o[1], x[2] - o[2]])
+                .collect(),
+        );
+        self
     }
 }
 
@@ -246,17 +321,26 @@ fn validate(path: &Path, snap: &SnapshotView) -> Result<VarLenUnicode, IoError> 
 pub fn write_snapshot(path: &Path, snap: &SnapshotView) -> Result<(), IoError> {
     // Check everything that can be checked before touching the disk.
     let scene = validate(path, snap)?;
-    let gas = snap.gas.as_ref().map(Columns::gas);
+    let frame = Frame::of(snap);
+    let gas = snap.gas.as_ref().map(|g| Columns::gas(g).shift(&frame));
     let dust = if snap.dust.is_empty() {
         None
     } else {
-        Some(Columns::dust(&snap.dust, path)?)
+        Some(Columns::dust(&snap.dust, path)?.shift(&frame))
     };
     require_parent_dir(path)?;
     let tmp = tmp_path(path)?;
     remove_stale(&tmp)?;
-    let result = write_file(&tmp, path, snap, &scene, gas.as_ref(), dust.as_ref())
-        .and_then(|()| commit_tmp(&tmp, path));
+    let result = write_file(
+        &tmp,
+        path,
+        snap,
+        &frame,
+        &scene,
+        gas.as_ref(),
+        dust.as_ref(),
+    )
+    .and_then(|()| commit_tmp(&tmp, path));
     if result.is_err() {
         // Best effort: the original error matters more than a failed cleanup.
         let _ = fs::remove_file(&tmp);
@@ -268,6 +352,7 @@ fn write_file(
     tmp: &Path,
     path: &Path,
     snap: &SnapshotView,
+    frame: &Frame,
     scene: &VarLenUnicode,
     gas: Option<&Columns>,
     dust: Option<&Columns>,
@@ -277,7 +362,7 @@ fn write_file(
     let mut num_part = [0u64; 6];
     num_part[GAS_TYPE] = gas.map_or(0, |g| g.len() as u64);
     num_part[DUST_TYPE] = dust.map_or(0, |d| d.len() as u64);
-    write_header(&file, path, snap, scene, &num_part)?;
+    write_header(&file, path, snap, frame, scene, &num_part)?;
     if let Some(g) = gas {
         write_group(&file, GAS_GROUP, g, path)?;
     }
@@ -292,6 +377,7 @@ fn write_header(
     file: &File,
     path: &Path,
     snap: &SnapshotView,
+    frame: &Frame,
     scene: &VarLenUnicode,
     num_part: &[u64; 6],
 ) -> Result<(), IoError> {
@@ -306,7 +392,15 @@ fn write_header(
     put_array(&g, "NumPart_Total", num_part, path)?;
     put_array(&g, "MassTable", &[0.0f64; 6], path)?;
     put_scalar(&g, "NumFilesPerSnapshot", &1i32, path)?;
-    put_scalar(&g, "BoxSize", &snap.box_size, path)?;
+    // GADGET's one BoxSize (yt takes the domain as [0, BoxSize)³ and cannot read more than
+    // one value): the largest extent; the extent per axis beside it (for yt's
+    // `bounding_box`, README "Output"); CoordinateOffset turns Coordinates back into
+    // positions; SmoothingLength is the support radius 2h.
+    let largest = frame.size.iter().fold(0.0f64, |a, &b| a.max(b));
+    put_scalar(&g, "BoxSize", &largest, path)?;
+    put_array(&g, "BoxSizePerAxis", &frame.size, path)?;
+    put_array(&g, "CoordinateOffset", &frame.offset, path)?;
+    put_scalar(&g, "SmoothingLengthPerH", &SMOOTHING_LENGTH_PER_H, path)?;
     put_scalar(&g, "Dimension", &dim, path)?;
     put_scalar(&g, "Code", &code, path)?;
     put_scalar(&g, "Scene", scene, path)?;
@@ -435,7 +529,24 @@ pub fn read_snapshot(path: &Path) -> Result<SnapshotData, IoError> {
     let (file, h) = open_header(path)?;
     let obj = format!("/{HEADER_GROUP}");
     let header = file.group(HEADER_GROUP).map_err(h5err(path, &obj))?;
-    let box_size: f64 = get_scalar(&header, "BoxSize", path)?;
+    // Files before the box-relative frame: one BoxSize, true coordinates, SmoothingLength = h.
+    let box_size = if header.attr("BoxSizePerAxis").is_ok() {
+        <[f64; 3]>::try_from(get_f64s(&header, "BoxSizePerAxis", path)?.as_slice())
+            .map_err(|_| IoError::invalid(path, "/Header/BoxSizePerAxis must have 3 values"))?
+    } else {
+        [get_scalar::<f64>(&header, "BoxSize", path)?; 3]
+    };
+    let offset = if header.attr("CoordinateOffset").is_ok() {
+        <[f64; 3]>::try_from(get_f64s(&header, "CoordinateOffset", path)?.as_slice())
+            .map_err(|_| IoError::invalid(path, "/Header/CoordinateOffset must have 3 values"))?
+    } else {
+        [0.0; 3]
+    };
+    let per_h = if header.attr("SmoothingLengthPerH").is_ok() {
+        get_scalar(&header, "SmoothingLengthPerH", path)?
+    } else {
+        1.0
+    };
     let SnapshotHeader {
         time,
         dim,
@@ -452,12 +563,26 @@ pub fn read_snapshot(path: &Path) -> Result<SnapshotData, IoError> {
             ),
         ));
     }
-    let gas = read_group(&file, GAS_GROUP, num_part[GAS_TYPE], path)?;
-    let dust = read_group(&file, DUST_GROUP, num_part[DUST_TYPE], path)?;
+    let back = |p: Option<PhaseData>| {
+        p.map(|mut p| {
+            for x in &mut p.x {
+                for k in 0..3 {
+                    x[k] += offset[k];
+                }
+            }
+            for h in &mut p.h {
+                *h /= per_h;
+            }
+            p
+        })
+    };
+    let gas = back(read_group(&file, GAS_GROUP, num_part[GAS_TYPE], path)?);
+    let dust = back(read_group(&file, DUST_GROUP, num_part[DUST_TYPE], path)?);
     Ok(SnapshotData {
         time,
         dim,
         box_size,
+        offset,
         scene_text,
         num_part,
         gas,
@@ -479,6 +604,14 @@ pub(crate) fn get_scalar<T: H5Type>(loc: &Location, name: &str, path: &Path) -> 
             format!("{obj}: expected one value, found {n}"),
         )),
     }
+}
+
+/// Reads a float attribute of any length.
+fn get_f64s(loc: &Location, name: &str, path: &Path) -> Result<Vec<f64>, IoError> {
+    let obj = format!("{}/{name}", loc.name());
+    loc.attr(name)
+        .and_then(|a| a.read_raw())
+        .map_err(h5err(path, &obj))
 }
 
 fn get_counts(loc: &Location, name: &str, path: &Path) -> Result<[u64; 6], IoError> {
@@ -664,6 +797,7 @@ mod tests {
                 m: &self.m,
                 rho: &self.rho,
                 h,
+                h_each: None,
                 id: &self.id,
                 e: gas.then_some(&self.e[..]),
                 p: gas.then_some(&self.p[..]),
@@ -676,7 +810,8 @@ mod tests {
         SnapshotView {
             time: 0.125 + f64::EPSILON,
             dim: 2,
-            box_size: 3.5,
+            periodic: [None; 3],
+            pad: 0.25,
             scene_text: SCENE,
             gas,
             dust,
@@ -692,8 +827,20 @@ mod tests {
         v
     }
 
-    fn assert_phase_eq(got: &PhaseData, want: &Phase, h: f64, gas: bool) {
-        assert_eq!(bits3(&got.x), bits3(&want.x));
+    /// Positions come back through the file's box-relative frame: exact up to one rounding
+    /// at the scale of the offset.
+    fn assert_close3(got: &[[f64; 3]], want: &[[f64; 3]], offset: [f64; 3]) {
+        assert_eq!(got.len(), want.len());
+        for (g, w) in got.iter().zip(want) {
+            for k in 0..3 {
+                let tol = 4.0 * f64::EPSILON * (w[k].abs() + offset[k].abs());
+                assert!((g[k] - w[k]).abs() <= tol, "{g:?} vs {w:?}");
+            }
+        }
+    }
+
+    fn assert_phase_eq(got: &PhaseData, want: &Phase, h: f64, gas: bool, offset: [f64; 3]) {
+        assert_close3(&got.x, &want.x, offset);
         assert_eq!(bits3(&got.v), bits3(&want.v));
         assert_eq!(bits(&got.m), bits(&want.m));
         assert_eq!(bits(&got.rho), bits(&want.rho));
@@ -707,7 +854,7 @@ mod tests {
     }
 
     #[test]
-    fn round_trip_gas_and_two_dust_fractions_is_bit_exact() {
+    fn round_trip_gas_and_two_dust_fractions_in_the_box_frame() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("snapshot_0003.h5");
         let (g, d0, d1) = (Phase::new(6, 1), Phase::new(3, 2), Phase::new(4, 3));
@@ -720,16 +867,55 @@ mod tests {
 
         assert_eq!(r.time.to_bits(), s.time.to_bits());
         assert_eq!(r.dim, 2);
-        assert_eq!(r.box_size.to_bits(), 3.5f64.to_bits());
+        // An open axis is the particles' extent plus the pad on both sides; z (unused in 2D)
+        // is 2 pads wide around 0.
+        for k in 0..2 {
+            let xs = [&g, &d0, &d1]
+                .iter()
+                .flat_map(|p| p.x.iter().map(|x| x[k]))
+                .collect::<Vec<_>>();
+            let (lo, hi) = xs
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &y| {
+                    (a.min(y), b.max(y))
+                });
+            assert_eq!(r.offset[k], lo - 0.25);
+            assert_eq!(r.box_size[k], hi - lo + 0.5);
+        }
+        assert_eq!((r.offset[2], r.box_size[2]), (-0.25, 0.5));
+        // What GADGET readers see: every stored coordinate inside [0, BoxSize).
+        let f = hdf5::File::open(&path).unwrap();
+        for grp in ["PartType0", "PartType3"] {
+            let c: Vec<f64> = f
+                .dataset(&format!("{grp}/Coordinates"))
+                .unwrap()
+                .read_raw()
+                .unwrap();
+            for (i, v) in c.iter().enumerate() {
+                assert!(
+                    *v >= 0.0 && *v < r.box_size[i % 3],
+                    "{grp} coordinate {v} outside the box"
+                );
+            }
+            let sl: Vec<f64> = f
+                .dataset(&format!("{grp}/SmoothingLength"))
+                .unwrap()
+                .read_raw()
+                .unwrap();
+            assert!(
+                sl.iter().all(|&h| h == 0.06 || h == 0.1 || h == 0.14),
+                "{sl:?}"
+            );
+        }
         assert_eq!(r.scene_text, SCENE);
         assert_eq!(r.num_part, [6, 0, 0, 7, 0, 0]);
-        assert_phase_eq(r.gas.as_ref().unwrap(), &g, 0.03, true);
+        assert_phase_eq(r.gas.as_ref().unwrap(), &g, 0.03, true, r.offset);
 
         let dust = r.dust.unwrap();
         let cat = |f: fn(&Phase) -> Vec<f64>| [f(&d0), f(&d1)].concat();
         let x: Vec<[f64; 3]> = [d0.x.clone(), d1.x.clone()].concat();
         let v: Vec<[f64; 3]> = [d0.v.clone(), d1.v.clone()].concat();
-        assert_eq!(bits3(&dust.x), bits3(&x));
+        assert_close3(&dust.x, &x, r.offset);
         assert_eq!(bits3(&dust.v), bits3(&v));
         assert_eq!(bits(&dust.m), bits(&cat(|p| p.m.clone())));
         assert_eq!(bits(&dust.rho), bits(&cat(|p| p.rho.clone())));
@@ -770,14 +956,29 @@ mod tests {
         let shape = |n: &str| h.attr(n).unwrap().shape();
         use TypeDescriptor as T;
 
-        for n in ["Time", "BoxSize"] {
+        for n in ["Time", "SmoothingLengthPerH", "BoxSize"] {
             assert_eq!(desc(n), T::Float(FloatSize::U8), "{n}");
             assert_eq!(shape(n), Vec::<usize>::new(), "{n}");
         }
         let time: f64 = h.attr("Time").unwrap().read_scalar().unwrap();
         assert_eq!(time.to_bits(), s.time.to_bits());
-        let bs: f64 = h.attr("BoxSize").unwrap().read_scalar().unwrap();
-        assert_eq!(bs, 3.5);
+        let per_h: f64 = h
+            .attr("SmoothingLengthPerH")
+            .unwrap()
+            .read_scalar()
+            .unwrap();
+        assert_eq!(per_h, 2.0);
+        // One BoxSize (yt reads one value), the largest extent; the rest per axis.
+        for n in ["BoxSizePerAxis", "CoordinateOffset"] {
+            assert_eq!(desc(n), T::Float(FloatSize::U8), "{n}");
+            assert_eq!(shape(n), vec![3], "{n}");
+        }
+        let frame = Frame::of(&s);
+        let bs: Vec<f64> = h.attr("BoxSizePerAxis").unwrap().read_raw().unwrap();
+        let off: Vec<f64> = h.attr("CoordinateOffset").unwrap().read_raw().unwrap();
+        assert_eq!((&bs, off), (&frame.size.to_vec(), frame.offset.to_vec()));
+        let one: f64 = h.attr("BoxSize").unwrap().read_scalar().unwrap();
+        assert_eq!(one, bs.iter().fold(0.0f64, |a, &b| a.max(b)));
 
         for n in ["NumPart_ThisFile", "NumPart_Total"] {
             assert_eq!(desc(n), T::Unsigned(IntSize::U8), "{n}");
@@ -904,6 +1105,7 @@ mod tests {
             m: &m,
             rho: &m,
             h: 0.1,
+            h_each: None,
             id: &id,
             e: None,
             p: None,

@@ -523,6 +523,7 @@ mod tests {
                 m: &self.m,
                 rho: &self.m,
                 h: 0.1,
+                h_each: None,
                 id: &self.id,
                 e: gas.then_some(&self.m[..]),
                 p: gas.then_some(&self.m[..]),
@@ -535,7 +536,8 @@ mod tests {
         SnapshotView {
             time: 0.2,
             dim: 3,
-            box_size: 4.0,
+            periodic: [None; 3],
+            pad: 0.5,
             scene_text: "",
             gas,
             dust,
