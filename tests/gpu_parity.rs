@@ -512,3 +512,43 @@ fn f32_step_follows_the_f64_step_to_single_precision() {
         }
     }
 }
+
+/// The device-memory estimate that `--device cuda` checks before it allocates
+/// (`gpu::DEVICE_BYTES_PER_PARTICLE`) bounds what the engine allocates, on every case, after
+/// a few steps (buffers grown included), in both precisions. The rayon launcher allocates the
+/// very buffers a GPU does.
+#[test]
+fn device_memory_estimate_bounds_what_the_engine_allocates() {
+    use dustsph::engine::backend::Backend;
+    use dustsph::engine::driver::Driver;
+    let mut worst = [0.0f64; 2];
+    for (label, file, sets, _) in CASES {
+        for (k, prec) in ["f64", "f32"].iter().enumerate() {
+            let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            sets.push(format!("numerics.precision=\"{prec}\""));
+            let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
+            let loaded = dustsph::scene::load(&path, &sets).unwrap();
+            let su = dustsph::setup::build(&loaded.scene).unwrap();
+            let phys = dustsph::engine::Physics::from_scene(&loaded.scene, su.h, su.domain);
+            let mut state = su.state;
+            let n = state.gas.ph.x.len() + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
+            let h = phys.h;
+            let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut state).unwrap();
+            let drv = Driver::new(&loaded.scene.time, h);
+            for _ in 0..3 {
+                drv.step(&mut eng, &mut state, loaded.scene.time.t_end)
+                    .unwrap();
+            }
+            let per = eng.device_bytes() as f64 / n as f64;
+            eprintln!("{label} ({prec}): {per:.0} B per particle ({n} particles)");
+            worst[k] = worst[k].max(per);
+        }
+    }
+    eprintln!("largest: f64 {:.0} B, f32 {:.0} B", worst[0], worst[1]);
+    for (k, (w, est)) in worst.iter().zip(gpu::DEVICE_BYTES_PER_PARTICLE).enumerate() {
+        assert!(
+            *w <= est,
+            "precision {k}: {w:.0} B per particle above the estimate {est}"
+        );
+    }
+}

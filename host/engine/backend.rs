@@ -1,6 +1,6 @@
 //! The backend a run steps on: the one step pipeline (host/engine/gpu) on a launcher — the
 //! CPU's rayon pool, or a CUDA device. Chosen by `--device auto|cpu|cuda`.
-use super::gpu::{self, Cuda, GpuEngine, Rayon};
+use super::gpu::{self, Cuda, GpuEngine, Launcher, Rayon};
 use super::timers::Timers;
 use super::{Forces, Physics, Pipeline, StepError};
 use crate::particles::State;
@@ -100,6 +100,26 @@ fn start_resolved(
     }
 }
 
+/// Refuse, before any device allocation, a run whose particles would not fit in the GPU's free
+/// memory ([`gpu::DEVICE_BYTES_PER_PARTICLE`], measured); `auto` then runs on the CPU.
+fn check_device_memory(dev: &Cuda, state: &State, f32: bool) -> Result<(), StepError> {
+    let n = state.gas.ph.x.len() + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
+    let per = gpu::DEVICE_BYTES_PER_PARTICLE[f32 as usize];
+    let need = n as f64 * per;
+    let free = dev.memory_free()? as f64;
+    if need > free {
+        return Err(StepError::Unsupported(format!(
+            "{n} particles need about {:.1} GB of GPU memory ({per} B each, {}), more than the \
+             {:.1} GB free on {}; lower sph.n, use numerics.precision = \"f32\", or run on the CPU",
+            need / 1e9,
+            if f32 { "f32" } else { "f64" },
+            free / 1e9,
+            dev.describe()
+        )));
+    }
+    Ok(())
+}
+
 /// Device memory in use on CUDA device 0 (None for other backends or without a driver).
 pub fn device_memory_used(choice: DeviceChoice) -> Option<usize> {
     if choice != DeviceChoice::Cuda {
@@ -144,6 +164,7 @@ impl Backend {
         Ok(match choice {
             DeviceChoice::Cuda => {
                 let dev = Cuda::new(0, gpu::PTX)?;
+                check_device_memory(&dev, state, f32)?;
                 if f32 {
                     Backend::CudaF32(Box::new(GpuEngine::new(phys, state, dev)?))
                 } else {
@@ -174,6 +195,12 @@ impl Backend {
     /// Whether the step runs on the CPU's cores (either precision).
     pub fn is_cpu(&self) -> bool {
         matches!(self, Backend::Cpu(_) | Backend::CpuF32(_))
+    }
+
+    /// Device memory the engine has allocated (exact on the rayon launcher, which allocates
+    /// what a GPU would).
+    pub fn device_bytes(&self) -> usize {
+        each!(self, e => e.device_bytes())
     }
 
     /// Where the run steps, for the summary.

@@ -291,6 +291,11 @@ impl Cuda {
         Ok(self.stream.synchronize()?)
     }
 
+    /// Free device memory, in bytes.
+    pub fn memory_free(&self) -> Result<usize, GpuError> {
+        Ok(self.ctx.mem_get_info()?.0)
+    }
+
     pub fn memory_used(&self) -> Result<usize, GpuError> {
         let (free, total) = self.ctx.mem_get_info()?;
         Ok(total - free)

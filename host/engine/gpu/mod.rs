@@ -32,6 +32,13 @@ use std::marker::PhantomData;
 pub const PTX: &str = include_str!(concat!(env!("OUT_DIR"), "/dustsph.ptx"));
 /// How the PTX was (or was not) built.
 pub const PTX_NOTE: &str = env!("DUSTSPH_PTX_NOTE");
+/// Device memory a run needs per particle (gas or dust), by precision: measured with the rayon
+/// launcher, which allocates the very buffers a GPU does (`tests/gpu_parity.rs`,
+/// `device_memory_estimate_bounds_what_the_engine_allocates`: at most 492 B (f64) and 290 B
+/// (f32) per particle over the 23 parity scenes after three steps, the leapfrog with the
+/// kernel coupling the largest), with a margin for the dense tables of sparser clouds.
+pub const DEVICE_BYTES_PER_PARTICLE: [f64; 2] = [700.0, 420.0];
+
 /// Threads per chunk of the device scan (each thread scans one chunk serially).
 const SCAN_CHUNK: usize = 512;
 
@@ -58,13 +65,17 @@ pub struct Buf<L: Launcher, T> {
     _t: PhantomData<T>,
 }
 
-/// The launcher, and whether the kernels are the f32 instantiations.
-struct Dev<L: Launcher>(L, bool);
+/// The launcher, whether the kernels are the f32 instantiations, and the bytes allocated so
+/// far (the rayon launcher allocates exactly what a GPU would: the device-memory estimate
+/// [`DEVICE_BYTES_PER_PARTICLE`] is measured with it).
+struct Dev<L: Launcher>(L, bool, std::cell::Cell<usize>);
 
 impl<L: Launcher> Dev<L> {
     fn buf<T: Copy>(&self, len: usize) -> Result<Buf<L, T>, GpuError> {
+        let bytes = len * std::mem::size_of::<T>();
+        self.2.set(self.2.get() + bytes.max(1));
         Ok(Buf {
-            mem: self.0.alloc(len * std::mem::size_of::<T>())?,
+            mem: self.0.alloc(bytes)?,
             len,
             _t: PhantomData,
         })
@@ -615,7 +626,11 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
             )));
         }
-        let d = Dev(launcher, <R as Float>::NAME == "f32");
+        let d = Dev(
+            launcher,
+            <R as Float>::NAME == "f32",
+            std::cell::Cell::new(0),
+        );
         let (eos_kind, eos_value) = match phys.eos {
             Eos::Isothermal { cs } => (0, cs),
             Eos::Adiabatic { gamma } => (1, gamma),
@@ -790,6 +805,12 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
 
     pub fn describe(&self) -> String {
         self.d.0.describe()
+    }
+
+    /// Bytes of device memory the engine has allocated (buffers grown and replaced count
+    /// again: an upper bound of what it holds).
+    pub fn device_bytes(&self) -> usize {
+        self.d.2.get()
     }
 
     /// The particle farthest from the origin (or with a non-finite position): phase, id and
