@@ -1,25 +1,9 @@
 //! The formulas of `dustsph-device` against independent solutions: kernel normalisation and
 //! gradient, and the IDIC cell solve (method.md §3.3 properties 1–4).
+mod common;
+use common::Rng;
 use dustsph_device::drag::{cell_solve, dust_update, gas_update};
 use dustsph_device::kernel::KernelAt;
-
-/// Small deterministic generator (xorshift64*), so the tests need no extra crate.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next()
-    }
-    /// Log-uniform in [lo, hi].
-    fn log(&mut self, lo: f64, hi: f64) -> f64 {
-        (lo.ln() + (hi.ln() - lo.ln()) * self.next()).exp()
-    }
-}
 
 #[test]
 fn kernel_is_normalised_in_1d_2d_3d() {
@@ -111,7 +95,7 @@ fn backward_euler_dense(vt: f64, ut: &[f64], eps: &[f64], beta: &[f64]) -> (f64,
 
 #[test]
 fn cell_solve_is_backward_euler_and_conserves_momentum() {
-    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let mut rng = Rng::new(0x9e37_79b9_7f4a_7c15);
     // Scaled residual of the backward-Euler equations (round-off is ~3e-16).
     let mut worst_res: f64 = 0.0;
     // Deviation from an independent dense solve where that solve is itself accurate.
@@ -197,7 +181,7 @@ fn cell_solve_is_backward_euler_and_conserves_momentum() {
 fn particle_updates_are_consistent_with_cell_means() {
     // Cell means of the updated particle velocities equal the cell solution (property 1),
     // and total momentum of the particles is conserved (property 2), with unequal counts.
-    let mut rng = Rng(42);
+    let mut rng = Rng::new(42);
     for nf in [1usize, 3, 8] {
         for _ in 0..50 {
             let mg = 0.7;

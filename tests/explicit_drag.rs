@@ -6,23 +6,6 @@ mod common;
 use common::*;
 use dustsph_device::drag::{explicit_dust_update, explicit_gas_update, explicit_rate};
 
-/// Small deterministic generator (xorshift64*).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next()
-    }
-    fn log(&mut self, lo: f64, hi: f64) -> f64 {
-        (lo.ln() + (hi.ln() - lo.ln()) * self.next()).exp()
-    }
-}
-
 type V = [f64; 3];
 
 /// One cell: gas particles (m, v) and per fraction dust particles (m, u).
@@ -121,7 +104,7 @@ impl Cell {
 
 #[test]
 fn explicit_updates_conserve_momentum_exactly_in_a_cell() {
-    let mut r = Rng(0x5eed_1234);
+    let mut r = Rng::new(0x5eed_1234);
     for trial in 0..200 {
         let nf = 1 + trial % 16;
         let mut c = Cell::random(&mut r, nf);
@@ -156,7 +139,7 @@ fn explicit_rate_for_one_fraction_is_the_relative_velocity_decay_rate() {
 /// never grow.
 #[test]
 fn the_limit_is_stable_and_the_naive_tau_below_t_stop_is_not() {
-    let mut r = Rng(77);
+    let mut r = Rng::new(77);
     for trial in 0..100 {
         let nf = 1 + trial % 16;
         let mut c = Cell::random(&mut r, nf);

@@ -38,3 +38,24 @@ pub fn final_error(s: &Summary, which: usize, field: &str) -> Norms {
 pub fn order(e_coarse: f64, e_fine: f64, ratio: f64) -> f64 {
     (e_coarse / e_fine).ln() / ratio.ln()
 }
+
+/// The tests' one seeded generator (fastrand's wyrand): the same draws on every run.
+pub struct Rng(fastrand::Rng);
+
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(fastrand::Rng::with_seed(seed))
+    }
+    /// Uniform in [0, 1).
+    pub fn next(&mut self) -> f64 {
+        self.0.f64()
+    }
+    /// Uniform in [lo, hi).
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.next()
+    }
+    /// Log-uniform in [lo, hi).
+    pub fn log(&mut self, lo: f64, hi: f64) -> f64 {
+        (lo.ln() + (hi.ln() - lo.ln()) * self.next()).exp()
+    }
+}
