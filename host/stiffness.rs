@@ -576,8 +576,8 @@ pub fn run_case(case: &Case) -> CaseReport {
             let lw = dustywave::model(&sc);
             let a = sc.dustywave.as_ref().expect("validated").amplitude;
             let y = lw.evolve(&dustywave::initial_amplitudes(&sc, &lw), state.t);
-            let exact = y.rho_g.abs();
-            let num = density_mode(&state.gas.ph, lw.rho_g0, lw.k).abs() / a;
+            let exact = y.rho_g.norm();
+            let num = density_mode(&state.gas.ph, lw.rho_g0, lw.k).norm() / a;
             rep.wave_amplitude = Some((num, exact));
             let dev = (num - exact).abs();
             if dev.is_nan() || dev > WAVE_AMPLITUDE_TOL * exact.max(0.1) {

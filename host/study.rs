@@ -772,8 +772,9 @@ impl Study {
         command: &str,
     ) -> Result<Vec<PathBuf>, IoError> {
         let mut files = Vec::new();
-        // CSV
-        let mut csv = String::new();
+        // CSV (the csv crate quotes what needs quoting)
+        let mut csv = csv::Writer::from_writer(Vec::new());
+        let csv_err = |e: csv::Error| IoError::invalid(dir.join("results.csv"), e.to_string());
         let mut head: Vec<String> = vec!["series".into()];
         head.extend(self.axes.iter().map(|a| a.key.clone()));
         head.extend(
@@ -792,24 +793,16 @@ impl Study {
         );
         head.extend(self.metrics.iter().map(|m| m.name()));
         head.push("momentum_drift".into());
-        let quote = |s: &str| {
-            if s.contains([',', '"', '\n']) {
-                format!("\"{}\"", s.replace('"', "\"\""))
-            } else {
-                s.to_string()
-            }
-        };
-        csv.push_str(&head.iter().map(|h| quote(h)).collect::<Vec<_>>().join(","));
-        csv.push('\n');
+        csv.write_record(&head).map_err(csv_err)?;
         for (p, r) in self.points.iter().zip(results) {
-            let mut row = vec![quote(&self.series_label(p))];
+            let mut row = vec![self.series_label(p)];
             row.extend(
                 self.axes
                     .iter()
                     .zip(&p.index)
-                    .map(|(a, &i)| quote(&a.values[i].to_string())),
+                    .map(|(a, &i)| a.values[i].to_string()),
             );
-            row.push(quote(&r.status.text(self.cfg.max_steps)));
+            row.push(r.status.text(self.cfg.max_steps));
             row.push(r.steps.to_string());
             row.push(r.drag_limited_steps.to_string());
             for v in [r.dt_min, r.dt_max] {
@@ -839,11 +832,13 @@ impl Study {
             } else {
                 String::new()
             });
-            csv.push_str(&row.join(","));
-            csv.push('\n');
+            csv.write_record(&row).map_err(csv_err)?;
         }
         let p = dir.join("results.csv");
-        io::write_bytes_atomic(&p, csv.as_bytes())?;
+        let bytes = csv
+            .into_inner()
+            .map_err(|e| csv_err(e.into_error().into()))?;
+        io::write_bytes_atomic(&p, &bytes)?;
         files.push(p);
 
         // Plots

@@ -13,7 +13,6 @@
 //! A bin with no particle of a phase has NaN in that phase's fields, as does a field the snapshot
 //! does not hold (gas pressure, energy, dust stopping time).
 
-use std::fmt::Write as _;
 use std::path::Path;
 
 use super::radial::RadialCurve;
@@ -260,8 +259,9 @@ pub fn write_profiles_csv(path: &Path, p: &Profiles) -> Result<(), IoError> {
             format!("profile columns have different lengths: r has {n}, others {lens:?}"),
         ));
     }
-    let mut text = CSV_COLUMNS.join(",");
-    text.push('\n');
+    let mut w = csv::Writer::from_writer(Vec::new());
+    let err = |e: csv::Error| IoError::invalid(path, e.to_string());
+    w.write_record(CSV_COLUMNS).map_err(err)?;
     for j in 0..n {
         let floats = [
             c.r[j],
@@ -273,12 +273,13 @@ pub fn write_profiles_csv(path: &Path, p: &Profiles) -> Result<(), IoError> {
             c.u[j],
             p.t_stop[j],
         ];
-        for x in floats {
-            write!(text, "{x:e},").expect("writing to a String cannot fail");
-        }
-        writeln!(text, "{},{}", p.n_gas[j], p.n_dust[j]).expect("writing to a String cannot fail");
+        let mut row: Vec<String> = floats.iter().map(|x| format!("{x:e}")).collect();
+        row.push(p.n_gas[j].to_string());
+        row.push(p.n_dust[j].to_string());
+        w.write_record(&row).map_err(err)?;
     }
-    write_bytes_atomic(path, text.as_bytes())
+    let bytes = w.into_inner().map_err(|e| err(e.into_error().into()))?;
+    write_bytes_atomic(path, &bytes)
 }
 
 #[cfg(test)]

@@ -224,8 +224,8 @@ mod tests {
                     .collect()
             })
             .collect();
-        let mut w0: Vec<f64> = u0.iter().map(|u| u - v0).collect();
-        let c = solve_real(&mut phi.clone(), &mut w0).unwrap();
+        let w0: Vec<f64> = u0.iter().map(|u| u - v0).collect();
+        let c = solve_real(&phi, &w0).unwrap();
         let w: Vec<f64> = (0..n)
             .map(|j| (0..n).map(|m| c[m] * g(lam[m]) * phi[j][m]).sum())
             .collect();
@@ -389,14 +389,14 @@ mod tests {
             let m = b.drag_matrix();
             let mut w: Vec<f64> = u0.iter().map(|u| u - v0).collect();
             for _ in 0..n {
-                let mut a: Vec<Vec<f64>> = (0..4)
+                let a: Vec<Vec<f64>> = (0..4)
                     .map(|i| {
                         (0..4)
                             .map(|j| f64::from(u8::from(i == j)) + tau * m[i][j])
                             .collect()
                     })
                     .collect();
-                w = solve_real(&mut a, &mut w).unwrap();
+                w = solve_real(&a, &w).unwrap();
             }
             let rs = b.assemble(b.barycentric_velocity(v0, &u0), &w);
             // Repeated f64 solves accumulate ~n·1e-16.

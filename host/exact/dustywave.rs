@@ -61,7 +61,7 @@ impl WaveAmplitudes {
     pub fn max_abs_diff(&self, o: &WaveAmplitudes) -> f64 {
         let e = match (self.e, o.e) {
             (None, None) => 0.0,
-            (a, b) => (a.unwrap_or(C::ZERO) - b.unwrap_or(C::ZERO)).abs(),
+            (a, b) => (a.unwrap_or(C::ZERO) - b.unwrap_or(C::ZERO)).norm(),
         };
         let pairs = self
             .rho_d
@@ -69,10 +69,10 @@ impl WaveAmplitudes {
             .zip(&o.rho_d)
             .chain(self.v_d.iter().zip(&o.v_d));
         pairs
-            .map(|(a, b)| (*a - *b).abs())
+            .map(|(a, b)| (*a - *b).norm())
             .fold(e, f64::max)
-            .max((self.rho_g - o.rho_g).abs())
-            .max((self.v_g - o.v_g).abs())
+            .max((self.rho_g - o.rho_g).norm())
+            .max((self.v_g - o.v_g).norm())
     }
 }
 
@@ -275,8 +275,8 @@ impl LinearWave {
         z.push(C::new(0.07 * scale, 1.01 * scale));
         let mut roots = aberth(&coef, z);
         for w in roots.iter_mut() {
-            let near_pole = self.t_stop.iter().any(|&t| (1.0 - *w * t).abs() < 1e-6);
-            if !near_pole && w.abs() > 0.0 {
+            let near_pole = self.t_stop.iter().any(|&t| (1.0 - *w * t).norm() < 1e-6);
+            if !near_pole && w.norm() > 0.0 {
                 *w = self.polish(*w);
             }
         }
@@ -286,21 +286,21 @@ impl LinearWave {
 
     /// Newton on the rational form; a step is kept only if it lowers |F|.
     fn polish(&self, mut w: C) -> C {
-        let mut f = self.dispersion_rational(w).0.abs();
+        let mut f = self.dispersion_rational(w).0.norm();
         for _ in 0..50 {
             let (fv, df) = self.dispersion_rational(w);
-            if df.abs() == 0.0 {
+            if df.norm() == 0.0 {
                 break;
             }
             let step = fv / df;
             let wn = w - step;
-            let fnew = self.dispersion_rational(wn).0.abs();
+            let fnew = self.dispersion_rational(wn).0.norm();
             if fnew.is_nan() || fnew >= f {
                 break;
             }
             w = wn;
             f = fnew;
-            if step.abs() <= 1e-16 * w.abs() {
+            if step.norm() <= 1e-16 * w.norm() {
                 break;
             }
         }
@@ -347,8 +347,8 @@ impl LinearWave {
                 .filter(|w| pred(w))
                 .min_by(|a, b| a.re.total_cmp(&b.re))
         };
-        let w = pick(&|w| w.im < -1e-10 * w.abs())
-            .or_else(|| pick(&|w| w.abs() > 0.0))
+        let w = pick(&|w| w.im < -1e-10 * w.norm())
+            .or_else(|| pick(&|w| w.norm() > 0.0))
             .expect("dispersion relation has a non-zero root");
         (w, self.mode_amplitudes(w))
     }
@@ -383,12 +383,12 @@ fn aberth(coef: &[f64], mut z: Vec<C>) -> Vec<C> {
         let mut moved: f64 = 0.0;
         for i in 0..n {
             let (p, dp) = horner(coef, z[i]);
-            if p.abs() == 0.0 {
+            if p.norm() == 0.0 {
                 continue;
             }
             let s = (0..n)
                 .filter(|&j| j != i)
-                .fold(C::ZERO, |s, j| s + (z[i] - z[j]).recip());
+                .fold(C::ZERO, |s, j| s + (z[i] - z[j]).inv());
             let ratio = p / dp;
             let corr = ratio / (1.0 - ratio * s);
             if !(corr.re.is_finite() && corr.im.is_finite()) {
@@ -398,7 +398,7 @@ fn aberth(coef: &[f64], mut z: Vec<C>) -> Vec<C> {
                 continue;
             }
             z[i] -= corr;
-            moved = moved.max(corr.abs() / z[i].abs().max(f64::MIN_POSITIVE));
+            moved = moved.max(corr.norm() / z[i].norm().max(f64::MIN_POSITIVE));
         }
         if moved < 1e-15 {
             break;
@@ -430,7 +430,7 @@ mod tests {
     }
 
     fn close(a: C, re: f64, im: f64, tol: f64) -> bool {
-        (a - C::new(re, im)).abs() < tol
+        (a - C::new(re, im)).norm() < tol
     }
 
     /// BL2019 N = 1 (method.md §7.3): ω and the eigenvector to the tabulated digits.
@@ -524,7 +524,7 @@ mod tests {
         assert!((speed - 1.0 / 2f64.sqrt()).abs() < 1e-10, "{speed}");
         let damp = k * k * 1e-7 / 8.0;
         assert!((w.re - damp).abs() < 1e-5 * damp, "{} vs {damp}", w.re);
-        let decay = (-w).exp().abs();
+        let decay = (-w).exp().norm();
         assert!(decay > 1.0 - 1e-6 && decay <= 1.0);
         let y = wave.evolve(&m, 1.0);
         let err = y.max_abs_diff(&m.scale((-w).exp()));
@@ -549,7 +549,7 @@ mod tests {
         assert!((a.sound_speed() - 1.0).abs() < 1e-15);
         let (wa, ma) = a.eigenmode();
         let (wi, _) = iso(vec![2.24], vec![0.4]).eigenmode();
-        assert!((wa - wi).abs() < 1e-12);
+        assert!((wa - wi).norm() < 1e-12);
         assert!(close(ma.e.unwrap(), 0.6, 0.0, 1e-15));
         for t in [0.3, 2.0] {
             let err = a.evolve(&ma, t).max_abs_diff(&ma.scale((-wa * t).exp()));
@@ -639,18 +639,18 @@ mod tests {
         // Equal stopping times act as one fraction with the summed density.
         let (w3, _) = iso(vec![0.2, 0.5, 0.4], vec![0.3, 0.3, 0.3]).eigenmode();
         let (w1, _) = iso(vec![1.1], vec![0.3]).eigenmode();
-        assert!((w3 - w1).abs() < 1e-13);
+        assert!((w3 - w1).norm() < 1e-13);
         // k = 0: a double root at 0 and the DUSTYBOX decay rates (method.md §7.1).
         let mut flat = bl4();
         flat.k = 0.0;
         let roots = flat.dispersion_roots();
         let rates = DustyBox::new(flat.eps(), flat.t_stop.clone()).eigenvalues();
         assert!(
-            roots[0].abs() < 1e-200 && roots[1].abs() < 1e-200,
+            roots[0].norm() < 1e-200 && roots[1].norm() < 1e-200,
             "{roots:?}"
         );
         for (r, l) in roots[2..].iter().zip(&rates) {
-            assert!((*r - *l).abs() < 1e-13 * l, "{r:?} vs {l}");
+            assert!((*r - *l).norm() < 1e-13 * l, "{r:?} vs {l}");
         }
         // Pure gas: ω = −ikc exactly.
         let (w0, _) = iso(vec![], vec![]).eigenmode();
