@@ -657,13 +657,54 @@ mod tests {
             assert!((c.rho_d[j] - 0.5 * c.rho_g[j]).abs() <= 1e-14 * c.rho_g[j]);
             assert!((c.p[j] - 0.4 * c.rho_g[j] * c.e[j]).abs() <= 1e-12 * c.p[j].max(1e-300));
         }
+        // The initial edge carries the sonic state; at t = 0.2 the spherical divergence has
+        // lowered it below the planar value (checked against that limit at early times in
+        // `early_edge_state_is_the_planar_sonic_point`).
         let s1 = c.sample(1.0);
-        assert!(s1.p > 0.05 && s1.p < 0.6, "{rep}");
+        assert!(
+            s1.p < PLANAR_SONIC_P && s1.p > 0.75 * PLANAR_SONIC_P,
+            "{rep}"
+        );
         // The Lagrangian edge lags the continuum front (finite edge-zone mass) but is far out.
         assert!(edge > 1.6 && edge < front, "{rep}");
         assert!(c.r[c.len() - 1] < edge);
         eprintln!("{rep}");
     }
+    /// p*/p0 of a planar polytropic rarefaction into vacuum at the initial interface (its
+    /// sonic point): (2/(γ+1))^(2γ/(γ−1)) for γ = 1.4, the dusty mixture's exponent (p ∝ ρ_g^γ
+    /// and ρ_d ∝ ρ_g, with c² = γp/(ρ_g + ρ_d)).
+    const PLANAR_SONIC_P: f64 = 0.279_081_647;
+
+    #[test]
+    fn early_edge_state_is_the_planar_sonic_point() {
+        // For c t ≪ R the ball's edge is a planar rarefaction: at the initial edge r = R the
+        // flow is sonic, u* = c* = 2c0/(γ+1) and p*/p0 = PLANAR_SONIC_P, with the mixture's
+        // c0 = sqrt(γ p0/(ρ_g + ρ_d)); the spherical correction is O(c t/R) ≈ 1 % at t = 0.01.
+        let (t, n) = (0.01, 4000);
+        let c = equilibrium_ball(&SEED, t, n);
+        let c0 = (SEED.gamma * SEED.p / (SEED.rho_gas + SEED.rho_dust)).sqrt();
+        let u_star = 2.0 * c0 / (SEED.gamma + 1.0);
+        let p_star = PLANAR_SONIC_P * SEED.p;
+        assert!(
+            ((2.0 / (SEED.gamma + 1.0)).powf(2.0 * SEED.gamma / (SEED.gamma - 1.0))
+                - PLANAR_SONIC_P)
+                .abs()
+                < 1e-7
+        );
+        let s = c.sample(SEED.radius);
+        let (ep, ev) = ((s.p - p_star).abs() / p_star, (s.v - u_star).abs() / u_star);
+        eprintln!(
+            "t = {t}: edge p = {:.5} (planar {p_star:.5}), v = {:.5} (planar {u_star:.5})",
+            s.p, s.v
+        );
+        assert!(
+            ep < 0.02 && ev < 0.02,
+            "p {:.5} vs {p_star:.5}, v {:.5} vs {u_star:.5}",
+            s.p,
+            s.v
+        );
+    }
+
     /// Pure-gas homologous expansion of method.md §6.2 (uniform ρ, parabolic e, from rest):
     /// a(t) by RK4 of ä = Λ a^(2−3γ), Λ = 2(γ−1)e_c0/R0²; returns (a, ȧ).
     fn homologous_scale(gamma: f64, e_c0: f64, r0: f64, t: f64) -> (f64, f64) {
