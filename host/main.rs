@@ -22,122 +22,146 @@ struct Cli {
 #[derive(Subcommand)]
 enum Cmd {
     /// Run a scene: snapshots at the scene's output times and summary.json in the output directory.
-    Run {
-        /// Scene file (TOML), e.g. configs/dustywave.toml
-        scene: PathBuf,
-        /// Override a scene key, e.g. --set dust.fractions.0.t_stop=1e-6 (repeatable)
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-        /// Output directory (default: output/<scene name>)
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Write into a non-empty output directory (replaces only dustsph's own files)
-        #[arg(long)]
-        force: bool,
-        /// Write DIR/checkpoint.h5 every N steps (Ctrl-C always writes one)
-        #[arg(long, value_name = "N")]
-        checkpoint_every: Option<u64>,
-        /// No progress output
-        #[arg(long, short)]
-        quiet: bool,
-        /// Where to step: a CUDA GPU if usable, else the CPU (auto); the CPU's cores (cpu); a
-        /// CUDA GPU (cuda). The same step and kernels on either.
-        #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
-        device: DeviceChoice,
-        /// The float type of the step: f64 (the reference) or f32 (docs/accuracy.md); the
-        /// same as --set numerics.precision=…
-        #[arg(long, value_enum)]
-        precision: Option<Precision>,
-    },
+    Run(RunArgs),
     /// The GPU path: how its kernels were built, whether a device is usable; optionally write
     /// the embedded PTX (for `ptxas`).
-    Gpu {
-        /// Write the embedded PTX to this file
-        #[arg(long, value_name = "FILE")]
-        write_ptx: Option<PathBuf>,
-    },
+    Gpu(GpuArgs),
     /// Run each scene kind for a few steps on a one-thread CPU reference and on a device, and
     /// compare every array after every step (bit for bit expected).
-    Parity {
-        /// The device to check against the one-thread CPU reference (cuda; or cpu: every core)
-        #[arg(long, value_enum, default_value_t = DeviceChoice::Cuda)]
-        device: DeviceChoice,
-        /// Check the f32 kernels instead of the f64 ones
-        #[arg(long, value_enum, default_value_t = Precision::F64)]
-        precision: Precision,
-    },
+    Parity(ParityArgs),
     /// CPU speed: a uniform 3D box at ≈60 neighbours and the 3D ball, on 1 and 2 threads.
-    Bench {
-        /// Steps to time per case
-        #[arg(long, default_value_t = 10)]
-        steps: u64,
-        /// Thread counts to run, e.g. 1,2
-        #[arg(long, value_delimiter = ',', default_values_t = vec![1usize, 2])]
-        threads: Vec<usize>,
-        /// Also the full seed ball (2 × 248 439 particles, ≈2000 neighbours; minutes per step count)
-        #[arg(long)]
-        full: bool,
-        /// Particles per side of the uniform 3D box (per phase), e.g. 32,100,160,215 for
-        /// 3.3e4 … 1e7
-        #[arg(long, value_delimiter = ',', default_values_t = vec![32usize])]
-        box_n: Vec<usize>,
-        /// Where to run: cpu (default) or cuda
-        #[arg(long, value_enum, default_value_t = DeviceChoice::Cpu)]
-        device: DeviceChoice,
-        /// The float type of the step (f64 or f32)
-        #[arg(long, value_enum, default_value_t = Precision::F64)]
-        precision: Precision,
-    },
+    Bench(BenchArgs),
     /// Radial profiles (CSV) and figures (PNG) of a snapshot, written next to it; for the ball
     /// also the errors against the 1D reference and the spherical-symmetry check.
-    Profile {
-        snapshot: PathBuf,
-        /// Number of radial bins
-        #[arg(long, default_value_t = 100)]
-        bins: usize,
-    },
+    Profile(ProfileArgs),
     /// Run a study (configs/studies/*.toml): a scene over a grid of parameters, in this process;
     /// writes results.csv, results.md and error-against-run-time plots (PNG).
-    Study {
-        /// Study file (TOML), e.g. configs/studies/dustywave_n1.toml
-        study: PathBuf,
-        /// Output directory (default: output/studies/<study name>)
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Write into a non-empty output directory (replaces only the study's own files)
-        #[arg(long)]
-        force: bool,
-        /// No line per point
-        #[arg(long, short)]
-        quiet: bool,
-        /// Validate the study and list its points; run nothing, write nothing
-        #[arg(long)]
-        dry_run: bool,
-    },
+    Study(StudyArgs),
     /// The stiffness and extremes matrix (IDIC): every case must stay finite, conserve momentum
     /// to 1e-12, keep densities positive and match the exact wave/box solutions. Prints a line
     /// per case; exit code 1 if any fails.
-    Stiffness {
-        /// The full grid (default: the reduced CI grid)
-        #[arg(long)]
-        full: bool,
-        /// Write the Markdown table to this file (e.g. docs/stiffness.md)
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Replace an existing --out file
-        #[arg(long)]
-        force: bool,
-    },
+    Stiffness(StiffnessArgs),
     /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
-    Resume {
-        dir: PathBuf,
-        #[arg(long, value_name = "N")]
-        checkpoint_every: Option<u64>,
-        #[arg(long, short)]
-        quiet: bool,
-        #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
-        device: DeviceChoice,
-    },
+    Resume(ResumeArgs),
+}
+
+#[derive(clap::Args)]
+struct RunArgs {
+    /// Scene file (TOML), e.g. configs/dustywave.toml
+    scene: PathBuf,
+    /// Override a scene key, e.g. --set dust.fractions.0.t_stop=1e-6 (repeatable)
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Output directory (default: output/<scene name>)
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Write into a non-empty output directory (replaces only dustsph's own files)
+    #[arg(long)]
+    force: bool,
+    /// Write DIR/checkpoint.h5 every N steps (Ctrl-C always writes one)
+    #[arg(long, value_name = "N")]
+    checkpoint_every: Option<u64>,
+    /// No progress output
+    #[arg(long, short)]
+    quiet: bool,
+    /// Where to step: a CUDA GPU if usable, else the CPU (auto); the CPU's cores (cpu); a
+    /// CUDA GPU (cuda). The same step and kernels on either.
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
+    /// The float type of the step: f64 (the reference) or f32 (docs/accuracy.md); the
+    /// same as --set numerics.precision=…
+    #[arg(long, value_enum)]
+    precision: Option<Precision>,
+}
+
+#[derive(clap::Args)]
+struct GpuArgs {
+    /// Write the embedded PTX to this file
+    #[arg(long, value_name = "FILE")]
+    write_ptx: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct ParityArgs {
+    /// The device to check against the one-thread CPU reference (cuda; or cpu: every core)
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Cuda)]
+    device: DeviceChoice,
+    /// Check the f32 kernels instead of the f64 ones
+    #[arg(long, value_enum, default_value_t = Precision::F64)]
+    precision: Precision,
+}
+
+#[derive(clap::Args)]
+struct BenchArgs {
+    /// Steps to time per case
+    #[arg(long, default_value_t = 10)]
+    steps: u64,
+    /// Thread counts to run, e.g. 1,2
+    #[arg(long, value_delimiter = ',', default_values_t = vec![1usize, 2])]
+    threads: Vec<usize>,
+    /// Also the full seed ball (2 × 248 439 particles, ≈2000 neighbours; minutes per step count)
+    #[arg(long)]
+    full: bool,
+    /// Particles per side of the uniform 3D box (per phase), e.g. 32,100,160,215 for
+    /// 3.3e4 … 1e7
+    #[arg(long, value_delimiter = ',', default_values_t = vec![32usize])]
+    box_n: Vec<usize>,
+    /// Where to run: cpu (default) or cuda
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Cpu)]
+    device: DeviceChoice,
+    /// The float type of the step (f64 or f32)
+    #[arg(long, value_enum, default_value_t = Precision::F64)]
+    precision: Precision,
+}
+
+#[derive(clap::Args)]
+struct ProfileArgs {
+    snapshot: PathBuf,
+    /// Number of radial bins
+    #[arg(long, default_value_t = 100)]
+    bins: usize,
+}
+
+#[derive(clap::Args)]
+struct StudyArgs {
+    /// Study file (TOML), e.g. configs/studies/dustywave_n1.toml
+    study: PathBuf,
+    /// Output directory (default: output/studies/<study name>)
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Write into a non-empty output directory (replaces only the study's own files)
+    #[arg(long)]
+    force: bool,
+    /// No line per point
+    #[arg(long, short)]
+    quiet: bool,
+    /// Validate the study and list its points; run nothing, write nothing
+    #[arg(long)]
+    dry_run: bool,
+}
+
+#[derive(clap::Args)]
+struct StiffnessArgs {
+    /// The full grid (default: the reduced CI grid)
+    #[arg(long)]
+    full: bool,
+    /// Write the Markdown table to this file (e.g. docs/stiffness.md)
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Replace an existing --out file
+    #[arg(long)]
+    force: bool,
+}
+
+#[derive(clap::Args)]
+struct ResumeArgs {
+    dir: PathBuf,
+    #[arg(long, value_name = "N")]
+    checkpoint_every: Option<u64>,
+    #[arg(long, short)]
+    quiet: bool,
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
 }
 
 fn report(s: &Summary, out: &std::path::Path) {
@@ -216,337 +240,361 @@ fn drive(r: Result<Runner, RunError>, checkpoint_every: Option<u64>) -> ExitCode
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    match cli.cmd {
-        Cmd::Run {
-            scene,
-            set,
-            out,
-            force,
-            checkpoint_every,
-            quiet,
-            device,
-            precision,
-        } => {
-            let mut set = set;
-            if let Some(p) = precision {
-                set.push(format!("numerics.precision=\"{}\"", p.name()));
-            }
-            let loaded = match dustsph::scene::load(&scene, &set) {
-                Ok(l) => l,
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    return ExitCode::from(2);
-                }
-            };
-            let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.scene.name));
-            if !quiet {
-                eprintln!("dustsph: {} → {}", scene.display(), out.display());
-            }
-            let opts = RunOptions {
-                out,
-                force,
-                verbose: !quiet,
-                device,
-            };
-            drive(Runner::start(&loaded, &opts), checkpoint_every)
+    match Cli::parse().cmd {
+        Cmd::Run(a) => run(a),
+        Cmd::Bench(a) => bench(a),
+        Cmd::Profile(a) => profile(a),
+        Cmd::Study(a) => study(a),
+        Cmd::Stiffness(a) => stiffness(a),
+        Cmd::Resume(a) => resume(a),
+        Cmd::Parity(a) => parity(a),
+        Cmd::Gpu(a) => gpu(a),
+    }
+}
+
+fn run(a: RunArgs) -> ExitCode {
+    let RunArgs {
+        scene,
+        set,
+        out,
+        force,
+        checkpoint_every,
+        quiet,
+        device,
+        precision,
+    } = a;
+    let mut set = set;
+    if let Some(p) = precision {
+        set.push(format!("numerics.precision=\"{}\"", p.name()));
+    }
+    let loaded = match dustsph::scene::load(&scene, &set) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
         }
-        Cmd::Bench {
-            steps,
-            threads,
-            full,
-            box_n,
-            device,
-            precision,
-        } => {
-            let mut cases: Vec<(String, &str, Vec<String>)> = box_n
-                .iter()
-                .map(|n| {
-                    (
-                        format!("box 3D n={n}, ~60 nb"),
-                        "configs/dustybox.toml",
-                        vec![
-                            "scene.dim=3".to_string(),
-                            format!("sph.n={n}"),
-                            "sph.hfact=1.215".into(),
-                            "dust.fractions=[{eps=0.5, t_stop=0.1}]".into(),
-                            "dustybox.u_dust=[1.0]".into(),
-                        ],
-                    )
-                })
-                .collect();
-            cases.push((
-                "ball 3D, n=20, h=0.1".into(),
-                "configs/dusty_ball.toml",
-                vec!["sph.n=20".into()],
-            ));
-            if full {
-                cases.push((
-                    "ball 3D seed (n=39, h=0.1)".into(),
-                    "configs/dusty_ball.toml",
-                    vec![],
-                ));
-            }
-            println!(
-                "{:<28} {:>7} {:>9} {:>9} {:>10} {:>6} {:>9} {:>14} {:>14} {:>9}",
-                "case",
-                "threads",
-                "gas",
-                "dust",
-                "neighbours",
-                "steps",
-                "seconds",
-                "particle-st/s",
-                "interact./s",
-                "B/part."
-            );
-            let mut where_ = String::new();
-            for (name, file, sets) in cases {
-                let name = name.as_str();
-                let mut sets = sets;
-                sets.push(format!("numerics.precision=\"{}\"", precision.name()));
-                let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
-                    Ok(l) => l,
-                    Err(e) => {
-                        eprintln!("error: {e}");
-                        return ExitCode::from(2);
-                    }
-                };
-                for &t in &threads {
-                    match dustsph::bench::bench(name, &loaded.scene, steps, t, device) {
-                        Ok(r) => {
-                            println!(
-                                "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e} {:>9}",
-                                r.case,
-                                r.threads,
-                                r.gas,
-                                r.dust,
-                                r.mean_neighbours,
-                                r.steps,
-                                r.seconds,
-                                r.particle_steps_per_s(),
-                                r.interactions_per_s(),
-                                r.bytes_per_particle.map_or("-".into(), |b| format!("{b:.0}"))
-                            );
-                            where_ = r.device;
-                        }
-                        Err(e) => {
-                            eprintln!("error: {name}: {e}");
-                            return ExitCode::from(1);
-                        }
-                    }
-                }
-            }
-            println!("device: {where_}");
-            ExitCode::SUCCESS
-        }
-        Cmd::Profile { snapshot, bins } => {
-            if bins == 0 {
-                eprintln!("error: --bins must be at least 1");
+    };
+    let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.scene.name));
+    if !quiet {
+        eprintln!("dustsph: {} → {}", scene.display(), out.display());
+    }
+    let opts = RunOptions {
+        out,
+        force,
+        verbose: !quiet,
+        device,
+    };
+    drive(Runner::start(&loaded, &opts), checkpoint_every)
+}
+
+fn bench(a: BenchArgs) -> ExitCode {
+    let BenchArgs {
+        steps,
+        threads,
+        full,
+        box_n,
+        device,
+        precision,
+    } = a;
+    let mut cases: Vec<(String, &str, Vec<String>)> = box_n
+        .iter()
+        .map(|n| {
+            (
+                format!("box 3D n={n}, ~60 nb"),
+                "configs/dustybox.toml",
+                vec![
+                    "scene.dim=3".to_string(),
+                    format!("sph.n={n}"),
+                    "sph.hfact=1.215".into(),
+                    "dust.fractions=[{eps=0.5, t_stop=0.1}]".into(),
+                    "dustybox.u_dust=[1.0]".into(),
+                ],
+            )
+        })
+        .collect();
+    cases.push((
+        "ball 3D, n=20, h=0.1".into(),
+        "configs/dusty_ball.toml",
+        vec!["sph.n=20".into()],
+    ));
+    if full {
+        cases.push((
+            "ball 3D seed (n=39, h=0.1)".into(),
+            "configs/dusty_ball.toml",
+            vec![],
+        ));
+    }
+    println!(
+        "{:<28} {:>7} {:>9} {:>9} {:>10} {:>6} {:>9} {:>14} {:>14} {:>9}",
+        "case",
+        "threads",
+        "gas",
+        "dust",
+        "neighbours",
+        "steps",
+        "seconds",
+        "particle-st/s",
+        "interact./s",
+        "B/part."
+    );
+    let mut where_ = String::new();
+    for (name, file, sets) in cases {
+        let name = name.as_str();
+        let mut sets = sets;
+        sets.push(format!("numerics.precision=\"{}\"", precision.name()));
+        let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
+            Ok(l) => l,
+            Err(e) => {
+                eprintln!("error: {e}");
                 return ExitCode::from(2);
             }
-            match dustsph::post::post_process(&snapshot, bins) {
+        };
+        for &t in &threads {
+            match dustsph::bench::bench(name, &loaded.scene, steps, t, device) {
                 Ok(r) => {
-                    for f in &r.files {
-                        println!("wrote {}", f.display());
-                    }
-                    for e in &r.errors {
-                        println!("errors against {}", e.reference);
-                        for f in &e.fields {
-                            print_field(f);
-                        }
-                    }
-                    if let Some(s) = &r.symmetry {
-                        println!(
-                            "symmetry (axes vs diagonals, r < {}): rho_g {:.3e}, |v| {:.3e} (relative L1)",
-                            s.r_max, s.rho_g_relative_l1, s.speed_relative_l1
-                        );
-                    }
-                    ExitCode::SUCCESS
+                    println!(
+                        "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e} {:>9}",
+                        r.case,
+                        r.threads,
+                        r.gas,
+                        r.dust,
+                        r.mean_neighbours,
+                        r.steps,
+                        r.seconds,
+                        r.particle_steps_per_s(),
+                        r.interactions_per_s(),
+                        r.bytes_per_particle
+                            .map_or("-".into(), |b| format!("{b:.0}"))
+                    );
+                    where_ = r.device;
                 }
                 Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::from(1)
-                }
-            }
-        }
-        Cmd::Study {
-            study,
-            out,
-            force,
-            quiet,
-            dry_run,
-        } => {
-            let st = match dustsph::study::load(&study) {
-                Ok(s) => s,
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    return ExitCode::from(2);
-                }
-            };
-            if dry_run {
-                let all: Vec<usize> = (0..st.axes.len()).collect();
-                for (i, p) in st.points.iter().enumerate() {
-                    println!("{:>4}  {}", i + 1, st.describe(p, &all, false));
-                }
-                return ExitCode::SUCCESS;
-            }
-            let out = out.unwrap_or_else(|| PathBuf::from("output/studies").join(&st.cfg.name));
-            let command = format!(
-                "dustsph study {} --out {} --force",
-                study.display(),
-                out.display()
-            );
-            if !quiet {
-                eprintln!(
-                    "dustsph: study {} ({} points) → {}",
-                    study.display(),
-                    st.points.len(),
-                    out.display()
-                );
-            }
-            match dustsph::study::run(&st, &out, force, quiet, &command) {
-                Ok((results, files)) => {
-                    for f in &files {
-                        println!("wrote {}", f.display());
-                    }
-                    let failed = results
-                        .iter()
-                        .filter(|r| matches!(r.status, dustsph::study::Status::Failed(_)))
-                        .count();
-                    if failed > 0 {
-                        eprintln!("error: {failed} point(s) failed (see results.md)");
-                        return ExitCode::from(1);
-                    }
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::from(1)
-                }
-            }
-        }
-        Cmd::Stiffness { full, out, force } => {
-            if let Some(o) = &out {
-                if o.exists() && !force {
-                    eprintln!("error: {} exists; give --force to replace it", o.display());
-                    return ExitCode::from(2);
-                }
-            }
-            let reports = dustsph::stiffness::run(full, |r| {
-                eprintln!(
-                    "{:<6} {} — {}: {} steps (explicit would need {:.0}), momentum drift {:.1e}",
-                    if r.passed() { "pass" } else { "FAIL" },
-                    r.group,
-                    r.name,
-                    r.steps,
-                    r.explicit_steps,
-                    r.momentum_drift
-                );
-                for f in &r.failures {
-                    eprintln!("       {f}");
-                }
-            });
-            let failed = reports.iter().filter(|r| !r.passed()).count();
-            if let Some(o) = &out {
-                let command = format!(
-                    "dustsph stiffness{} --out {} --force",
-                    if full { " --full" } else { "" },
-                    o.display()
-                );
-                let md = dustsph::stiffness::markdown(&reports, full, &command);
-                if let Err(e) = dustsph::io::write_bytes_atomic(o, md.as_bytes()) {
-                    eprintln!("error: {e}");
+                    eprintln!("error: {name}: {e}");
                     return ExitCode::from(1);
                 }
-                println!("wrote {}", o.display());
-            }
-            println!("{} of {} cases pass", reports.len() - failed, reports.len());
-            if failed > 0 {
-                ExitCode::from(1)
-            } else {
-                ExitCode::SUCCESS
             }
         }
-        Cmd::Resume {
-            dir,
-            checkpoint_every,
-            quiet,
-            device,
-        } => {
-            if !quiet {
-                eprintln!("dustsph: resuming {}", dir.display());
+    }
+    println!("device: {where_}");
+    ExitCode::SUCCESS
+}
+
+fn profile(a: ProfileArgs) -> ExitCode {
+    let ProfileArgs { snapshot, bins } = a;
+    if bins == 0 {
+        eprintln!("error: --bins must be at least 1");
+        return ExitCode::from(2);
+    }
+    match dustsph::post::post_process(&snapshot, bins) {
+        Ok(r) => {
+            for f in &r.files {
+                println!("wrote {}", f.display());
             }
-            drive(Runner::resume(&dir, !quiet, device), checkpoint_every)
-        }
-        Cmd::Parity { device, precision } => {
-            let mut all_ok = true;
-            for (label, file, sets, steps) in dustsph::parity::CASES {
-                let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-                sets.push(format!("numerics.precision=\"{}\"", precision.name()));
-                let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
-                    Ok(l) => l,
-                    Err(e) => {
-                        eprintln!("error: {e}");
-                        return ExitCode::from(2);
-                    }
-                };
-                match dustsph::parity::compare(&loaded, *steps, device) {
-                    Ok(p) => {
-                        let worst = p.fields.iter().filter(|f| !f.bitwise).count();
-                        println!(
-                            "{label:<44} {steps:>3} steps on {}: {} of {} fields bit-identical, max relative difference {:.3e}",
-                            p.device,
-                            p.fields.len() - worst,
-                            p.fields.len(),
-                            p.max_relative()
-                        );
-                        for f in p.fields.iter().filter(|f| !f.bitwise) {
-                            println!("    {:<28} {:.3e}", f.field, f.max_relative);
-                        }
-                        all_ok &= p.max_relative() <= 1e-10;
-                    }
-                    Err(e) => {
-                        eprintln!("error: {label}: {e}");
-                        return ExitCode::from(1);
-                    }
+            for e in &r.errors {
+                println!("errors against {}", e.reference);
+                for f in &e.fields {
+                    print_field(f);
                 }
             }
-            if all_ok {
-                ExitCode::SUCCESS
-            } else {
-                eprintln!("parity: some array differs by more than 1e-10 (relative)");
-                ExitCode::from(1)
-            }
-        }
-        Cmd::Gpu { write_ptx } => {
-            use dustsph::engine::gpu;
-            use std::io::Write as _;
-            // A reader that closes the pipe early (`dustsph gpu | head -1`) is not an error.
-            let mut out = std::io::stdout().lock();
-            let _ = writeln!(
-                out,
-                "kernels: {} ({} bytes of PTX, {} entry points)",
-                gpu::PTX_NOTE,
-                gpu::PTX.len(),
-                gpu::PTX.matches(".entry ").count()
-            );
-            let _ = match gpu::probe() {
-                Ok(name) => writeln!(out, "device: {name}"),
-                Err(why) => writeln!(out, "device: none ({why})"),
-            };
-            if let Some(f) = write_ptx {
-                if gpu::PTX.is_empty() {
-                    eprintln!("error: this binary has no PTX to write ({})", gpu::PTX_NOTE);
-                    return ExitCode::from(1);
-                }
-                if let Err(e) = std::fs::write(&f, gpu::PTX) {
-                    eprintln!("error: {}: {e}", f.display());
-                    return ExitCode::from(1);
-                }
-                let _ = writeln!(out, "wrote {}", f.display());
+            if let Some(s) = &r.symmetry {
+                println!(
+                    "symmetry (axes vs diagonals, r < {}): rho_g {:.3e}, |v| {:.3e} (relative L1)",
+                    s.r_max, s.rho_g_relative_l1, s.speed_relative_l1
+                );
             }
             ExitCode::SUCCESS
         }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(1)
+        }
     }
+}
+
+fn study(a: StudyArgs) -> ExitCode {
+    let StudyArgs {
+        study,
+        out,
+        force,
+        quiet,
+        dry_run,
+    } = a;
+    let st = match dustsph::study::load(&study) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if dry_run {
+        let all: Vec<usize> = (0..st.axes.len()).collect();
+        for (i, p) in st.points.iter().enumerate() {
+            println!("{:>4}  {}", i + 1, st.describe(p, &all, false));
+        }
+        return ExitCode::SUCCESS;
+    }
+    let out = out.unwrap_or_else(|| PathBuf::from("output/studies").join(&st.cfg.name));
+    let command = format!(
+        "dustsph study {} --out {} --force",
+        study.display(),
+        out.display()
+    );
+    if !quiet {
+        eprintln!(
+            "dustsph: study {} ({} points) → {}",
+            study.display(),
+            st.points.len(),
+            out.display()
+        );
+    }
+    match dustsph::study::run(&st, &out, force, quiet, &command) {
+        Ok((results, files)) => {
+            for f in &files {
+                println!("wrote {}", f.display());
+            }
+            let failed = results
+                .iter()
+                .filter(|r| matches!(r.status, dustsph::study::Status::Failed(_)))
+                .count();
+            if failed > 0 {
+                eprintln!("error: {failed} point(s) failed (see results.md)");
+                return ExitCode::from(1);
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn stiffness(a: StiffnessArgs) -> ExitCode {
+    let StiffnessArgs { full, out, force } = a;
+    if let Some(o) = &out {
+        if o.exists() && !force {
+            eprintln!("error: {} exists; give --force to replace it", o.display());
+            return ExitCode::from(2);
+        }
+    }
+    let reports = dustsph::stiffness::run(full, |r| {
+        eprintln!(
+            "{:<6} {} — {}: {} steps (explicit would need {:.0}), momentum drift {:.1e}",
+            if r.passed() { "pass" } else { "FAIL" },
+            r.group,
+            r.name,
+            r.steps,
+            r.explicit_steps,
+            r.momentum_drift
+        );
+        for f in &r.failures {
+            eprintln!("       {f}");
+        }
+    });
+    let failed = reports.iter().filter(|r| !r.passed()).count();
+    if let Some(o) = &out {
+        let command = format!(
+            "dustsph stiffness{} --out {} --force",
+            if full { " --full" } else { "" },
+            o.display()
+        );
+        let md = dustsph::stiffness::markdown(&reports, full, &command);
+        if let Err(e) = dustsph::io::write_bytes_atomic(o, md.as_bytes()) {
+            eprintln!("error: {e}");
+            return ExitCode::from(1);
+        }
+        println!("wrote {}", o.display());
+    }
+    println!("{} of {} cases pass", reports.len() - failed, reports.len());
+    if failed > 0 {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    }
+}
+
+fn resume(a: ResumeArgs) -> ExitCode {
+    let ResumeArgs {
+        dir,
+        checkpoint_every,
+        quiet,
+        device,
+    } = a;
+    if !quiet {
+        eprintln!("dustsph: resuming {}", dir.display());
+    }
+    drive(Runner::resume(&dir, !quiet, device), checkpoint_every)
+}
+
+fn parity(a: ParityArgs) -> ExitCode {
+    let ParityArgs { device, precision } = a;
+    let mut all_ok = true;
+    for (label, file, sets, steps) in dustsph::parity::CASES {
+        let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        sets.push(format!("numerics.precision=\"{}\"", precision.name()));
+        let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
+            Ok(l) => l,
+            Err(e) => {
+                eprintln!("error: {e}");
+                return ExitCode::from(2);
+            }
+        };
+        match dustsph::parity::compare(&loaded, *steps, device) {
+            Ok(p) => {
+                let worst = p.fields.iter().filter(|f| !f.bitwise).count();
+                println!(
+                    "{label:<44} {steps:>3} steps on {}: {} of {} fields bit-identical, max relative difference {:.3e}",
+                    p.device,
+                    p.fields.len() - worst,
+                    p.fields.len(),
+                    p.max_relative()
+                );
+                for f in p.fields.iter().filter(|f| !f.bitwise) {
+                    println!("    {:<28} {:.3e}", f.field, f.max_relative);
+                }
+                all_ok &= p.max_relative() <= 1e-10;
+            }
+            Err(e) => {
+                eprintln!("error: {label}: {e}");
+                return ExitCode::from(1);
+            }
+        }
+    }
+    if all_ok {
+        ExitCode::SUCCESS
+    } else {
+        eprintln!("parity: some array differs by more than 1e-10 (relative)");
+        ExitCode::from(1)
+    }
+}
+
+fn gpu(a: GpuArgs) -> ExitCode {
+    let GpuArgs { write_ptx } = a;
+    use dustsph::engine::gpu;
+    use std::io::Write as _;
+    // A reader that closes the pipe early (`dustsph gpu | head -1`) is not an error.
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(
+        out,
+        "kernels: {} ({} bytes of PTX, {} entry points)",
+        gpu::PTX_NOTE,
+        gpu::PTX.len(),
+        gpu::PTX.matches(".entry ").count()
+    );
+    let _ = match gpu::probe() {
+        Ok(name) => writeln!(out, "device: {name}"),
+        Err(why) => writeln!(out, "device: none ({why})"),
+    };
+    if let Some(f) = write_ptx {
+        if gpu::PTX.is_empty() {
+            eprintln!("error: this binary has no PTX to write ({})", gpu::PTX_NOTE);
+            return ExitCode::from(1);
+        }
+        if let Err(e) = std::fs::write(&f, gpu::PTX) {
+            eprintln!("error: {}: {e}", f.display());
+            return ExitCode::from(1);
+        }
+        let _ = writeln!(out, "wrote {}", f.display());
+    }
+    ExitCode::SUCCESS
 }

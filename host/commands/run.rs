@@ -256,7 +256,7 @@ pub struct BallReport {
     pub radius_estimate_gas: f64,
     pub radius_estimate_dust: f64,
     /// Axis vs diagonal profiles at the end.
-    pub symmetry: Option<crate::post::Symmetry>,
+    pub symmetry: Option<crate::commands::profile::Symmetry>,
     /// Profiles CSV and figures of the last snapshot.
     pub figures: Vec<String>,
 }
@@ -624,7 +624,7 @@ impl Runner {
         };
         let post = match (&scene.dustyball, prog.snapshots.last()) {
             (Some(_), Some(last)) => Some(
-                crate::post::post_process(&out.join(last), 100)
+                crate::commands::profile::post_process(&out.join(last), 100)
                     .map_err(|e| RunError::Io(e.to_string()))?,
             ),
             _ => None,

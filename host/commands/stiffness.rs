@@ -22,10 +22,10 @@ use dustsph_device::eos::Eos;
 use std::fmt::Write as _;
 use std::path::Path;
 
-const WAVE: &str = include_str!("../configs/dustywave.toml");
-const BOX: &str = include_str!("../configs/dustybox.toml");
-const BALL: &str = include_str!("../configs/dusty_ball.toml");
-const PHANTOM_WAVE: &str = include_str!("../configs/dustywave_phantom.toml");
+const WAVE: &str = include_str!("../../configs/dustywave.toml");
+const BOX: &str = include_str!("../../configs/dustybox.toml");
+const BALL: &str = include_str!("../../configs/dusty_ball.toml");
+const PHANTOM_WAVE: &str = include_str!("../../configs/dustywave_phantom.toml");
 
 /// Largest allowed max_t |P(t) − P(0)| / S, with S = max_t Σ m|v|, or Σ m c_s (c_s the largest
 /// initial gas sound speed) when everything is at rest to round-off (max_t Σ m|v| < 1e-8 Σ m c_s).
