@@ -9,7 +9,7 @@ use crate::exact::dustybox::DustyBox;
 use crate::exact::dustywave::WaveGas;
 use crate::exact::riemann::{DustyRiemann, Prim};
 use crate::particles::{Phase, State};
-use crate::scene::{EosKind, LawKind, Problem, Scene};
+use crate::scene::{BallCfg, BoxCfg, EosKind, LawKind, ProblemCfg, Scene, SettleCfg};
 use crate::setup::dustywave;
 use norms::Norms;
 use serde::{Deserialize, Serialize};
@@ -41,9 +41,8 @@ impl ExactErrors {
 }
 
 /// Per-fraction velocity of the dusty box at time t: (gas, dust).
-fn dustybox_model(scene: &Scene) -> (DustyBox, f64, Vec<f64>) {
+fn dustybox_model(scene: &Scene, b: &BoxCfg) -> (DustyBox, f64, Vec<f64>) {
     let d = scene.dust.as_ref().expect("validated");
-    let b = scene.dustybox.as_ref().expect("validated");
     let rho = scene.gas.rho.expect("validated");
     let eps: Vec<f64> = d.fractions.iter().map(|f| f.eps).collect();
     let t_stop = d
@@ -188,11 +187,11 @@ fn all_phase_errors(
 pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<ExactErrors> {
     let t = state.t;
     let mut out = Vec::new();
-    match scene.scene.problem {
-        Problem::Dustyball => out.extend(ball_reference_errors(scene, state)),
-        Problem::Dustybox => {
+    match &scene.problem {
+        ProblemCfg::Dustyball(b) => out.extend(ball_reference_errors(scene, b, state)),
+        ProblemCfg::Dustybox(b) => {
             let rho = scene.gas.rho.expect("validated");
-            let (bx, v0, u0) = dustybox_model(scene);
+            let (bx, v0, u0) = dustybox_model(scene, b);
             let eps = bx.eps.clone();
             let (vg, ud) = bx.exact(v0, &u0, t);
             let rs = |k: usize| if k == usize::MAX { rho } else { rho * eps[k] };
@@ -220,10 +219,9 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
                 }
             }
         }
-        Problem::Dustywave => {
-            let w = scene.dustywave.as_ref().expect("validated");
-            let lw = dustywave::model(scene);
-            let y = lw.evolve(&dustywave::initial_amplitudes(scene, &lw), t);
+        ProblemCfg::Dustywave(w) => {
+            let lw = dustywave::model(scene, w);
+            let y = lw.evolve(&dustywave::initial_amplitudes(w, &lw), t);
             let (a, k) = (w.amplitude, lw.k);
             let cs = lw.sound_speed();
             let rho0 = lw.rho_g0;
@@ -308,9 +306,8 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
                 fields,
             });
         }
-        Problem::Dustysettle => out.push(settle_errors(scene, state)),
-        Problem::Dustyshock => {
-            let s = scene.dustyshock.as_ref().expect("validated");
+        ProblemCfg::Dustysettle(c) => out.push(settle_errors(scene, c, state)),
+        ProblemCfg::Dustyshock(s) => {
             let eps_k: Vec<f64> = scene
                 .dust
                 .as_ref()
@@ -368,10 +365,9 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
 /// ([`crate::exact::settle`]), over the particles in the middle 60% of the column: ρ_g and the
 /// dust velocities relative to their exact values (u_dk: (u − u_term)/|u_term|), the gas
 /// velocity in units of the largest terminal speed in the column.
-fn settle_errors(scene: &Scene, state: &State) -> ExactErrors {
+fn settle_errors(scene: &Scene, c: &SettleCfg, state: &State) -> ExactErrors {
     use crate::exact::settle::Law;
     let col = crate::setup::dustysettle::column(scene);
-    let c = scene.dustysettle.as_ref().expect("validated");
     let d = scene.dust.as_ref().expect("validated");
     let laws: Vec<Law> = d
         .fractions
@@ -382,7 +378,7 @@ fn settle_errors(scene: &Scene, state: &State) -> ExactErrors {
             LawKind::Epstein => Law::Epstein(f.s_rho.unwrap_or(f64::INFINITY)),
         })
         .collect();
-    let h = crate::setup::dustysettle::smoothing(scene).0;
+    let h = crate::setup::dustysettle::smoothing(scene, c).0;
     // Away from the walls: the middle 60% of the column (sound from the walls needs 0.2 L/c_s
     // to get there) and at least 4h from either end.
     let (lo, hi) = (
@@ -460,7 +456,7 @@ const BALL_REFERENCE_ZONES: usize = 2000;
 /// The 1D spherical equilibrium reference of a ball scene at time t (None for other scenes, and
 /// for isothermal gas: the γ → 1 limit is outside the reference).
 pub fn ball_reference(scene: &Scene, t: f64) -> Option<radial::RadialCurve> {
-    let b = scene.dustyball.as_ref()?;
+    let b = scene.ball()?;
     if scene.gas.eos != EosKind::Adiabatic {
         return None;
     }
@@ -482,8 +478,7 @@ pub fn ball_reference(scene: &Scene, t: f64) -> Option<radial::RadialCurve> {
 /// The ball against the 1D spherical equilibrium reference (method.md §6.1): L1/L2/L∞ of ρ_g,
 /// p, radial v_g, ρ_d, radial u_d inside r < R0 − 2h (away from the kernel-truncated edge) and
 /// over the whole ball. Absolute errors (the initial state is ρ_g = 1, p = 1 in the seed).
-fn ball_reference_errors(scene: &Scene, state: &State) -> Vec<ExactErrors> {
-    let b = scene.dustyball.as_ref().expect("validated");
+fn ball_reference_errors(scene: &Scene, b: &BallCfg, state: &State) -> Vec<ExactErrors> {
     let Some(reference) = ball_reference(scene, state.t) else {
         return Vec::new();
     };

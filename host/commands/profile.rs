@@ -197,7 +197,7 @@ pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
     let (errors, symmetry) = match &scene {
         Some(s) if s.scene.problem == Problem::Dustyball => {
             let state = state_from_snapshot(&snap);
-            let r0 = s.dustyball.as_ref().map_or(1.0, |b| b.radius);
+            let r0 = s.ball().map_or(1.0, |b| b.radius);
             (exact_errors(s, &state, None), symmetry(&snap, r0))
         }
         _ => (Vec::new(), None),

@@ -472,7 +472,7 @@ impl Runner {
 
     fn ball_core(&self) -> Option<analysis::ball::CoreCheck> {
         let sc = &self.loaded.scene;
-        let b = sc.dustyball.as_ref()?;
+        let b = sc.ball()?;
         let rho = sc.gas.rho?;
         let p = match sc.gas.eos {
             crate::scene::EosKind::Adiabatic => sc.gas.p?,
@@ -622,14 +622,14 @@ impl Runner {
                 0.0
             }
         };
-        let post = match (&scene.dustyball, prog.snapshots.last()) {
+        let post = match (scene.ball(), prog.snapshots.last()) {
             (Some(_), Some(last)) => Some(
                 crate::commands::profile::post_process(&out.join(last), 100)
                     .map_err(|e| RunError::Io(e.to_string()))?,
             ),
             _ => None,
         };
-        let ball = scene.dustyball.as_ref().map(|_| BallReport {
+        let ball = scene.ball().map(|_| BallReport {
             symmetry: post.as_ref().and_then(|p| p.symmetry.clone()),
             figures: post.as_ref().map_or(Vec::new(), |p| {
                 p.files

@@ -553,7 +553,11 @@ pub fn run_case(case: &Case) -> CaseReport {
     let errs = analysis::exact_errors(&sc, &state, sc.time.dt);
     // Box velocity norms are relative to the slip (to 1e-300 without slip): rescale those to
     // the largest of slip, velocity scale and 1, as for the oracle check below.
-    let vel_factor = sc.dustybox.as_ref().map_or(1.0, |b| {
+    let boxcfg = match &sc.problem {
+        crate::scene::ProblemCfg::Dustybox(b) => Some(b),
+        _ => None,
+    };
+    let vel_factor = boxcfg.map_or(1.0, |b| {
         let slip = b
             .u_dust
             .iter()
@@ -571,11 +575,11 @@ pub fn run_case(case: &Case) -> CaseReport {
             })
             .fold(0.0, f64::max)
     });
-    match sc.scene.problem {
-        crate::scene::Problem::Dustywave => {
-            let lw = dustywave::model(&sc);
-            let a = sc.dustywave.as_ref().expect("validated").amplitude;
-            let y = lw.evolve(&dustywave::initial_amplitudes(&sc, &lw), state.t);
+    match &sc.problem {
+        crate::scene::ProblemCfg::Dustywave(w) => {
+            let lw = dustywave::model(&sc, w);
+            let a = w.amplitude;
+            let y = lw.evolve(&dustywave::initial_amplitudes(w, &lw), state.t);
             let exact = y.rho_g.norm();
             let num = density_mode(&state.gas.ph, lw.rho_g0, lw.k).norm() / a;
             rep.wave_amplitude = Some((num, exact));
@@ -586,9 +590,8 @@ pub fn run_case(case: &Case) -> CaseReport {
                 ));
             }
         }
-        crate::scene::Problem::Dustybox => {
+        crate::scene::ProblemCfg::Dustybox(b) => {
             // The second comparison is IDIC's discrete oracle; velocities relative to the slip.
-            let b = sc.dustybox.as_ref().expect("validated");
             let slip = b
                 .u_dust
                 .iter()

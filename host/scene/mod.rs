@@ -103,7 +103,7 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
     }
     check_tables(&table).map_err(|(key, msg)| err(Some(key), msg))?;
     let value = toml::Value::Table(table);
-    let scene: Scene = serde_path_to_error::deserialize(value).map_err(|e| {
+    let file: SceneFile = serde_path_to_error::deserialize(value).map_err(|e| {
         // serde writes sequence indices as `a[0].b`; scene keys are `a.0.b` everywhere.
         let path = e.path().to_string().replace('[', ".").replace(']', "");
         let key = if path == "." || path.is_empty() {
@@ -119,6 +119,6 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         };
         err(key, msg)
     })?;
-    scene.validate().map_err(|(key, msg)| err(Some(key), msg))?;
-    Ok(scene)
+    file.validate().map_err(|(key, msg)| err(Some(key), msg))?;
+    Ok(Scene::from_file(file))
 }

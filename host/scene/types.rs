@@ -59,9 +59,12 @@ fn finite(key: &str, v: f64) -> VResult {
     in_range(key, v)
 }
 
+/// A scene file as written: the problem's parameters are one of five optional sections.
+/// [`SceneFile::validate`] checks that exactly the one `scene.problem` names is there;
+/// [`Scene::from_file`] then makes it the tagged [`ProblemCfg`].
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Scene {
+pub struct SceneFile {
     pub scene: Meta,
     pub gas: GasCfg,
     #[serde(default)]
@@ -88,6 +91,75 @@ pub struct Scene {
     pub dustyball: Option<BallCfg>,
     #[serde(default)]
     pub dustysettle: Option<SettleCfg>,
+}
+
+/// A validated scene: everything the run needs, the problem's own section as one tagged enum.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    pub scene: Meta,
+    pub gas: GasCfg,
+    pub dust: Option<DustCfg>,
+    pub sph: SphCfg,
+    pub idic: IdicCfg,
+    pub drag: DragCfg,
+    pub external: ExternalCfg,
+    pub time: TimeCfg,
+    pub numerics: NumericsCfg,
+    /// The section of `scene.problem`.
+    pub problem: ProblemCfg,
+}
+
+/// The problem's own parameters (`[dustybox]`, `[dustywave]`, …), selected by `scene.problem`.
+#[derive(Debug, Clone)]
+pub enum ProblemCfg {
+    Dustybox(BoxCfg),
+    Dustywave(WaveCfg),
+    Dustyshock(ShockCfg),
+    Dustyball(BallCfg),
+    Dustysettle(SettleCfg),
+}
+
+impl Scene {
+    /// The validated file as a scene (`f` must have passed [`SceneFile::validate`], which
+    /// guarantees the section of `scene.problem`).
+    pub fn from_file(f: SceneFile) -> Scene {
+        const CHECKED: &str = "SceneFile::validate requires the problem's section";
+        let problem = match f.scene.problem {
+            Problem::Dustybox => ProblemCfg::Dustybox(f.dustybox.expect(CHECKED)),
+            Problem::Dustywave => ProblemCfg::Dustywave(f.dustywave.expect(CHECKED)),
+            Problem::Dustyshock => ProblemCfg::Dustyshock(f.dustyshock.expect(CHECKED)),
+            Problem::Dustyball => ProblemCfg::Dustyball(f.dustyball.expect(CHECKED)),
+            Problem::Dustysettle => ProblemCfg::Dustysettle(f.dustysettle.expect(CHECKED)),
+        };
+        Scene {
+            scene: f.scene,
+            gas: f.gas,
+            dust: f.dust,
+            sph: f.sph,
+            idic: f.idic,
+            drag: f.drag,
+            external: f.external,
+            time: f.time,
+            numerics: f.numerics,
+            problem,
+        }
+    }
+
+    pub fn dim(&self) -> u32 {
+        self.scene.dim
+    }
+
+    pub fn n_fractions(&self) -> usize {
+        self.dust.as_ref().map_or(0, |d| d.fractions.len())
+    }
+
+    /// The ball's section, if this is the ball.
+    pub fn ball(&self) -> Option<&BallCfg> {
+        match &self.problem {
+            ProblemCfg::Dustyball(b) => Some(b),
+            _ => None,
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
@@ -532,7 +604,7 @@ pub struct BallCfg {
     pub radius: f64,
 }
 
-impl Scene {
+impl SceneFile {
     pub fn dim(&self) -> u32 {
         self.scene.dim
     }

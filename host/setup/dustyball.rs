@@ -3,8 +3,7 @@
 //! same points, so every IDIC cell starts with the ball's ε.
 use super::*;
 
-pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
-    let b = scene.dustyball.as_ref().expect("validated");
+pub(super) fn build(scene: &Scene, b: &crate::scene::BallCfg) -> Result<Setup, SetupError> {
     let dim = scene.dim();
     let rho = scene.gas.rho.expect("validated");
     let p = scene.gas.p.unwrap_or(0.0);

@@ -2,8 +2,7 @@
 use super::*;
 use crate::scene::Lattice;
 
-pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
-    let b = scene.dustybox.as_ref().expect("validated");
+pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, SetupError> {
     let dim = scene.dim();
     let rho = scene.gas.rho.expect("validated");
     let n_f = (scene.sph.n as f64 * b.length).round().max(2.0);

@@ -5,6 +5,7 @@
 //! `dustysettle.dust_shift` gas spacings above the gas in mass coordinate, inside the column.
 use super::*;
 use crate::exact::settle::SettleColumn;
+use crate::scene::SettleCfg;
 
 /// The exact column of a settle scene.
 pub fn column(scene: &Scene) -> SettleColumn {
@@ -21,22 +22,21 @@ pub fn column(scene: &Scene) -> SettleColumn {
 
 /// The column's smoothing length and its top spacing: h refers to the coarsest spacing inside
 /// the column (the top), so every particle has enough neighbours.
-pub fn smoothing(scene: &Scene) -> (f64, f64) {
+pub fn smoothing(scene: &Scene, c: &SettleCfg) -> (f64, f64) {
     let col = column(scene);
-    let len = scene.dustysettle.as_ref().expect("validated").height;
+    let len = c.height;
     let top_spacing = col.rho0 / (scene.sph.n as f64 * col.rho_gas(len));
     (smoothing_length(scene, top_spacing), top_spacing)
 }
 
-pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
-    let c = scene.dustysettle.as_ref().expect("validated");
+pub(super) fn build(scene: &Scene, c: &SettleCfg) -> Result<Setup, SetupError> {
     let col = column(scene);
     let len = c.height;
     // Equal masses: sph.n particles per unit length at the base.
     let dx0 = 1.0 / scene.sph.n as f64;
     let m = col.rho0 * dx0;
     // The walls reach one support beyond both ends.
-    let (h, top_spacing) = smoothing(scene);
+    let (h, top_spacing) = smoothing(scene, c);
     if len < 8.0 * h {
         return Err(SetupError {
             key: "dustysettle.height".into(),

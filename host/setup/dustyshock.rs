@@ -2,8 +2,7 @@
 //! particles beyond both ends, equal-mass particles (spacing ∝ 1/ρ).
 use super::*;
 
-pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
-    let s = scene.dustyshock.as_ref().expect("validated");
+pub(super) fn build(scene: &Scene, s: &crate::scene::ShockCfg) -> Result<Setup, SetupError> {
     let len = s.length;
     let x0 = 0.5 * len;
     // Equal masses: sph.n particles per unit length on the denser side.

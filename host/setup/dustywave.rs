@@ -4,11 +4,10 @@
 use super::*;
 use crate::exact::complex::C;
 use crate::exact::dustywave::{LinearWave, WaveAmplitudes, WaveGas};
-use crate::scene::{Lattice, LawKind, WaveMode};
+use crate::scene::{Lattice, LawKind, WaveCfg, WaveMode};
 
 /// The linear model of the scene (background state, linear stopping times).
-pub fn model(scene: &Scene) -> LinearWave {
-    let w = scene.dustywave.as_ref().expect("validated");
+pub fn model(scene: &Scene, w: &WaveCfg) -> LinearWave {
     let rho_g0 = scene.gas.rho.expect("validated");
     let (gas, cs0) = match scene.gas.eos {
         EosKind::Isothermal => {
@@ -54,8 +53,7 @@ pub fn model(scene: &Scene) -> LinearWave {
 
 /// Initial complex amplitudes for the scene's mode, normalised so that `amplitude` is relative:
 /// δρ_g = A ρ_g0 (eigenmode), or δρ = A ρ0 and δv = A c_s in every phase (sine).
-pub fn initial_amplitudes(scene: &Scene, lw: &LinearWave) -> WaveAmplitudes {
-    let w = scene.dustywave.as_ref().expect("validated");
+pub fn initial_amplitudes(w: &WaveCfg, lw: &LinearWave) -> WaveAmplitudes {
     match w.mode {
         WaveMode::Eigen => lw.eigenmode().1.scale(C::new(lw.rho_g0, 0.0)),
         WaveMode::Sine => {
@@ -160,8 +158,7 @@ fn stretch(x0: &[[f64; 3]], length: f64, rho0: f64, amp: f64, rho_hat: C, k: f64
         .collect()
 }
 
-pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
-    let w = scene.dustywave.as_ref().expect("validated");
+pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let dim = scene.dim();
     let n_f = (scene.sph.n as f64 * w.length).round().max(2.0);
     let rows = (w.layers as f64).powi(dim as i32 - 1);
@@ -186,8 +183,8 @@ pub(super) fn build(scene: &Scene) -> Result<Setup, SetupError> {
     {
         check_periodic_fits(len[a], h, key)?;
     }
-    let lw = model(scene);
-    let y = initial_amplitudes(scene, &lw);
+    let lw = model(scene, w);
+    let y = initial_amplitudes(w, &lw);
     let (a, k) = (w.amplitude, lw.k);
     let x = stretch(&x0, w.length, lw.rho_g0, a, y.rho_g, k);
     let v: Vec<[f64; 3]> = x

@@ -7,7 +7,7 @@ pub mod dustywave;
 
 use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
-use crate::scene::{EosKind, Problem, Scene};
+use crate::scene::{EosKind, ProblemCfg, Scene};
 
 /// Initial state plus the resolved resolution-dependent quantities.
 #[derive(Debug, Clone)]
@@ -101,12 +101,12 @@ impl std::fmt::Display for SetupError {
 impl std::error::Error for SetupError {}
 
 pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
-    match scene.scene.problem {
-        Problem::Dustybox => dustybox::build(scene),
-        Problem::Dustywave => dustywave::build(scene),
-        Problem::Dustyshock => dustyshock::build(scene),
-        Problem::Dustyball => dustyball::build(scene),
-        Problem::Dustysettle => dustysettle::build(scene),
+    match &scene.problem {
+        ProblemCfg::Dustybox(b) => dustybox::build(scene, b),
+        ProblemCfg::Dustywave(w) => dustywave::build(scene, w),
+        ProblemCfg::Dustyshock(s) => dustyshock::build(scene, s),
+        ProblemCfg::Dustyball(b) => dustyball::build(scene, b),
+        ProblemCfg::Dustysettle(c) => dustysettle::build(scene, c),
     }
 }
 
