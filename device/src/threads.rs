@@ -911,7 +911,8 @@ pub unsafe fn cell_step<R: Real>(t: usize, a: &CellArgs<R>) {
         g.fixed(),
         &eos,
         p.needs_gas_state != 0,
-        |i| crate::axpy(v[i], tau, acc[i]),
+        // ṽ = v + τ(A + a_gas), as the gas update takes it (`gas_kick`).
+        |i| crate::axpy(v[i], tau, crate::add(acc[i], p.ext_gas)),
     );
     let nf = p.nf as usize;
     let mut ds = [kernels::DustSums::default(); MAX_FRACTIONS];

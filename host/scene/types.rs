@@ -256,8 +256,8 @@ pub struct SphCfg {
     /// Absolute smoothing length (instead of hfact).
     pub h: Option<f64>,
     /// Variable smoothing length for the gas (Phantom's): h_a = hfact (m_a/ρ_a)^(1/d) solved
-    /// with the density by Newton–Raphson, grad-h terms in the forces. Needs `hfact`; dust
-    /// densities keep the fixed h. CPU only.
+    /// with the density by Newton–Raphson, grad-h terms in the forces. Needs `hfact`; every
+    /// dust fraction's density is solved the same way (from the reference h each step).
     #[serde(default)]
     pub variable_h: bool,
     /// How the gas density is obtained: `summation` (the default) or `continuity`.
@@ -285,7 +285,7 @@ pub enum DensityMethod {
     /// positions: ρ^{n+1} = ρ^n + τ Σ_b m_b v_ab^{n+1}·∇_a W_ab(x^{n+1}); the initial density is
     /// the set-up's (exact) one. With a fixed h, summation responds to a compression through
     /// the lattice sum Σ W(h/Δ), whose slope at h = 1.2Δ mis-scales the pressure response by
-    /// ~10% (docs/phantom_comparison.md); the continuity form does not. CPU only.
+    /// ~10% (docs/phantom_comparison.md); the continuity form does not.
     Continuity,
 }
 
@@ -299,7 +299,7 @@ pub enum GradientMethod {
     /// Integral approach to derivatives (García-Senz et al. 2012; SPHYNX, SPH-EXA): ∇W
     /// replaced by −C r W with C the inverse second-moment matrix, exact for linear fields on
     /// any particle arrangement. Removes the resolution-independent lattice error of the sound
-    /// speed (1.2% at hfact 1.2 on the close-packed lattice). CPU only; one more neighbour pass.
+    /// speed (1.2% at hfact 1.2 on the close-packed lattice). One more neighbour pass.
     Iad,
 }
 
@@ -491,7 +491,7 @@ pub enum Integrator {
     /// drag over τ/2, implicit as ever), a drift with v^{n+1/2}, forces at the new layer from
     /// predicted v and e (themselves a τ/2 IDIC kick), and the closing half kick. Second order
     /// for the gas; still one force evaluation per step (the closing forces are the next
-    /// step's opening ones), three drag passes. CPU only.
+    /// step's opening ones), three drag passes.
     Kdk,
 }
 
