@@ -303,6 +303,31 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
         key,
         msg,
     };
+    let f = read_study_file(path, &err)?;
+    let (metrics, plot_metric) = check_settings(&f, &err)?;
+    let (series_axes, plot_against, point_axes) = check_axes(&f, &err)?;
+    let (scene_file, points) = build_points(path, &f, &err)?;
+    check_metric_fields(&points[0].scene, &metrics, &err)?;
+    Ok(Study {
+        file: path.to_path_buf(),
+        cfg: f.study,
+        axes: f.axis,
+        scene_file,
+        metrics,
+        plot_metric,
+        series_axes,
+        point_axes,
+        plot_against,
+        points,
+        references: f.reference,
+    })
+}
+
+/// The study file, parsed (keys named as `a.0.b` in errors).
+fn read_study_file(
+    path: &Path,
+    err: &dyn Fn(Option<String>, String) -> StudyError,
+) -> Result<StudyFile, StudyError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| err(None, format!("cannot read study file: {e}")))?;
     let value: toml::Value = text
@@ -318,6 +343,14 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
         };
         err((key != "." && !key.is_empty()).then_some(key), msg)
     })?;
+    Ok(f)
+}
+
+/// The `[study]` settings and reference points; the metrics parsed, and the plotted one.
+fn check_settings(
+    f: &StudyFile,
+    err: &dyn Fn(Option<String>, String) -> StudyError,
+) -> Result<(Vec<Metric>, usize), StudyError> {
     for (i, r) in f.reference.iter().enumerate() {
         for (key, v) in [("wall_s", r.wall_s), ("error", r.error)] {
             if !(v.is_finite() && v > 0.0) {
@@ -379,6 +412,16 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
             )
         })?,
     };
+    Ok((metrics, plot_metric))
+}
+
+/// The axes, and which of them make the series, the extra plots and the points.
+#[allow(clippy::type_complexity)]
+fn check_axes(
+    f: &StudyFile,
+    err: &dyn Fn(Option<String>, String) -> StudyError,
+) -> Result<(Vec<usize>, Vec<usize>, Vec<usize>), StudyError> {
+    let c = &f.study;
     if f.axis.is_empty() {
         return Err(err(
             Some("axis".into()),
@@ -446,6 +489,17 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
     let point_axes: Vec<usize> = (0..f.axis.len())
         .filter(|a| !series_axes.contains(a))
         .collect();
+    Ok((series_axes, plot_against, point_axes))
+}
+
+/// Every point of the grid as a validated scene, in axis order (the first axis varies
+/// slowest); a bad value names the axis value (or `study.set`) that caused it.
+fn build_points(
+    path: &Path,
+    f: &StudyFile,
+    err: &dyn Fn(Option<String>, String) -> StudyError,
+) -> Result<(PathBuf, Vec<Point>), StudyError> {
+    let c = &f.study;
     let base = path.parent().unwrap_or(Path::new("."));
     let scene_file = base.join(&c.scene);
     let scene_text = std::fs::read_to_string(&scene_file).map_err(|e| {
@@ -496,8 +550,15 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
             scene,
         });
     }
-    // Metric fields must exist in the scene's exact-solution comparison (names from t = 0).
-    let first = &points[0].scene;
+    Ok((scene_file, points))
+}
+
+/// Metric fields must exist in the scene's exact-solution comparison (names from t = 0).
+fn check_metric_fields(
+    first: &Scene,
+    metrics: &[Metric],
+    err: &dyn Fn(Option<String>, String) -> StudyError,
+) -> Result<(), StudyError> {
     let su = setup::build(first).map_err(|e| err(Some("study.scene".into()), e.to_string()))?;
     let refs = analysis::exact_errors(first, &su.state, None);
     let names: Vec<String> = refs
@@ -541,19 +602,7 @@ pub fn load(path: &Path) -> Result<Study, StudyError> {
             ));
         }
     }
-    Ok(Study {
-        file: path.to_path_buf(),
-        cfg: f.study,
-        axes: f.axis,
-        scene_file,
-        metrics,
-        plot_metric,
-        series_axes,
-        point_axes,
-        plot_against,
-        points,
-        references: f.reference,
-    })
+    Ok(())
 }
 
 fn as_number(v: &toml::Value) -> Option<f64> {
