@@ -412,6 +412,8 @@ fn density_mode(ph: &Phase, rho0: f64, k: f64) -> C {
 }
 
 /// Run one case.
+/// One case of the matrix: set up, run to the end with the momentum checked every step,
+/// then the final state and, for scenes with one, the exact solution.
 pub fn run_case(case: &Case) -> CaseReport {
     let mut rep = CaseReport {
         group: case.group,
@@ -426,6 +428,29 @@ pub fn run_case(case: &Case) -> CaseReport {
         l1_max: None,
         failures: Vec::new(),
     };
+    let Some((phys, mut state, time, scene)) = prepare_case(case, &mut rep) else {
+        return rep;
+    };
+    let (explicit_limit, t_min) = explicit_reference(&phys, &state);
+    let Some(mut eng) = run_checked(&mut rep, phys, &mut state, &time, (explicit_limit, t_min))
+    else {
+        return rep;
+    };
+    if check_final_state(&mut rep, &mut eng, &mut state).is_none() {
+        return rep;
+    }
+    if let Some(sc) = scene {
+        check_exact(&mut rep, &sc, &state);
+    }
+    rep
+}
+
+/// The case's physics, initial state, time settings and (for scene cases) scene; a scene or
+/// set-up that fails is recorded in `rep`.
+fn prepare_case(
+    case: &Case,
+    rep: &mut CaseReport,
+) -> Option<(Physics, State, crate::scene::TimeCfg, Option<Scene>)> {
     let fixed = |t_end: f64, dt: f64| crate::scene::TimeCfg {
         t_end,
         dt: Some(dt),
@@ -435,53 +460,65 @@ pub fn run_case(case: &Case) -> CaseReport {
         position_update: PositionUpdate::New,
         integrator: crate::scene::Integrator::FirstOrder,
     };
-    let (phys, mut state, time, scene): (Physics, State, crate::scene::TimeCfg, Option<Scene>) =
-        match &case.kind {
-            Kind::Slab => {
-                let (p, s, dt, t) = slab();
-                (p, s, fixed(t, dt), None)
-            }
-            Kind::Scene { base, sets } => {
-                let sc = match scene::parse(base, Path::new("stiffness case"), sets) {
-                    Ok(s) => s,
-                    Err(e) => {
-                        rep.failures.push(format!("scene: {e}"));
-                        return rep;
-                    }
-                };
-                let su = match setup::build(&sc) {
-                    Ok(s) => s,
-                    Err(e) => {
-                        rep.failures.push(format!("set-up: {e}"));
-                        return rep;
-                    }
-                };
-                let p = Physics::from_scene(&sc, su.h, su.domain);
-                let time = sc.time.clone();
-                (p, su.state, time, Some(sc))
-            }
-        };
-    let t_end = time.t_end;
+    Some(match &case.kind {
+        Kind::Slab => {
+            let (p, s, dt, t) = slab();
+            (p, s, fixed(t, dt), None)
+        }
+        Kind::Scene { base, sets } => {
+            let sc = match scene::parse(base, Path::new("stiffness case"), sets) {
+                Ok(s) => s,
+                Err(e) => {
+                    rep.failures.push(format!("scene: {e}"));
+                    return None;
+                }
+            };
+            let su = match setup::build(&sc) {
+                Ok(s) => s,
+                Err(e) => {
+                    rep.failures.push(format!("set-up: {e}"));
+                    return None;
+                }
+            };
+            let p = Physics::from_scene(&sc, su.h, su.domain);
+            let time = sc.time.clone();
+            (p, su.state, time, Some(sc))
+        }
+    })
+}
+
+/// The explicit baseline's limit on the initial state, and the smallest cell stopping time.
+fn explicit_reference(phys: &Physics, state: &State) -> (f64, f64) {
     // The explicit baseline's limit on the initial state, and the cell stopping times.
-    let (explicit_limit, t_min) = {
-        let mut st = state.clone();
-        let mut p = phys.clone();
-        p.drag = DragMethod::Explicit;
-        let limits = |st: &mut crate::particles::State| -> Result<(f64, f64), StepError> {
-            let mut e = Backend::new(DeviceChoice::Cpu, p, st)?;
-            let lim = e.drag_dt_limit(st)?;
-            let ts = e.dust_stopping_times(st)?;
-            let t_min = ts.iter().flatten().copied().fold(f64::INFINITY, f64::min);
-            Ok((lim, t_min))
-        };
-        limits(&mut st).unwrap_or((f64::NAN, f64::NAN))
+    let mut st = state.clone();
+    let mut p = phys.clone();
+    p.drag = DragMethod::Explicit;
+    let limits = |st: &mut crate::particles::State| -> Result<(f64, f64), StepError> {
+        let mut e = Backend::new(DeviceChoice::Cpu, p, st)?;
+        let lim = e.drag_dt_limit(st)?;
+        let ts = e.dust_stopping_times(st)?;
+        let t_min = ts.iter().flatten().copied().fold(f64::INFINITY, f64::min);
+        Ok((lim, t_min))
     };
-    let driver = Driver::new(&time, phys.h);
-    let mut eng = match Backend::new(DeviceChoice::Cpu, phys, &mut state) {
+    limits(&mut st).unwrap_or((f64::NAN, f64::NAN))
+}
+
+/// Run to the end, checking momentum every step (drift relative to the largest Σ m|v|, or
+/// to Σ m c_s for systems at rest); a step that fails is recorded in `rep`.
+fn run_checked(
+    rep: &mut CaseReport,
+    phys: Physics,
+    state: &mut State,
+    time: &crate::scene::TimeCfg,
+    (explicit_limit, t_min): (f64, f64),
+) -> Option<Backend> {
+    let t_end = time.t_end;
+    let driver = Driver::new(time, phys.h);
+    let mut eng = match Backend::new(DeviceChoice::Cpu, phys, state) {
         Ok(e) => e,
         Err(e) => {
             rep.failures.push(format!("initial state: {e}"));
-            return rep;
+            return None;
         }
     };
     let p0 = state.total_momentum();
@@ -492,11 +529,11 @@ pub fn run_case(case: &Case) -> CaseReport {
     let rest_scale = mass * cs;
     let mut dp_max: f64 = 0.0;
     while state.t < t_end {
-        let step = match driver.step(&mut eng, &mut state, t_end) {
+        let step = match driver.step(&mut eng, state, t_end) {
             Ok(s) => s,
             Err(e) => {
                 rep.failures.push(format!("not finite or density ≤ 0: {e}"));
-                return rep;
+                return None;
             }
         };
         if rep.steps == 0 {
@@ -505,9 +542,9 @@ pub fn run_case(case: &Case) -> CaseReport {
             rep.max_beta = tau / t_min;
         }
         // The momentum check reads every step's state.
-        if let Err(e) = eng.sync(&mut state) {
+        if let Err(e) = eng.sync(state) {
             rep.failures.push(format!("sync: {e}"));
-            return rep;
+            return None;
         }
         rep.steps += 1;
         pscale = pscale.max(state.momentum_scale());
@@ -525,9 +562,14 @@ pub fn run_case(case: &Case) -> CaseReport {
         rep.failures
             .push(format!("momentum drift {drift:.2e} > {MOMENTUM_TOL:e}"));
     }
-    if let Err(e) = eng.refresh_dust_density(&mut state) {
+    Some(eng)
+}
+
+/// Densities positive, positions and velocities finite at the end.
+fn check_final_state(rep: &mut CaseReport, eng: &mut Backend, state: &mut State) -> Option<()> {
+    if let Err(e) = eng.refresh_dust_density(state) {
         rep.failures.push(format!("dust density: {e}"));
-        return rep;
+        return None;
     }
     let min_rho = state
         .dust
@@ -547,10 +589,12 @@ pub fn run_case(case: &Case) -> CaseReport {
     if !all_finite {
         rep.failures.push("non-finite position or velocity".into());
     }
-    let Some(sc) = scene else {
-        return rep;
-    };
-    let errs = analysis::exact_errors(&sc, &state, sc.time.dt);
+    Some(())
+}
+
+/// Against the exact solution: the wave's amplitude, the box's discrete IDIC oracle.
+fn check_exact(rep: &mut CaseReport, sc: &Scene, state: &State) {
+    let errs = analysis::exact_errors(sc, state, sc.time.dt);
     // Box velocity norms are relative to the slip (to 1e-300 without slip): rescale those to
     // the largest of slip, velocity scale and 1, as for the oracle check below.
     let boxcfg = match &sc.problem {
@@ -577,7 +621,7 @@ pub fn run_case(case: &Case) -> CaseReport {
     });
     match &sc.problem {
         crate::scene::ProblemCfg::Dustywave(w) => {
-            let lw = dustywave::model(&sc, w);
+            let lw = dustywave::model(sc, w);
             let a = w.amplitude;
             let y = lw.evolve(&dustywave::initial_amplitudes(w, &lw), state.t);
             let exact = y.rho_g.norm();
@@ -620,7 +664,6 @@ pub fn run_case(case: &Case) -> CaseReport {
         }
         _ => {}
     }
-    rep
 }
 
 /// The Markdown report of a run of the matrix.
