@@ -6,6 +6,7 @@
 //! [`plot`]. The subcommands that drive these stages live in [`commands`].
 pub mod analysis;
 pub mod commands;
+pub mod decomp;
 pub mod engine;
 pub mod exact;
 pub mod grid;

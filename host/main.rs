@@ -43,6 +43,9 @@ enum Cmd {
     Stiffness(StiffnessArgs),
     /// Continue an interrupted run from DIR/checkpoint.h5, bit for bit.
     Resume(ResumeArgs),
+    /// The multi-rank model (docs/scaling.md): the Morton decomposition of a ball and a slab of
+    /// N particles over R ranks, its halo and what exchanging it costs; no physics, no MPI.
+    Scaling(ScalingArgs),
 }
 
 #[derive(clap::Args)]
@@ -154,6 +157,23 @@ struct StiffnessArgs {
 }
 
 #[derive(clap::Args)]
+struct ScalingArgs {
+    /// Particles per cloud
+    #[arg(long, default_value_t = 1e8)]
+    particles: f64,
+    /// Rank counts
+    #[arg(long, value_delimiter = ',', default_values_t = vec![1u32, 2, 4, 8, 16, 64, 256, 1024, 4096])]
+    ranks: Vec<u32>,
+    /// Interconnect bandwidth per rank, Gb/s
+    #[arg(long, default_value_t = 200.0)]
+    gbps: f64,
+    /// Measured step throughput of one rank, particle-steps/s (default: this code's CPU bench,
+    /// 3D box at 56 neighbours on 2 cores)
+    #[arg(long, default_value_t = 1.95e6)]
+    rate: f64,
+}
+
+#[derive(clap::Args)]
 struct ResumeArgs {
     dir: PathBuf,
     #[arg(long, value_name = "N")]
@@ -247,6 +267,7 @@ fn main() -> ExitCode {
         Cmd::Study(a) => study(a),
         Cmd::Stiffness(a) => stiffness(a),
         Cmd::Resume(a) => resume(a),
+        Cmd::Scaling(a) => scaling(a),
         Cmd::Parity(a) => parity(a),
         Cmd::Gpu(a) => gpu(a),
     }
@@ -595,6 +616,58 @@ fn gpu(a: GpuArgs) -> ExitCode {
             return ExitCode::from(1);
         }
         let _ = writeln!(out, "wrote {}", f.display());
+    }
+    ExitCode::SUCCESS
+}
+
+fn scaling(a: ScalingArgs) -> ExitCode {
+    use dustsph::commands::scaling;
+    if !(a.particles.is_finite() && a.particles >= 1.0 && a.particles <= 2e9) {
+        eprintln!("error: --particles must be in [1, 2e9]");
+        return ExitCode::from(2);
+    }
+    if a.ranks.is_empty() || a.ranks.contains(&0) || !(a.gbps > 0.0 && a.rate > 0.0) {
+        eprintln!("error: --ranks must be ≥ 1, --gbps and --rate > 0");
+        return ExitCode::from(2);
+    }
+    let bw = a.gbps * 1e9 / 8.0;
+    for kind in ["ball", "slab"] {
+        let t0 = std::time::Instant::now();
+        let (n, rows) = scaling::model(kind, a.particles, &a.ranks, bw);
+        println!(
+            "\n{kind}: {n} particles, h = 1.2 Δ, reach 2h ({:.1} s); {} B per halo particle, \
+             {} exchanges per step, {} µs per message; compute at {:.3e} particle-steps/s per rank",
+            t0.elapsed().as_secs_f64(),
+            scaling::HALO_BYTES_F64,
+            scaling::EXCHANGES,
+            scaling::LATENCY_S * 1e6,
+            a.rate
+        );
+        println!(
+            "| ranks | particles/rank | imbalance | halo max | halo/owned | peers max | MB/step | comm ms | compute ms | comm/compute | break-even particle-steps/s |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|---|---|");
+        for r in rows {
+            let compute = r.per_rank * r.imbalance / a.rate;
+            println!(
+                "| {} | {:.3e} | {:.3} | {:.3e} | {:.3} | {} | {:.2} | {:.3} | {:.1} | {:.4} | {} |",
+                r.ranks,
+                r.per_rank,
+                r.imbalance,
+                r.halo_max as f64,
+                r.halo_max as f64 / r.per_rank,
+                r.peers_max,
+                r.halo_max as f64 * scaling::HALO_BYTES_F64 / 1e6,
+                r.comm_s * 1e3,
+                compute * 1e3,
+                r.comm_s / compute,
+                if r.comm_s > 0.0 {
+                    format!("{:.2e}", r.per_rank * r.imbalance / r.comm_s)
+                } else {
+                    "–".into()
+                }
+            );
+        }
     }
     ExitCode::SUCCESS
 }

@@ -1,0 +1,94 @@
+//! `dustsph scaling`: the multi-rank model of issue 14 from the decomposition code run on the
+//! real particle distribution, without the physics (docs/scaling.md). For a ball and a slab of
+//! N particles on lattices at ≈57 neighbours, the Morton partition over R ranks: particles and
+//! halo per rank, peers, the bytes a step exchanges and what they cost on an interconnect.
+use crate::decomp::{CellBox, Cells, Partition};
+
+/// Bytes a halo particle carries per step: the density pass needs x, m, h (5 × 8 B); the force
+/// pass v, ρ, p, c_s, Ω (7 × 8 B); f64.
+pub const HALO_BYTES_F64: f64 = 96.0;
+/// Halo exchanges per step (before the density and the force passes) and the message latency
+/// assumed per peer and exchange.
+pub const EXCHANGES: f64 = 2.0;
+pub const LATENCY_S: f64 = 2e-6;
+
+/// One row of the model.
+#[derive(Debug, Clone)]
+pub struct Row {
+    pub ranks: u32,
+    pub per_rank: f64,
+    pub imbalance: f64,
+    pub halo_max: u64,
+    pub halo_mean: f64,
+    pub peers_max: u32,
+    /// Communication time per step on the slowest rank at `bandwidth` bytes/s.
+    pub comm_s: f64,
+}
+
+/// The geometries: a ball of radius 1 (open) and Phantom's slab 1 × 0.32 × 0.27 (periodic),
+/// simple cubic lattices of spacing Δ with N points, h = 1.2 Δ, reach 2h.
+pub fn cloud(kind: &str, n: f64) -> (CellBox, Box<dyn Iterator<Item = [f64; 3]>>) {
+    match kind {
+        "ball" => {
+            let d = (4.0 * std::f64::consts::PI / (3.0 * n)).cbrt();
+            let m = (1.0 / d).ceil() as i64;
+            let pts = (-m..=m).flat_map(move |i| {
+                (-m..=m).flat_map(move |j| {
+                    (-m..=m).filter_map(move |k| {
+                        let p = [i as f64 * d, j as f64 * d, k as f64 * d];
+                        (p[0] * p[0] + p[1] * p[1] + p[2] * p[2] <= 1.0).then_some(p)
+                    })
+                })
+            });
+            (
+                CellBox::new([-1.0; 3], [1.0; 3], 2.4 * d, [false; 3]),
+                Box::new(pts),
+            )
+        }
+        _ => {
+            let len = [1.0, 0.32, 0.27];
+            let d = (len[0] * len[1] * len[2] / n).cbrt();
+            let c = len.map(|l| (l / d).round().max(1.0) as i64);
+            let pts = (0..c[0]).flat_map(move |i| {
+                (0..c[1]).flat_map(move |j| {
+                    (0..c[2]).map(move |k| {
+                        [
+                            (i as f64 + 0.5) * d,
+                            (j as f64 + 0.5) * d,
+                            (k as f64 + 0.5) * d,
+                        ]
+                    })
+                })
+            });
+            (
+                CellBox::new([0.0; 3], len, 2.4 * d, [true; 3]),
+                Box::new(pts),
+            )
+        }
+    }
+}
+
+/// The model for `kind` ("ball" or "slab") at N particles over each rank count.
+pub fn model(kind: &str, n: f64, ranks: &[u32], bandwidth: f64) -> (u64, Vec<Row>) {
+    let (cbox, pts) = cloud(kind, n);
+    let cells = Cells::bin(pts, cbox);
+    let rows = ranks
+        .iter()
+        .map(|&r| {
+            let p = Partition::of(&cells, r);
+            let halo_max = *p.halo.iter().max().unwrap_or(&0);
+            let peers_max = *p.peers.iter().max().unwrap_or(&0);
+            Row {
+                ranks: r,
+                per_rank: cells.total as f64 / r as f64,
+                imbalance: p.imbalance(),
+                halo_max,
+                halo_mean: p.halo.iter().sum::<u64>() as f64 / r as f64,
+                peers_max,
+                comm_s: halo_max as f64 * HALO_BYTES_F64 / bandwidth
+                    + EXCHANGES * peers_max as f64 * LATENCY_S,
+            }
+        })
+        .collect();
+    (cells.total, rows)
+}

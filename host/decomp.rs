@@ -1,0 +1,255 @@
+//! Domain decomposition along a space-filling curve, for the multi-rank model of issue 14
+//! (docs/scaling.md). No MPI here: this is the partition a run over R ranks would use, and
+//! the halo it implies, computed on the real particle distribution.
+//!
+//! Particles are binned into cells at least one interaction reach (the kernel support 2h)
+//! wide: every neighbour of a particle lies in its own cell or one of the 26 around it
+//! (across the period on periodic axes). Cells are ordered by their Morton key
+//! (bit-interleaved integer coordinates) and cut into R contiguous key ranges of, as nearly as
+//! whole cells allow, equal particle counts. A particle is in rank r's halo when its cell
+//! belongs to another rank and touches one of r's cells: it must reach r before each
+//! neighbour pass.
+
+/// Morton key of integer cell coordinates (21 bits each): bits interleaved x, y, z.
+pub fn morton(c: [u32; 3]) -> u64 {
+    fn spread(v: u32) -> u64 {
+        let mut x = (v as u64) & 0x1f_ffff;
+        x = (x | x << 32) & 0x1f_0000_0000_ffff;
+        x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+        x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+        x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+        x = (x | x << 2) & 0x1249_2492_4924_9249;
+        x
+    }
+    spread(c[0]) | spread(c[1]) << 1 | spread(c[2]) << 2
+}
+
+/// A box of cells: `n` per axis, of size `size` (≥ the reach), lower corner `lo`; periodic axes
+/// wrap their neighbours.
+#[derive(Debug, Clone, Copy)]
+pub struct CellBox {
+    pub lo: [f64; 3],
+    pub size: [f64; 3],
+    pub n: [u32; 3],
+    pub periodic: [bool; 3],
+}
+
+impl CellBox {
+    /// Cells at least `reach` wide over [lo, hi]; on a periodic axis a whole number of cells
+    /// tiles the period hi − lo.
+    pub fn new(lo: [f64; 3], hi: [f64; 3], reach: f64, periodic: [bool; 3]) -> CellBox {
+        let mut b = CellBox {
+            lo,
+            size: [reach; 3],
+            n: [1; 3],
+            periodic,
+        };
+        for k in 0..3 {
+            let len = (hi[k] - lo[k]).max(0.0);
+            let n = ((len / reach).floor() as u32).max(1);
+            if periodic[k] {
+                b.n[k] = n;
+                b.size[k] = len / n as f64;
+            } else {
+                b.n[k] = n + 1;
+            }
+        }
+        b
+    }
+
+    fn index(&self, c: [u32; 3]) -> usize {
+        (c[2] as usize * self.n[1] as usize + c[1] as usize) * self.n[0] as usize + c[0] as usize
+    }
+
+    fn cell_of(&self, p: [f64; 3]) -> [u32; 3] {
+        [0, 1, 2].map(|k| {
+            let i = ((p[k] - self.lo[k]) / self.size[k]).floor();
+            (i.max(0.0) as u32).min(self.n[k] - 1)
+        })
+    }
+}
+
+/// Particle counts per cell of a cloud, and the occupied cells in Morton order.
+#[derive(Debug, Clone)]
+pub struct Cells {
+    pub cbox: CellBox,
+    pub count: Vec<u32>,
+    /// Occupied cells: (Morton key, coordinates), sorted by key.
+    pub order: Vec<(u64, [u32; 3])>,
+    pub total: u64,
+}
+
+impl Cells {
+    pub fn bin(points: impl Iterator<Item = [f64; 3]>, cbox: CellBox) -> Cells {
+        let cells = cbox.n.iter().map(|&n| n as usize).product();
+        let mut count = vec![0u32; cells];
+        let mut total = 0u64;
+        for p in points {
+            count[cbox.index(cbox.cell_of(p))] += 1;
+            total += 1;
+        }
+        let mut order = Vec::new();
+        for z in 0..cbox.n[2] {
+            for y in 0..cbox.n[1] {
+                for x in 0..cbox.n[0] {
+                    if count[cbox.index([x, y, z])] > 0 {
+                        order.push((morton([x, y, z]), [x, y, z]));
+                    }
+                }
+            }
+        }
+        order.sort_unstable_by_key(|c| c.0);
+        Cells {
+            cbox,
+            count,
+            order,
+            total,
+        }
+    }
+}
+
+/// A partition of the cells into contiguous Morton ranges, and its halo.
+#[derive(Debug, Clone)]
+pub struct Partition {
+    /// Particles each rank owns.
+    pub owned: Vec<u64>,
+    /// Particles each rank receives as halo (owned elsewhere, in a cell touching its cells).
+    pub halo: Vec<u64>,
+    /// Ranks each rank receives halo from.
+    pub peers: Vec<u32>,
+}
+
+const NOBODY: u32 = u32::MAX;
+
+impl Partition {
+    /// Cut the key-ordered cells into `ranks` ranges of nearly equal particle counts (a cell
+    /// goes to the rank whose share k·N/R … (k+1)·N/R holds its first particle), then count
+    /// every rank's halo.
+    pub fn of(cells: &Cells, ranks: u32) -> Partition {
+        let r = ranks.max(1) as u64;
+        let b = &cells.cbox;
+        let mut owner = vec![NOBODY; cells.count.len()];
+        let mut owned = vec![0u64; r as usize];
+        let mut run = 0u64;
+        for &(_, c) in &cells.order {
+            let i = b.index(c);
+            let k = ((run * r) / cells.total.max(1)).min(r - 1) as u32;
+            owner[i] = k;
+            let n = cells.count[i] as u64;
+            owned[k as usize] += n;
+            run += n;
+        }
+        let mut halo = vec![0u64; r as usize];
+        let mut peer_sets: Vec<std::collections::BTreeSet<u32>> =
+            vec![Default::default(); r as usize];
+        let mut to: Vec<u32> = Vec::with_capacity(27);
+        for &(_, c) in &cells.order {
+            let i = b.index(c);
+            to.clear();
+            for d in 0..27i64 {
+                let off = [d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1];
+                let mut q = [0u32; 3];
+                let mut inside = true;
+                for k in 0..3 {
+                    let v = c[k] as i64 + off[k];
+                    let n = b.n[k] as i64;
+                    q[k] = if (0..n).contains(&v) {
+                        v as u32
+                    } else if b.periodic[k] {
+                        v.rem_euclid(n) as u32
+                    } else {
+                        inside = false;
+                        0
+                    };
+                }
+                if !inside {
+                    continue;
+                }
+                let o = owner[b.index(q)];
+                if o != NOBODY && o != owner[i] && !to.contains(&o) {
+                    to.push(o);
+                }
+            }
+            for &o in &to {
+                halo[o as usize] += cells.count[i] as u64;
+                peer_sets[o as usize].insert(owner[i]);
+            }
+        }
+        Partition {
+            owned,
+            halo,
+            peers: peer_sets.iter().map(|s| s.len() as u32).collect(),
+        }
+    }
+
+    /// Largest owned count over the mean: the load imbalance of the cut.
+    pub fn imbalance(&self) -> f64 {
+        let max = *self.owned.iter().max().unwrap_or(&0) as f64;
+        let mean = self.owned.iter().sum::<u64>() as f64 / self.owned.len().max(1) as f64;
+        if mean > 0.0 {
+            max / mean
+        } else {
+            1.0
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn morton_interleaves_and_orders_octants() {
+        assert_eq!(morton([1, 0, 0]), 1);
+        assert_eq!(morton([0, 1, 0]), 2);
+        assert_eq!(morton([0, 0, 1]), 4);
+        assert_eq!(morton([1, 1, 1]), 7);
+        assert_eq!(morton([2, 0, 0]), 8);
+        // Every cell of the first 2³ block precedes the next block along x.
+        assert!((0..8).all(|i| morton([i & 1, (i >> 1) & 1, i >> 2]) < morton([2, 0, 0])));
+        assert_eq!(morton([0x1f_ffff; 3]), (1u64 << 63) - 1);
+    }
+
+    /// 16³ cells of 8 particles each.
+    fn cube(periodic: bool) -> Cells {
+        let n = 16u32;
+        let pts = (0..n).flat_map(move |x| {
+            (0..n).flat_map(move |y| {
+                (0..n).flat_map(move |z| {
+                    (0..8u32).map(move |k| {
+                        let o = [k & 1, (k >> 1) & 1, k >> 2].map(|b| 0.25 + 0.5 * b as f64);
+                        [x as f64 + o[0], y as f64 + o[1], z as f64 + o[2]]
+                    })
+                })
+            })
+        });
+        let hi = if periodic { 16.0 } else { 15.999 };
+        Cells::bin(pts, CellBox::new([0.0; 3], [hi; 3], 1.0, [periodic; 3]))
+    }
+
+    /// A uniform cube cut in two along the curve: the halves are the two z halves (the top
+    /// Morton bit of a 2^k cube is z's), balanced; each receives the other's face layer of
+    /// cells as halo, and a second one across the period when periodic.
+    #[test]
+    fn a_cube_cut_in_two_is_its_halves_with_one_face_layer_of_halo() {
+        let c = cube(false);
+        assert_eq!(c.order.len(), 16 * 16 * 16);
+        let p = Partition::of(&c, 2);
+        assert_eq!(p.owned, vec![8 * 2048, 8 * 2048]);
+        assert_eq!(p.imbalance(), 1.0);
+        assert_eq!(p.halo, vec![8 * 256, 8 * 256]);
+        assert_eq!(p.peers, vec![1, 1]);
+        assert_eq!(Partition::of(&c, 1).halo, vec![0]);
+        let p = Partition::of(&cube(true), 2);
+        assert_eq!(p.halo, vec![2 * 8 * 256, 2 * 8 * 256]);
+        // Eight ranks: the octants; each touches three others' faces (open cube).
+        let p = Partition::of(&c, 8);
+        assert!(p.owned.iter().all(|&o| o == 8 * 512));
+        assert!(p.peers.iter().all(|&k| k == 7), "{:?}", p.peers);
+        assert!(
+            p.halo.iter().all(|&h| h == 8 * (3 * 64 + 3 * 8 + 1)),
+            "{:?}",
+            p.halo
+        );
+    }
+}
