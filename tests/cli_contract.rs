@@ -401,3 +401,40 @@ fn exit_codes_hold_the_readme_table() {
     assert!(Path::new(&out("stop")).join("snapshot_0000.h5").exists());
     assert!(!Path::new(&out("stop")).join("summary.json").exists());
 }
+
+/// `dustsph scaling` (docs/scaling.md): a small cloud gives one table row per rank count with
+/// no halo on one rank and a halo on two; bad arguments exit 2 naming them.
+#[test]
+fn scaling_model_prints_its_table_and_refuses_bad_arguments() {
+    let out = dustsph(&["scaling", "--particles", "2e4", "--ranks", "1,2,8"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    for kind in ["ball:", "slab:"] {
+        assert!(text.contains(kind), "{text}");
+    }
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| ranks"))
+        .map(|l| l.split('|').map(str::trim).collect())
+        .collect();
+    assert_eq!(rows.len(), 6, "{text}");
+    for r in &rows {
+        let halo: f64 = r[4].parse().unwrap();
+        match r[1] {
+            "1" => assert_eq!(halo, 0.0),
+            _ => assert!(halo > 0.0, "{r:?}"),
+        }
+    }
+    for bad in [
+        &["scaling", "--ranks", "0"][..],
+        &["scaling", "--particles", "1e20"],
+    ] {
+        let out = dustsph(bad);
+        assert_eq!(out.status.code(), Some(2), "{bad:?}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--"));
+    }
+}
