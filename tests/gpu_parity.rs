@@ -466,14 +466,17 @@ fn f32_kernels_are_bit_identical_across_threads_on_every_case() {
 }
 
 /// The f32 step against the f64 step from the same particles: different (it really runs in
-/// f32), and within single-precision round-off after a few steps. Bounds (measured, with
-/// ≈4× margin or more): 1e-5 of each field's scale; the Phantom wave's velocities 5e-2 and
-/// largest acceleration 0.2, as their signal is 1e-4 of the sound speed and the pressure whose f32 round-off
-/// (≈1e-7 of them) it carries (docs/accuracy.md); the uniform box's max |A| is itself
-/// round-off of zero and is not compared.
+/// f32), and within single-precision round-off after a few steps, fields matched by particle
+/// id. Bounds (measured, with ≈5× margin or more): 1e-5 of each field's scale; the Phantom
+/// wave's velocities 1e-2 and largest acceleration 5e-2 (measured 1.8e-3 and 8.9e-3), as their
+/// signal is 1e-4 of the sound speed and the pressure whose f32 round-off it carries
+/// (docs/accuracy.md); the uniform box's max |A| is itself round-off of zero and is not
+/// compared. The ball is the kernel-coupling one: with the nearest cell a dust particle
+/// sitting on its gas particle can land in the next cell at round-off and lose its drag, a
+/// discrete jump (up to half the velocity scale) that is the nearest cell's, not f32's.
 #[test]
 fn f32_step_follows_the_f64_step_to_single_precision() {
-    for i in [0, 3, 4, 11, 14] {
+    for i in [0, 3, 9, 11, 14] {
         let (label, file, sets, steps) = CASES[i];
         let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
         let mut sets32 = sets.clone();
@@ -495,12 +498,13 @@ fn f32_step_follows_the_f64_step_to_single_precision() {
         );
         let wave = label.contains("Phantom wave");
         for f in &p.fields {
-            if i == 0 && f.field == "max |A|" {
+            // A particle can change cell at round-off; fields are matched by id.
+            if (i == 0 && f.field == "max |A|") || f.field.ends_with("id (order)") {
                 continue;
             }
             let bound = match (wave, f.field.as_str()) {
-                (true, "max |A|") => 0.2,
-                (true, v) if v.contains(" v[") => 5e-2,
+                (true, "max |A|") => 5e-2,
+                (true, v) if v.contains(" v[") => 1e-2,
                 _ => 1e-5,
             };
             assert!(

@@ -20,12 +20,26 @@ pub fn is_fixed(fixed: &[bool], i: usize) -> bool {
     !fixed.is_empty() && fixed[i]
 }
 
-/// One phase sorted by cell key, as the neighbour walk sees it.
+/// One phase sorted by cell key, as the neighbour walk sees it. Positions and the grid are f64
+/// in every precision: separations are formed in f64 and only then rounded to R, so f32 keeps
+/// its relative precision on r_ab however far the particles sit from the origin
+/// (docs/accuracy.md, "f32 against f64").
 #[derive(Clone, Copy)]
 pub struct Sorted<'a, R> {
-    pub geom: &'a GridGeom<R>,
+    pub geom: &'a GridGeom<f64>,
     pub look: CellLookup<'a>,
-    pub x: &'a [Vec3<R>],
+    pub x: &'a [Vec3<f64>],
+    pub _r: core::marker::PhantomData<R>,
+}
+
+impl<R: Real> Sorted<'_, R> {
+    /// The neighbour walk around `xi`: `f(j, xi − x_j, r²)` in R.
+    #[inline(always)]
+    pub fn walk(&self, xi: Vec3<f64>, mut f: impl FnMut(usize, Vec3<R>, R)) {
+        for_neighbours(self.geom, &self.look, self.x, xi, |j, dx, r2| {
+            f(j, dx.map(R::from_f64), R::from_f64(r2))
+        });
+    }
 }
 
 /// SPH density of particle i by summation over its own phase (self-contribution included);
@@ -45,7 +59,7 @@ pub fn density_at<R: Real>(
     }
     let k = KernelAt::new(h, dim);
     let mut rho = R::ZERO;
-    for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, _, r2| {
+    s.walk(s.x[i], |j, _, r2| {
         rho += m[j] * k.w(r2.sqrt());
     });
     rho
@@ -70,7 +84,7 @@ pub fn density_rate_at<R: Real>(
     let vi = v[i];
     let k = KernelAt::new(h, dim);
     let mut rate = R::ZERO;
-    for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, dx, r2| {
+    s.walk(s.x[i], |j, dx, r2| {
         rate += sph::density_rate_term(m[j], vi, v[j], dx, r2.sqrt(), &k);
     });
     rate
@@ -125,7 +139,7 @@ pub fn solve_h_at<R: Real>(
     loop {
         let k = KernelAt::new(h, dim);
         let (mut sum, mut dsum) = (R::ZERO, R::ZERO);
-        for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, _, r2| {
+        s.walk(s.x[i], |j, _, r2| {
             let r = r2.sqrt();
             sum += m[j] * k.w(r);
             dsum += m[j] * k.dw_dh(r);
@@ -181,7 +195,7 @@ pub fn iad_matrix_at<R: Real>(
     let ki = k[i];
     let mut t = [R::ZERO; 6];
     // W(h_i) = 0 beyond 2h_i and r_ab = 0 for b = a: no test needed.
-    for_neighbours(s.geom, &s.look, s.x, s.x[i], |j, dx, r2| {
+    s.walk(s.x[i], |j, dx, r2| {
         let c = sph::iad_moment_term(m[j] / rho[j], dx, ki.w(r2.sqrt()));
         for (a, b) in t.iter_mut().zip(c) {
             *a += b;
@@ -228,7 +242,7 @@ fn forces_two_sided_at<R: Real>(
     let a = g.state(s.x[i], i);
     out.vsig = a.c;
     let s2 = R::from_f64(crate::kernel::SUPPORT * crate::kernel::SUPPORT);
-    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, r2| {
+    s.walk(a.x, |j, dx, r2| {
         let hm = k[i].h.max(k[j].h);
         if j == i || r2 >= s2 * hm * hm {
             return;
@@ -254,7 +268,7 @@ pub struct GasView<'a, R> {
 
 impl<R: Real> GasView<'_, R> {
     #[inline(always)]
-    fn state(&self, x: Vec3<R>, i: usize) -> GasState<R> {
+    fn state(&self, x: Vec3<f64>, i: usize) -> GasState<R> {
         GasState {
             x,
             v: self.v[i],
@@ -289,7 +303,7 @@ pub fn forces_at<R: Real>(
     let k = KernelAt::new(h, dim);
     let pa = a.p / (a.rho * a.rho);
     out.vsig = a.c;
-    for_neighbours(s.geom, &s.look, s.x, a.x, |j, dx, r2| {
+    s.walk(a.x, |j, dx, r2| {
         if j == i {
             return;
         }
@@ -528,16 +542,17 @@ fn solve_coupling<R: Real>(
 /// wrap on periodic axes; fixed particles stay.
 #[inline(always)]
 pub fn drift_at<R: Real>(
-    geom: &GridGeom<R>,
-    x: Vec3<R>,
+    geom: &GridGeom<f64>,
+    x: Vec3<f64>,
     w: Vec3<R>,
     tau: R,
     fixed: bool,
-) -> Vec3<R> {
+) -> Vec3<f64> {
     if fixed {
         x
     } else {
-        geom.wrap(update::drift(x, w, tau))
+        // Positions advance in f64 whatever R is (see `Sorted`).
+        geom.wrap(update::drift(x, w.map(R::to_f64), tau.to_f64()))
     }
 }
 
@@ -618,10 +633,10 @@ pub fn coupling_row_at<R: Real>(
     gas: &Sorted<'_, R>,
     k: &[KernelAt<R>],
     gas_fixed: &[bool],
-    x: Vec3<R>,
+    x: Vec3<f64>,
     mut f: impl FnMut(usize, R),
 ) {
-    for_neighbours(gas.geom, &gas.look, gas.x, x, |b, _, r2| {
+    gas.walk(x, |b, _, r2| {
         if !is_fixed(gas_fixed, b) {
             let w = kernel_of(k, b).w(r2.sqrt());
             if w > R::ZERO {
@@ -638,7 +653,7 @@ pub fn gas_weight_sum_at<R: Real>(
     gas: &Sorted<'_, R>,
     k: &[KernelAt<R>],
     gas_fixed: &[bool],
-    x: Vec3<R>,
+    x: Vec3<f64>,
 ) -> R {
     let mut s = R::ZERO;
     coupling_row_at(gas, k, gas_fixed, x, |_, w| s += w);
@@ -674,11 +689,11 @@ pub fn deposit_row_at<R: Real>(
     q: &Sorted<'_, R>,
     s: &[R],
     fixed: &[bool],
-    xa: Vec3<R>,
+    xa: Vec3<f64>,
     ka: &KernelAt<R>,
     mut f: impl FnMut(usize, R),
 ) {
-    for_neighbours(q.geom, &q.look, q.x, xa, |j, _, r2| {
+    q.walk(xa, |j, _, r2| {
         if is_fixed(fixed, j) || s[j] <= R::ZERO {
             return;
         }
@@ -699,7 +714,7 @@ pub fn deposit_at<R: Real>(
     m: &[R],
     rho: &[R],
     fixed: &[bool],
-    xa: Vec3<R>,
+    xa: Vec3<f64>,
     ka: &KernelAt<R>,
     vel: impl Fn(usize) -> Vec3<R>,
     cs: impl Fn(usize) -> R,
@@ -799,7 +814,7 @@ pub fn gather_increment_at<R: Real>(
     gas: &Sorted<'_, R>,
     k: &[KernelAt<R>],
     gas_fixed: &[bool],
-    x: Vec3<R>,
+    x: Vec3<f64>,
     s: R,
     delta: impl Fn(usize) -> Vec3<R>,
 ) -> Vec3<R> {

@@ -32,6 +32,8 @@ kernels! {
     dustsph_scan_chunks => scan_chunks, ScanArgs;
     dustsph_sort_segments => sort_segments, SegmentArgs;
     dustsph_gather_u64 => gather::<u64>, GatherArgs<u64>;
+    // Positions are f64 in every precision.
+    dustsph_gather_x => gather::<V3>, GatherArgs<V3>;
     dustsph_gather_u8 => gather::<u8>, GatherArgs<u8>;
 }
 

@@ -16,7 +16,7 @@ pub struct Viscosity<R> {
 /// State of one gas particle as the pair loop sees it.
 #[derive(Clone, Copy, Debug)]
 pub struct GasState<R> {
-    pub x: Vec3<R>,
+    pub x: Vec3<f64>,
     pub v: Vec3<R>,
     pub m: R,
     pub rho: R,

@@ -66,7 +66,8 @@ impl<R: Real> LawParam<R> {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepParams<R> {
-    pub geom: GridGeom<R>,
+    /// The grid, in f64 in every precision (positions are f64: see `kernels::Sorted`).
+    pub geom: GridGeom<f64>,
     /// Cells in the grid box (T); combined keys run over groups · (T + 1).
     pub total: u64,
     pub h: R,
@@ -131,7 +132,7 @@ impl<R: Real> StepParams<R> {
     pub fn cast<S: Real>(&self) -> StepParams<S> {
         let c = |x: R| S::from_f64(x.to_f64());
         StepParams {
-            geom: self.geom.cast(),
+            geom: self.geom,
             total: self.total,
             h: c(self.h),
             tau: c(self.tau),
@@ -209,7 +210,8 @@ pub fn union_index(ubidx: &[u32], ukey: &[u64], sub_cells: usize, k: u64) -> Opt
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct PhaseBufs<R> {
-    pub x: *mut Vec3<R>,
+    /// Positions, f64 in every precision.
+    pub x: *mut Vec3<f64>,
     pub v: *mut Vec3<R>,
     pub m: *mut R,
     pub rho: *mut R,
@@ -255,7 +257,7 @@ impl<R: Real> PhaseBufs<R> {
         self.n as usize
     }
     #[inline(always)]
-    unsafe fn x(&self) -> &[Vec3<R>] {
+    unsafe fn x(&self) -> &[Vec3<f64>] {
         sl(self.x, self.len())
     }
     #[inline(always)]
@@ -303,6 +305,7 @@ impl<R: Real> PhaseBufs<R> {
                     key_offset: (g * p.key_stride()) as u64,
                 },
                 x: self.x(),
+                _r: core::marker::PhantomData,
             };
         }
         let s = p.stride();
@@ -316,6 +319,7 @@ impl<R: Real> PhaseBufs<R> {
                 key_offset: 0,
             },
             x: self.x(),
+            _r: core::marker::PhantomData,
         }
     }
     /// Particle range of group g in the IDIC cell with (grid) key k: its search cell's range
@@ -1173,7 +1177,7 @@ pub unsafe fn check<R: Real>(t: usize, a: &CheckArgs<R>) {
         return;
     }
     let (x, v) = (*ph.x.add(t), *ph.v.add(t));
-    let mut ok = x.iter().chain(v.iter()).all(|c| c.is_finite());
+    let mut ok = x.iter().all(|c| c.is_finite()) && v.iter().all(|c| c.is_finite());
     if a.check_rho != 0 {
         let r = *ph.rho.add(t);
         ok &= r.is_finite() && r > R::ZERO;

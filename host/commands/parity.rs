@@ -40,6 +40,20 @@ impl Parity {
 
 struct Acc(Vec<FieldDiff>);
 
+/// The permutation putting `b`'s particles in `a`'s id order (new index → old), or `None`
+/// when the orders already agree (or the sets differ, which the comparison then reports).
+fn self_order(a: &[f64], b: &[f64]) -> Option<Vec<u32>> {
+    if a == b || a.len() != b.len() {
+        return None;
+    }
+    let at: std::collections::HashMap<u64, u32> = b
+        .iter()
+        .enumerate()
+        .map(|(i, id)| (id.to_bits(), i as u32))
+        .collect();
+    a.iter().map(|id| at.get(&id.to_bits()).copied()).collect()
+}
+
 impl Acc {
     fn add(&mut self, field: String, a: &[f64], b: &[f64]) {
         let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
@@ -79,9 +93,13 @@ impl Acc {
         }
     }
 
-    fn phase(&mut self, name: &str, a: &Phase, b: &Phase, rho: bool) {
+    fn order(&mut self, name: &str, a: &Phase, b: &Phase) {
         let ids = |p: &Phase| p.id.iter().map(|&i| i as f64).collect::<Vec<_>>();
         self.add(format!("{name} id (order)"), &ids(a), &ids(b));
+    }
+
+    fn phase(&mut self, name: &str, a: &Phase, b: &Phase, rho: bool) {
+        self.order(name, a, b);
         self.v3(&format!("{name} x"), &a.x, &b.x);
         self.v3(&format!("{name} v"), &a.v, &b.v);
         if rho {
@@ -90,6 +108,33 @@ impl Acc {
     }
 
     fn state(&mut self, a: &State, b: &State, dust_rho: bool) {
+        // Fields are compared particle by particle (matched by id): when the order differs
+        // (recorded as "id (order)"), e.g. f32 against f64, b is put in a's order first.
+        let ids = |p: &Phase, q: &Phase| {
+            let ids = |p: &Phase| p.id.iter().map(|&i| i as f64).collect::<Vec<_>>();
+            self_order(&ids(p), &ids(q))
+        };
+        let mut owned;
+        let mut b = b;
+        let gas_perm = ids(&a.gas.ph, &b.gas.ph);
+        let dust_perm: Vec<_> = a.dust.iter().zip(&b.dust).map(|(p, q)| ids(p, q)).collect();
+        if gas_perm.is_some() || dust_perm.iter().any(Option::is_some) {
+            owned = b.clone();
+            if let Some(p) = &gas_perm {
+                owned.gas.permute(p);
+            }
+            for (d, p) in owned.dust.iter_mut().zip(&dust_perm) {
+                if let Some(p) = p {
+                    d.permute(p);
+                }
+            }
+            // The order itself is still compared below, from the originals.
+            for (k, (da, db)) in a.dust.iter().zip(&b.dust).enumerate() {
+                self.order(&format!("dust{k}"), da, db);
+            }
+            self.order("gas", &a.gas.ph, &b.gas.ph);
+            b = &owned;
+        }
         self.phase("gas", &a.gas.ph, &b.gas.ph, true);
         if let (Some(ha), Some(hb)) = (&a.gas.h, &b.gas.h) {
             self.add("gas h".into(), ha, hb);
@@ -190,12 +235,19 @@ pub fn compare_scenes(
         .map_err(err)?;
     let td = dev.dust_stopping_times(&mut s_dev).map_err(err)?;
     for (k, (a, b)) in tc.iter().zip(&td).enumerate() {
+        // Matched by particle id (see `Acc::state`).
+        let ids = |p: &Phase| p.id.iter().map(|&i| i as f64).collect::<Vec<_>>();
+        let perm = self_order(&ids(&s_cpu.dust[k]), &ids(&s_dev.dust[k]));
+        let in_order = |v: &[f64]| match &perm {
+            Some(p) => p.iter().map(|&i| v[i as usize]).collect(),
+            None => v.to_vec(),
+        };
         // +∞ (uncoupled) compares by bits; finite values by size.
-        acc.add(format!("dust{k} t_stop"), a, b);
+        acc.add(format!("dust{k} t_stop"), a, &in_order(b));
         acc.add(
             format!("dust{k} rho (output)"),
             &s_cpu.dust[k].rho,
-            &s_dev.dust[k].rho,
+            &in_order(&s_dev.dust[k].rho),
         );
     }
     Ok(Parity {

@@ -152,6 +152,7 @@ pub const KERNELS: &[&str] = &[
     "dustsph_gather_v3",
     "dustsph_gather_f64",
     "dustsph_gather_u64",
+    "dustsph_gather_x",
     "dustsph_gather_u8",
     "dustsph_copy_v3",
     "dustsph_copy_f64",

@@ -228,7 +228,8 @@ struct DevPhase<L: Launcher, R: Float> {
     n: usize,
     groups: usize,
     off: [u32; MAX_FRACTIONS + 1],
-    x: Buf<L, [R; 3]>,
+    /// Positions, f64 in every precision (`th::PhaseBufs::x`).
+    x: Buf<L, V3>,
     v: Buf<L, [R; 3]>,
     m: Buf<L, R>,
     rho: Buf<L, R>,
@@ -246,6 +247,7 @@ struct DevPhase<L: Launcher, R: Float> {
     cursor: Buf<L, u32>,
     perm: Buf<L, u32>,
     s_v3: Buf<L, [R; 3]>,
+    s_x: Buf<L, V3>,
     s_f64: Buf<L, R>,
     s_u64: Buf<L, u64>,
     s_u8: Option<Buf<L, u8>>,
@@ -287,7 +289,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
             n,
             groups: phases.len().max(1),
             off,
-            x: d.upload_v3(&x)?,
+            x: d.from(&x)?,
             v: d.upload_v3(&v)?,
             m: d.upload_f64(&m)?,
             rho: d.upload_f64(&rho)?,
@@ -302,6 +304,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
             cursor: d.buf(1)?,
             perm: d.buf(n)?,
             s_v3: d.buf(n)?,
+            s_x: d.buf(n)?,
             s_f64: d.buf(n)?,
             s_u64: d.buf(n)?,
             s_u8: if any_fixed { Some(d.buf(n)?) } else { None },
@@ -386,7 +389,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
                 std::mem::swap(&mut $field, &mut $scratch);
             }};
         }
-        carry!(self.x, self.s_v3, "dustsph_gather_v3");
+        carry!(self.x, self.s_x, "dustsph_gather_x");
         carry!(self.v, self.s_v3, "dustsph_gather_v3");
         carry!(self.m, self.s_f64, "dustsph_gather_f64");
         carry!(self.rho, self.s_f64, "dustsph_gather_f64");
@@ -449,7 +452,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
 
     /// Download into host phases (split by group).
     fn download(&self, d: &Dev<L>, phases: &mut [&mut Phase]) -> Result<(), GpuError> {
-        let x = d.get_v3(&self.x, self.n)?;
+        let x = d.get(&self.x, self.n)?;
         let v = d.get_v3(&self.v, self.n)?;
         let m = d.get_f64(&self.m, self.n)?;
         let rho = d.get_f64(&self.rho, self.n)?;
@@ -822,7 +825,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             if ph.n == 0 {
                 continue;
             }
-            let x = d.get_v3(&ph.x, ph.n)?;
+            let x = d.get(&ph.x, ph.n)?;
             let id = d.get(&ph.id, ph.n)?;
             for (i, p) in x.iter().enumerate() {
                 let r = p.iter().map(|c| c.abs()).fold(0.0, f64::max);
@@ -1191,7 +1194,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         let (cs, id, x) = (
             d.get_f64(&self.cs, n)?,
             d.get(&self.gas.id, n)?,
-            d.get_v3(&self.gas.x, n)?,
+            d.get(&self.gas.x, n)?,
         );
         let argmax = |v: &dyn Fn(usize) -> f64| (0..n).max_by(|&a, &b| v(a).total_cmp(&v(b)));
         let amag = |i: usize| acc[i].iter().map(|a| a * a).sum::<f64>().sqrt();
