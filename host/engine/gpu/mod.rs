@@ -34,7 +34,7 @@ pub const PTX: &str = include_str!(concat!(env!("OUT_DIR"), "/dustsph.ptx"));
 pub const PTX_NOTE: &str = env!("DUSTSPH_PTX_NOTE");
 /// Device memory a run needs per particle (gas or dust), by precision: measured with the rayon
 /// launcher, which allocates the very buffers a GPU does (`tests/gpu_parity.rs`,
-/// `device_memory_estimate_bounds_what_the_engine_allocates`: at most 492 B (f64) and 290 B
+/// `device_memory_estimate_bounds_what_the_engine_allocates`: at most 516 B (f64) and 326 B
 /// (f32) per particle over the 23 parity scenes after three steps, the leapfrog with the
 /// kernel coupling the largest), with a margin for the dense tables of sparser clouds.
 pub const DEVICE_BYTES_PER_PARTICLE: [f64; 2] = [700.0, 420.0];
