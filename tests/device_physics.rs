@@ -309,3 +309,21 @@ fn iad_matrix_inverts_the_second_moment_and_differentiates_linear_fields_exactly
     assert!(line.iter().all(|v| v.is_finite()));
     assert!((line[0] - 3.0).abs() < 1e-15);
 }
+
+/// The output's variable h is the inverse of the density relation the h solve uses:
+/// ρ = m (hfact/h)^d ⇔ h = hfact (m/ρ)^(1/d).
+#[test]
+fn h_of_density_inverts_the_variable_h_relation() {
+    use dustsph_device::kernel::{h_of_density, h_pow_dim};
+    for dim in 1..=3 {
+        for (m, h, hfact) in [
+            (1e-3f64, 0.02f64, 1.2f64),
+            (2.5, 0.7, 1.0),
+            (1e-9, 3e-4, 1.5),
+        ] {
+            let rho = m * h_pow_dim(hfact, dim) / h_pow_dim(h, dim);
+            let back = h_of_density(m, rho, hfact, dim);
+            assert!((back - h).abs() <= 1e-14 * h, "dim {dim}: {back} vs {h}");
+        }
+    }
+}

@@ -36,24 +36,6 @@ pub struct GridGeom<R> {
 }
 
 impl<R: Real> GridGeom<R> {
-    /// The same grid in another precision (the host builds it in f64).
-    pub fn cast<S: Real>(&self) -> GridGeom<S> {
-        let c = |a: [R; 3]| a.map(|x| S::from_f64(x.to_f64()));
-        GridGeom {
-            origin: c(self.origin),
-            cell: c(self.cell),
-            inv: c(self.inv),
-            period: c(self.period),
-            n: self.n,
-            sub: self.sub,
-            search: c(self.search),
-            reach: self.reach,
-            support: S::from_f64(self.support.to_f64()),
-            dim: self.dim,
-            periodic: self.periodic,
-        }
-    }
-
     #[inline(always)]
     pub fn is_periodic(&self, k: usize) -> bool {
         self.periodic[k] != 0

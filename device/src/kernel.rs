@@ -59,6 +59,13 @@ pub fn h_pow_dim<R: Real>(h: R, dim: u32) -> R {
     pow_dim(h, dim)
 }
 
+/// The variable-h smoothing length of a particle of mass m at density ρ: h = hfact (m/ρ)^(1/d),
+/// the relation `kernels::solve_h_at` solves (ρ = m (hfact/h)^d). Host-side use (output).
+#[inline(always)]
+pub fn h_of_density<R: Real>(m: R, rho: R, hfact: R, dim: u32) -> R {
+    hfact * (m / rho).powf(R::ONE / R::from_f64(dim as f64))
+}
+
 /// f'(q)/q, finite at q = 0 (so that ∇W = f'(q)/q · σ/h^(d+2) · r_ab needs no 1/r).
 #[inline(always)]
 pub fn dshape_over_q<R: Real>(q: R) -> R {

@@ -42,16 +42,16 @@ struct Acc(Vec<FieldDiff>);
 
 /// The permutation putting `b`'s particles in `a`'s id order (new index → old), or `None`
 /// when the orders already agree (or the sets differ, which the comparison then reports).
-fn self_order(a: &[f64], b: &[f64]) -> Option<Vec<u32>> {
-    if a == b || a.len() != b.len() {
+fn id_order(a: &Phase, b: &Phase) -> Option<Vec<u32>> {
+    if a.id == b.id || a.id.len() != b.id.len() {
         return None;
     }
-    let at: std::collections::HashMap<u64, u32> = b
-        .iter()
-        .enumerate()
-        .map(|(i, id)| (id.to_bits(), i as u32))
-        .collect();
-    a.iter().map(|id| at.get(&id.to_bits()).copied()).collect()
+    let at: std::collections::HashMap<u64, u32> =
+        b.id.iter()
+            .enumerate()
+            .map(|(i, &id)| (id, i as u32))
+            .collect();
+    a.id.iter().map(|id| at.get(id).copied()).collect()
 }
 
 impl Acc {
@@ -99,7 +99,6 @@ impl Acc {
     }
 
     fn phase(&mut self, name: &str, a: &Phase, b: &Phase, rho: bool) {
-        self.order(name, a, b);
         self.v3(&format!("{name} x"), &a.x, &b.x);
         self.v3(&format!("{name} v"), &a.v, &b.v);
         if rho {
@@ -108,33 +107,35 @@ impl Acc {
     }
 
     fn state(&mut self, a: &State, b: &State, dust_rho: bool) {
-        // Fields are compared particle by particle (matched by id): when the order differs
-        // (recorded as "id (order)"), e.g. f32 against f64, b is put in a's order first.
-        let ids = |p: &Phase, q: &Phase| {
-            let ids = |p: &Phase| p.id.iter().map(|&i| i as f64).collect::<Vec<_>>();
-            self_order(&ids(p), &ids(q))
-        };
-        let mut owned;
-        let mut b = b;
-        let gas_perm = ids(&a.gas.ph, &b.gas.ph);
-        let dust_perm: Vec<_> = a.dust.iter().zip(&b.dust).map(|(p, q)| ids(p, q)).collect();
-        if gas_perm.is_some() || dust_perm.iter().any(Option::is_some) {
-            owned = b.clone();
+        // The order is compared as it is; every other field particle by particle, matched by
+        // id (b put in a's order first when they differ, e.g. f32 against f64).
+        self.order("gas", &a.gas.ph, &b.gas.ph);
+        for (k, (da, db)) in a.dust.iter().zip(&b.dust).enumerate() {
+            self.order(&format!("dust{k}"), da, db);
+        }
+        let gas_perm = id_order(&a.gas.ph, &b.gas.ph);
+        let dust_perm: Vec<_> = a
+            .dust
+            .iter()
+            .zip(&b.dust)
+            .map(|(p, q)| id_order(p, q))
+            .collect();
+        let owned;
+        let b = if gas_perm.is_some() || dust_perm.iter().any(Option::is_some) {
+            let mut o = b.clone();
             if let Some(p) = &gas_perm {
-                owned.gas.permute(p);
+                o.gas.permute(p);
             }
-            for (d, p) in owned.dust.iter_mut().zip(&dust_perm) {
+            for (d, p) in o.dust.iter_mut().zip(&dust_perm) {
                 if let Some(p) = p {
                     d.permute(p);
                 }
             }
-            // The order itself is still compared below, from the originals.
-            for (k, (da, db)) in a.dust.iter().zip(&b.dust).enumerate() {
-                self.order(&format!("dust{k}"), da, db);
-            }
-            self.order("gas", &a.gas.ph, &b.gas.ph);
-            b = &owned;
-        }
+            owned = o;
+            &owned
+        } else {
+            b
+        };
         self.phase("gas", &a.gas.ph, &b.gas.ph, true);
         if let (Some(ha), Some(hb)) = (&a.gas.h, &b.gas.h) {
             self.add("gas h".into(), ha, hb);
@@ -236,8 +237,7 @@ pub fn compare_scenes(
     let td = dev.dust_stopping_times(&mut s_dev).map_err(err)?;
     for (k, (a, b)) in tc.iter().zip(&td).enumerate() {
         // Matched by particle id (see `Acc::state`).
-        let ids = |p: &Phase| p.id.iter().map(|&i| i as f64).collect::<Vec<_>>();
-        let perm = self_order(&ids(&s_cpu.dust[k]), &ids(&s_dev.dust[k]));
+        let perm = id_order(&s_cpu.dust[k], &s_dev.dust[k]);
         let in_order = |v: &[f64]| match &perm {
             Some(p) => p.iter().map(|&i| v[i as usize]).collect(),
             None => v.to_vec(),

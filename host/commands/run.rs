@@ -157,7 +157,7 @@ fn write_snapshot(
             phys.variable_h.map(|hf| {
                 d.m.iter()
                     .zip(&d.rho)
-                    .map(|(m, r)| hf * (m / r).powf(1.0 / dim as f64))
+                    .map(|(&m, &r)| dustsph_device::kernel::h_of_density(m, r, hf, dim))
                     .collect()
             })
         })

@@ -597,19 +597,10 @@ fn check_exact(rep: &mut CaseReport, sc: &Scene, state: &State) {
     let errs = analysis::exact_errors(sc, state, sc.time.dt);
     // Box velocity norms are relative to the slip (to 1e-300 without slip): rescale those to
     // the largest of slip, velocity scale and 1, as for the oracle check below.
-    let boxcfg = match &sc.problem {
-        crate::scene::ProblemCfg::Dustybox(b) => Some(b),
-        _ => None,
+    let vel_factor = match &sc.problem {
+        crate::scene::ProblemCfg::Dustybox(b) => box_velocity_factor(b),
+        _ => 1.0,
     };
-    let vel_factor = boxcfg.map_or(1.0, |b| {
-        let slip = b
-            .u_dust
-            .iter()
-            .map(|u| (u - b.v_gas).abs())
-            .fold(0.0, f64::max);
-        let vscale = b.u_dust.iter().fold(b.v_gas.abs(), |m, u| m.max(u.abs()));
-        (if slip > 0.0 { slip } else { 1e-300 }) / slip.max(vscale).max(1.0)
-    });
     rep.l1_max = errs.first().map(|e| {
         e.fields
             .iter()
@@ -636,12 +627,6 @@ fn check_exact(rep: &mut CaseReport, sc: &Scene, state: &State) {
         }
         crate::scene::ProblemCfg::Dustybox(b) => {
             // The second comparison is IDIC's discrete oracle; velocities relative to the slip.
-            let slip = b
-                .u_dust
-                .iter()
-                .map(|u| (u - b.v_gas).abs())
-                .fold(0.0, f64::max);
-            let vscale = b.u_dust.iter().fold(b.v_gas.abs(), |m, u| m.max(u.abs()));
             let e = errs.get(1).map(|o| {
                 o.fields
                     .iter()
@@ -649,10 +634,7 @@ fn check_exact(rep: &mut CaseReport, sc: &Scene, state: &State) {
                     .map(|f| f.norms.linf)
                     .fold(0.0, f64::max)
             });
-            // The norms are relative to the slip (to 1e-300 when there is none): make them
-            // absolute, then relative to the largest of slip, velocity scale and 1.
-            let norm = if slip > 0.0 { slip } else { 1e-300 };
-            let rel = e.map(|e| e * norm / slip.max(vscale).max(1.0));
+            let rel = e.map(|e| e * box_velocity_factor(b));
             rep.box_oracle = rel;
             match rel {
                 Some(r) if r <= BOX_ORACLE_TOL => {}
@@ -664,6 +646,18 @@ fn check_exact(rep: &mut CaseReport, sc: &Scene, state: &State) {
         }
         _ => {}
     }
+}
+
+/// The box's velocity norms are relative to the slip (to 1e-300 when there is none): the
+/// factor that makes them absolute, then relative to the largest of slip, velocity scale and 1.
+fn box_velocity_factor(b: &crate::scene::BoxCfg) -> f64 {
+    let slip = b
+        .u_dust
+        .iter()
+        .map(|u| (u - b.v_gas).abs())
+        .fold(0.0, f64::max);
+    let vscale = b.u_dust.iter().fold(b.v_gas.abs(), |m, u| m.max(u.abs()));
+    (if slip > 0.0 { slip } else { 1e-300 }) / slip.max(vscale).max(1.0)
 }
 
 /// The Markdown report of a run of the matrix.

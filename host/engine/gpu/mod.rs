@@ -213,15 +213,21 @@ impl<R> std::ops::Deref for Hp<R> {
     }
 }
 
-/// Device copies of the step parameters in use: one slot per distinct value, reused while
-/// equal; after 256 distinct values the slots are reused from the first (a launch's
-/// parameters are written on the stream before it, so an earlier launch keeps its own).
+/// Device copies of the step parameters: a ring of slots, a new one per distinct value; the
+/// last few values are looked up (a step uses a handful: τ = 0, τ, τ/2, and the grid changes
+/// once per step), so a repeated value reuses its slot without a search through the ring. A
+/// slot is overwritten only 256 distinct values later, and on the stream after the launches
+/// that read it.
 struct ParamSlots<L: Launcher, R> {
     mem: Vec<L::Mem>,
-    held: Vec<StepParams<R>>,
+    /// (value, slot) of the most recent distinct values, newest last.
+    recent: Vec<(StepParams<R>, usize)>,
+    /// Distinct values uploaded so far (the next slot is this modulo `PARAM_SLOTS`).
+    uploads: usize,
 }
 
 const PARAM_SLOTS: usize = 256;
+const PARAM_RECENT: usize = 8;
 
 /// One phase buffer set: gas (one group) or all dust fractions back to back.
 struct DevPhase<L: Launcher, R: Float> {
@@ -795,7 +801,8 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             dust_density_fresh: false,
             params: std::cell::RefCell::new(ParamSlots {
                 mem: Vec::new(),
-                held: Vec::new(),
+                recent: Vec::new(),
+                uploads: 0,
             }),
         };
         eng.regrid()?;
@@ -852,19 +859,20 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     fn params(&self, tau: f64) -> Result<Hp<R>, GpuError> {
         let host: StepParams<R> = self.host_params(tau);
         let mut slots = self.params.borrow_mut();
-        let i = match slots.held.iter().position(|q| *q == host) {
-            Some(i) => i,
+        let i = match slots.recent.iter().rev().find(|q| q.0 == host) {
+            Some(&(_, i)) => i,
             None => {
-                if slots.held.len() == PARAM_SLOTS {
-                    slots.held.clear();
-                }
-                let i = slots.held.len();
+                let i = slots.uploads % PARAM_SLOTS;
+                slots.uploads += 1;
                 if slots.mem.len() <= i {
                     let m = self.d.0.alloc(std::mem::size_of::<StepParams<R>>())?;
                     slots.mem.push(m);
                 }
                 self.d.0.upload_value(&mut slots.mem[i], &host)?;
-                slots.held.push(host);
+                if slots.recent.len() == PARAM_RECENT {
+                    slots.recent.remove(0);
+                }
+                slots.recent.push((host, i));
                 i
             }
         };
