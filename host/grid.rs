@@ -331,9 +331,10 @@ mod tests {
             };
             for (i, &xi) in xs.iter().enumerate() {
                 let mut found = Vec::new();
-                g.geom.for_each_neighbour_row(g.geom.coord(xi), |lo, hi| {
-                    found.extend(idx.particles_in_keys(lo, hi).filter(|&j| within(xi, xs[j])));
-                });
+                g.geom
+                    .for_each_neighbour_row(g.geom.coord(xi), |lo, hi, _| {
+                        found.extend(idx.particles_in_keys(lo, hi).filter(|&j| within(xi, xs[j])));
+                    });
                 found.sort();
                 let brute: Vec<usize> = (0..xs.len()).filter(|&j| within(xi, xs[j])).collect();
                 assert_eq!(found, brute, "particle {i}, spread {spread}");
@@ -394,14 +395,15 @@ mod tests {
             let xs: Vec<[f64; 3]> = perm.iter().map(|&p| x[p as usize]).collect();
             for (i, &xi) in xs.iter().enumerate() {
                 let mut found = Vec::new();
-                g.geom.for_each_neighbour_row(g.geom.coord(xi), |lo, hi| {
-                    for j in idx.particles_in_keys(lo, hi) {
-                        let d = g.geom.separation(xi, xs[j]);
-                        if d[0] * d[0] + d[1] * d[1] < support * support {
-                            found.push(j);
+                g.geom
+                    .for_each_neighbour_row(g.geom.coord(xi), |lo, hi, _| {
+                        for j in idx.particles_in_keys(lo, hi) {
+                            let d = g.geom.separation(xi, xs[j]);
+                            if d[0] * d[0] + d[1] * d[1] < support * support {
+                                found.push(j);
+                            }
                         }
-                    }
-                });
+                    });
                 found.sort();
                 let brute: Vec<usize> = (0..xs.len())
                     .filter(|&j| {
@@ -412,5 +414,60 @@ mod tests {
                 assert_eq!(found, brute, "particle {i}, periodic {periodic}");
             }
         }
+    }
+
+    /// The walk's row images (one add per axis) give exactly the minimum image's separations:
+    /// the same pairs, and dx and r² equal to the bit, against brute force with
+    /// `GridGeom::separation`; on boxes wide enough for them and on ones too narrow (where the
+    /// walk applies the minimum image itself), fully and partly periodic, points on the edges.
+    #[test]
+    fn row_images_give_the_minimum_image_to_the_bit() {
+        use dustsph_device::grid::for_neighbours;
+        let mut narrow_seen = [false; 2];
+        let cases = [0.05, 0.07, 0.09, 0.11, 0.13, 0.15, 0.17, 0.2, 0.25, 0.3]
+            .map(|s| ([true; 3], s))
+            .into_iter()
+            .chain([([true, true, false], 0.13), ([false, true, true], 0.07)]);
+        for (periodic, support) in cases {
+            let len = [1.0, 0.7, 0.45];
+            let dom = Domain {
+                dim: 3,
+                periodic: [0, 1, 2].map(|k| periodic[k].then_some((-0.2, len[k]))),
+            };
+            let mut x: Vec<[f64; 3]> = (0..900)
+                .map(|i| {
+                    let f = i as f64 * 0.618_033_988_7;
+                    [0, 1, 2].map(|k| -0.2 + len[k] * (f * [1.0, 1.37, 2.11][k]).fract())
+                })
+                .collect();
+            // Points on the lower edges and just inside the upper ones.
+            x.push([-0.2, -0.2, -0.2]);
+            x.push([0.8 - 1e-15, 0.5 - 1e-15, 0.25 - 1e-15]);
+            let g = Grid::build(&dom, support / 4.0, support, &[&x]).unwrap();
+            narrow_seen[g.geom.row_images() as usize] = true;
+            let (perm, idx) = CellIndex::sort(&g, &x);
+            let xs: Vec<[f64; 3]> = perm.iter().map(|&p| x[p as usize]).collect();
+            let s2 = support * support;
+            for &xi in &xs {
+                let mut found = Vec::new();
+                for_neighbours(&g.geom, &idx.lookup(), &xs, xi, |j, dx, r2| {
+                    found.push((j, dx.map(f64::to_bits), r2.to_bits()))
+                });
+                found.sort();
+                let brute: Vec<_> = (0..xs.len())
+                    .filter_map(|j| {
+                        let d = g.geom.separation(xi, xs[j]);
+                        let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                        (r2 < s2).then(|| (j, d.map(f64::to_bits), r2.to_bits()))
+                    })
+                    .collect();
+                assert_eq!(found, brute, "periodic {periodic:?}, support {support}");
+            }
+        }
+        assert_eq!(
+            narrow_seen,
+            [true, true],
+            "both forms of the walk were checked"
+        );
     }
 }

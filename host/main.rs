@@ -2,7 +2,7 @@
 use clap::{Parser, Subcommand};
 use dustsph::engine::backend::DeviceChoice;
 use dustsph::run::{RunError, RunOptions, Runner, Stop, Summary};
-use dustsph::scene::Precision;
+use dustsph::scene::{ListChoice, Precision};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -115,6 +115,9 @@ struct BenchArgs {
     /// The float type of the step (f64 or f32)
     #[arg(long, value_enum, default_value_t = Precision::F64)]
     precision: Precision,
+    /// Per-particle neighbour lists (auto: on the CPU, off on CUDA; numerics.neighbour_list)
+    #[arg(long, value_enum, default_value_t = ListChoice::Auto)]
+    neighbour_list: ListChoice,
 }
 
 #[derive(clap::Args)]
@@ -316,6 +319,7 @@ fn bench(a: BenchArgs) -> ExitCode {
         box_n,
         device,
         precision,
+        neighbour_list,
     } = a;
     let mut cases: Vec<(String, &str, Vec<String>)> = box_n
         .iter()
@@ -363,6 +367,10 @@ fn bench(a: BenchArgs) -> ExitCode {
         let name = name.as_str();
         let mut sets = sets;
         sets.push(format!("numerics.precision=\"{}\"", precision.name()));
+        sets.push(format!(
+            "numerics.neighbour_list=\"{}\"",
+            neighbour_list.name()
+        ));
         let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
             Ok(l) => l,
             Err(e) => {

@@ -322,8 +322,16 @@ fn h_of_density_inverts_the_variable_h_relation() {
             (1e-9, 3e-4, 1.5),
         ] {
             let rho = m * h_pow_dim(hfact, dim) / h_pow_dim(h, dim);
-            let back = h_of_density(m, rho, hfact, dim);
-            assert!((back - h).abs() <= 1e-14 * h, "dim {dim}: {back} vs {h}");
+            // The 3D root starts from a guess: exact or 1e4 times off either way.
+            for guess in [h, 1e4 * h, 1e-4 * h] {
+                let back = h_of_density(m, rho, hfact, dim, guess);
+                assert!((back - h).abs() <= 1e-14 * h, "dim {dim}: {back} vs {h}");
+                let back32 = h_of_density(m as f32, rho as f32, hfact as f32, dim, guess as f32);
+                assert!(
+                    ((back32 as f64) - h).abs() <= 1e-6 * h,
+                    "f32, dim {dim}: {back32} vs {h}"
+                );
+            }
         }
     }
 }

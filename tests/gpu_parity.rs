@@ -518,9 +518,10 @@ fn f32_step_follows_the_f64_step_to_single_precision() {
 }
 
 /// The device-memory estimate that `--device cuda` checks before it allocates
-/// (`gpu::DEVICE_BYTES_PER_PARTICLE`) bounds what the engine allocates, on every case, after
-/// a few steps (buffers grown included), in both precisions. The rayon launcher allocates the
-/// very buffers a GPU does.
+/// (`gpu::DEVICE_BYTES_PER_PARTICLE`, plus `gpu::LIST_BYTES_PER_GAS_PARTICLE` with neighbour
+/// lists) bounds what the engine allocates, on every case, after a few steps (buffers grown
+/// included), in both precisions, without lists (CUDA's default) and with them. The rayon
+/// launcher allocates the very buffers a GPU does.
 #[test]
 fn device_memory_estimate_bounds_what_the_engine_allocates() {
     use dustsph::engine::backend::Backend;
@@ -528,24 +529,38 @@ fn device_memory_estimate_bounds_what_the_engine_allocates() {
     let mut worst = [0.0f64; 2];
     for (label, file, sets, _) in CASES {
         for (k, prec) in ["f64", "f32"].iter().enumerate() {
-            let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-            sets.push(format!("numerics.precision=\"{prec}\""));
-            let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
-            let loaded = dustsph::scene::load(&path, &sets).unwrap();
-            let su = dustsph::setup::build(&loaded.scene).unwrap();
-            let phys = dustsph::engine::Physics::from_scene(&loaded.scene, su.h, su.domain);
-            let mut state = su.state;
-            let n = state.gas.ph.x.len() + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
-            let h = phys.h;
-            let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut state).unwrap();
-            let drv = Driver::new(&loaded.scene.time, h);
-            for _ in 0..3 {
-                drv.step(&mut eng, &mut state, loaded.scene.time.t_end)
-                    .unwrap();
+            for lists in ["off", "on"] {
+                let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+                sets.push(format!("numerics.precision=\"{prec}\""));
+                sets.push(format!("numerics.neighbour_list=\"{lists}\""));
+                let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
+                let loaded = dustsph::scene::load(&path, &sets).unwrap();
+                let su = dustsph::setup::build(&loaded.scene).unwrap();
+                let phys = dustsph::engine::Physics::from_scene(&loaded.scene, su.h, su.domain);
+                let mut state = su.state;
+                let ng = state.gas.ph.x.len();
+                let n = ng + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
+                let h = phys.h;
+                let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut state).unwrap();
+                let drv = Driver::new(&loaded.scene.time, h);
+                for _ in 0..3 {
+                    drv.step(&mut eng, &mut state, loaded.scene.time.t_end)
+                        .unwrap();
+                }
+                let bytes = eng.device_bytes() as f64;
+                if lists == "off" {
+                    let per = bytes / n as f64;
+                    eprintln!("{label} ({prec}): {per:.0} B per particle ({n} particles)");
+                    worst[k] = worst[k].max(per);
+                } else {
+                    let est = gpu::DEVICE_BYTES_PER_PARTICLE[k] * n as f64
+                        + gpu::LIST_BYTES_PER_GAS_PARTICLE * ng as f64;
+                    assert!(
+                        bytes <= est,
+                        "{label} ({prec}) with lists: {bytes:.0} B above the estimate {est:.0}"
+                    );
+                }
             }
-            let per = eng.device_bytes() as f64 / n as f64;
-            eprintln!("{label} ({prec}): {per:.0} B per particle ({n} particles)");
-            worst[k] = worst[k].max(per);
         }
     }
     eprintln!("largest: f64 {:.0} B, f32 {:.0} B", worst[0], worst[1]);
@@ -554,5 +569,32 @@ fn device_memory_estimate_bounds_what_the_engine_allocates() {
             *w <= est,
             "precision {k}: {w:.0} B per particle above the estimate {est}"
         );
+    }
+}
+
+/// Neighbour lists (`numerics.neighbour_list`, on by default on the CPU) replay the cell
+/// walk's pairs in its order: every case gives the same step with and without them, bit for
+/// bit, in f64 and f32.
+#[test]
+fn neighbour_lists_give_the_same_step() {
+    for (label, file, sets, steps) in CASES {
+        for prec in ["f64", "f32"] {
+            let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            sets.push(format!("numerics.precision=\"{prec}\""));
+            let mut on = sets.clone();
+            sets.push("numerics.neighbour_list=\"off\"".into());
+            on.push("numerics.neighbour_list=\"on\"".into());
+            let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
+            let off = dustsph::scene::load(&path, &sets).unwrap();
+            let on = dustsph::scene::load(&path, &on).unwrap();
+            let p = compare_scenes(&off, &on, (*steps).min(8), DeviceChoice::Cpu, false).unwrap();
+            for f in &p.fields {
+                assert!(
+                    f.bitwise,
+                    "{label} ({prec}), lists: {} differs (max relative {:.3e})",
+                    f.field, f.max_relative
+                );
+            }
+        }
     }
 }

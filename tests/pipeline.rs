@@ -115,6 +115,7 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
         gradient: dustsph::scene::GradientMethod::Standard,
         integrator: dustsph::scene::Integrator::FirstOrder,
         precision: dustsph::scene::Precision::F64,
+        neighbour_list: dustsph::scene::ListChoice::Auto,
     };
     let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     let mut pscale: f64 = 0.0;
@@ -217,6 +218,7 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
         gradient: dustsph::scene::GradientMethod::Standard,
         integrator: dustsph::scene::Integrator::FirstOrder,
         precision: dustsph::scene::Precision::F64,
+        neighbour_list: dustsph::scene::ListChoice::Auto,
     };
     let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     for _ in 0..10 {

@@ -60,10 +60,44 @@ pub fn h_pow_dim<R: Real>(h: R, dim: u32) -> R {
 }
 
 /// The variable-h smoothing length of a particle of mass m at density ρ: h = hfact (m/ρ)^(1/d),
-/// the relation `kernels::solve_h_at` solves (ρ = m (hfact/h)^d). Host-side use (output).
+/// the relation `kernels::solve_h_at` solves (ρ = m (hfact/h)^d). `guess`, a length of the
+/// right scale (the reference h), starts the 3D root. Output's h and the dust's warm start.
 #[inline(always)]
-pub fn h_of_density<R: Real>(m: R, rho: R, hfact: R, dim: u32) -> R {
-    hfact * (m / rho).powf(R::ONE / R::from_f64(dim as f64))
+pub fn h_of_density<R: Real>(m: R, rho: R, hfact: R, dim: u32, guess: R) -> R {
+    hfact * root_dim(m / rho, dim, guess / hfact)
+}
+
+/// x^(1/d) for x > 0: x, √x, or the cube root by Newton's iteration y ← (2y + x/y²)/3 from
+/// `y0` until it stops improving (no libm root: the GPU build links none; the same operations
+/// on the CPU and the GPU). From any y0 > 0 it converges (monotonically after the first step).
+#[inline(always)]
+pub fn root_dim<R: Real>(x: R, dim: u32, y0: R) -> R {
+    match dim {
+        1 => x,
+        2 => x.sqrt(),
+        _ => {
+            let three = R::from_f64(3.0);
+            let mut y = if y0 > R::ZERO && y0.is_finite() {
+                y0
+            } else {
+                R::ONE
+            };
+            let mut last = R::from_f64(f64::INFINITY);
+            for _ in 0..200 {
+                let next = (y + y + x / (y * y)) / three;
+                let step = (next - y).abs();
+                if step >= last {
+                    break;
+                }
+                y = next;
+                last = step;
+                if step == R::ZERO {
+                    break;
+                }
+            }
+            y
+        }
+    }
 }
 
 /// f'(q)/q, finite at q = 0 (so that ∇W = f'(q)/q · σ/h^(d+2) · r_ab needs no 1/r).

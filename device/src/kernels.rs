@@ -10,6 +10,7 @@ use crate::grid::{for_neighbours, CellLookup, GridGeom};
 use crate::kernel::KernelAt;
 use crate::sph::{self, GasPair, GasState, Viscosity};
 use crate::{add, axpy, scale, sub, update, Real, Vec3};
+use core::sync::atomic::{AtomicU32, Ordering::Relaxed};
 
 /// Largest number of dust fractions a scene may have (the GPU cell kernel keeps per-fraction
 /// sums in registers / local memory).
@@ -29,7 +30,26 @@ pub struct Sorted<'a, R> {
     pub geom: &'a GridGeom<f64>,
     pub look: CellLookup<'a>,
     pub x: &'a [Vec3<f64>],
+    /// The phase's neighbour list ([`NeighbourList`]), or empty: then every walk scans cells.
+    pub list: NeighbourList<'a>,
     pub _r: core::marker::PhantomData<R>,
+}
+
+/// Each particle's neighbours within the search radius, in the order the cell walk visits them:
+/// `stride` slots per particle and, in `count`, 1 + the number found (0: not recorded yet).
+/// The first pass of a layer over a particle ([`Sorted::walk_own`]) scans the cells and
+/// records; later passes replay (same pairs, same order, same arithmetic: results are
+/// bit-identical with and without lists). A particle with more than `stride` neighbours keeps
+/// scanning; `max` collects the largest count so that the host can widen the stride
+/// (docs/performance.md, "Neighbour lists").
+/// Atomics only so that this stays safe code: each row and count is touched by one thread
+/// (relaxed loads and stores are plain ones on x86 and in PTX).
+#[derive(Clone, Copy, Default)]
+pub struct NeighbourList<'a> {
+    pub index: &'a [AtomicU32],
+    pub count: &'a [AtomicU32],
+    pub max: Option<&'a AtomicU32>,
+    pub stride: usize,
 }
 
 impl<R: Real> Sorted<'_, R> {
@@ -39,6 +59,60 @@ impl<R: Real> Sorted<'_, R> {
         for_neighbours(self.geom, &self.look, self.x, xi, |j, dx, r2| {
             f(j, dx.map(R::from_f64), R::from_f64(r2))
         });
+    }
+
+    /// The neighbour walk around particle i of this phase: replayed from its list when it has
+    /// one, recorded into it on the layer's first pass ([`NeighbourList`]), else over the cells.
+    #[inline(always)]
+    pub fn walk_own(&self, i: usize, mut f: impl FnMut(usize, Vec3<R>, R)) {
+        // The GPU kernels are built without lists: their recording and replaying copies of
+        // `f` cost the forces kernel 26 registers and 350 B of stack (ptxas, sm_90) even when
+        // no list is passed, and lists are unmeasured on a GPU (docs/performance.md).
+        #[cfg(not(target_arch = "nvptx64"))]
+        if self.walk_list(i, &mut f) {
+            return;
+        }
+        self.walk(self.x[i], f)
+    }
+
+    /// [`Self::walk_own`] through the list: false when particle i has none (no list, or more
+    /// neighbours than its slots), and nothing was visited.
+    #[cfg(not(target_arch = "nvptx64"))]
+    #[inline(always)]
+    fn walk_list(&self, i: usize, f: &mut impl FnMut(usize, Vec3<R>, R)) -> bool {
+        let l = self.list;
+        let (Some(cnt), Some(max)) = (l.count.get(i), l.max) else {
+            return false;
+        };
+        let xi = self.x[i];
+        let row = &l.index[i * l.stride..(i + 1) * l.stride];
+        let c = cnt.load(Relaxed) as usize;
+        if c == 0 {
+            let mut k = 0usize;
+            self.walk(xi, |j, dx, r2| {
+                if let Some(slot) = row.get(k) {
+                    slot.store(j as u32, Relaxed);
+                }
+                k += 1;
+                f(j, dx, r2);
+            });
+            cnt.store(k as u32 + 1, Relaxed);
+            // A plain load first: the read-modify-write only when it raises the max.
+            if k as u32 > max.load(Relaxed) {
+                max.fetch_max(k as u32, Relaxed);
+            }
+            return true;
+        }
+        let Some(js) = row.get(..c - 1) else {
+            return false;
+        };
+        for j in js {
+            let j = j.load(Relaxed) as usize;
+            let dx = self.geom.separation(xi, self.x[j]);
+            let r2 = crate::dot(dx, dx);
+            f(j, dx.map(R::from_f64), R::from_f64(r2));
+        }
+        true
     }
 }
 
@@ -59,7 +133,7 @@ pub fn density_at<R: Real>(
     }
     let k = KernelAt::new(h, dim);
     let mut rho = R::ZERO;
-    s.walk(s.x[i], |j, _, r2| {
+    s.walk_own(i, |j, _, r2| {
         rho += m[j] * k.w(r2.sqrt());
     });
     rho
@@ -84,7 +158,7 @@ pub fn density_rate_at<R: Real>(
     let vi = v[i];
     let k = KernelAt::new(h, dim);
     let mut rate = R::ZERO;
-    s.walk(s.x[i], |j, dx, r2| {
+    s.walk_own(i, |j, dx, r2| {
         rate += sph::density_rate_term(m[j], vi, v[j], dx, r2.sqrt(), &k);
     });
     rate
@@ -139,7 +213,7 @@ pub fn solve_h_at<R: Real>(
     loop {
         let k = KernelAt::new(h, dim);
         let (mut sum, mut dsum) = (R::ZERO, R::ZERO);
-        s.walk(s.x[i], |j, _, r2| {
+        s.walk_own(i, |j, _, r2| {
             let r = r2.sqrt();
             sum += m[j] * k.w(r);
             dsum += m[j] * k.dw_dh(r);
@@ -195,7 +269,7 @@ pub fn iad_matrix_at<R: Real>(
     let ki = k[i];
     let mut t = [R::ZERO; 6];
     // W(h_i) = 0 beyond 2h_i and r_ab = 0 for b = a: no test needed.
-    s.walk(s.x[i], |j, dx, r2| {
+    s.walk_own(i, |j, dx, r2| {
         let c = sph::iad_moment_term(m[j] / rho[j], dx, ki.w(r2.sqrt()));
         for (a, b) in t.iter_mut().zip(c) {
             *a += b;
@@ -242,7 +316,7 @@ fn forces_two_sided_at<R: Real>(
     let a = g.state(s.x[i], i);
     out.vsig = a.c;
     let s2 = R::from_f64(crate::kernel::SUPPORT * crate::kernel::SUPPORT);
-    s.walk(a.x, |j, dx, r2| {
+    s.walk_own(i, |j, dx, r2| {
         let hm = k[i].h.max(k[j].h);
         if j == i || r2 >= s2 * hm * hm {
             return;
@@ -303,7 +377,7 @@ pub fn forces_at<R: Real>(
     let k = KernelAt::new(h, dim);
     let pa = a.p / (a.rho * a.rho);
     out.vsig = a.c;
-    s.walk(a.x, |j, dx, r2| {
+    s.walk_own(i, |j, dx, r2| {
         if j == i {
             return;
         }

@@ -231,6 +231,12 @@ pub struct PhaseBufs<R> {
     pub groups: u32,
     /// Group g holds particles off[g]..off[g + 1].
     pub off: [u32; MAX_FRACTIONS + 1],
+    /// The neighbour list of the current layer ([`kernels::NeighbourList`]): `nl_stride`
+    /// slots per particle, the counts and their maximum; null when the phase has none.
+    pub nl: *mut u32,
+    pub nl_count: *mut u32,
+    pub nl_max: *mut u32,
+    pub nl_stride: u32,
 }
 
 #[inline(always)]
@@ -281,6 +287,20 @@ impl<R: Real> PhaseBufs<R> {
     unsafe fn dense(&self, p: &StepParams<R>) -> &[u32] {
         sl(self.dense, self.groups as usize * p.stride() + 1)
     }
+    #[inline(always)]
+    unsafe fn list(&self) -> kernels::NeighbourList<'_> {
+        if self.nl_count.is_null() {
+            return kernels::NeighbourList::default();
+        }
+        let stride = self.nl_stride as usize;
+        let n = self.len();
+        kernels::NeighbourList {
+            index: sl(self.nl as *const AtomicU32, n * stride),
+            count: sl(self.nl_count as *const AtomicU32, n),
+            max: Some(AtomicU32::from_ptr(self.nl_max)),
+            stride,
+        }
+    }
     /// Group of particle i (≤ 32 groups: a linear scan).
     #[inline(always)]
     fn group_of(&self, i: usize) -> usize {
@@ -305,6 +325,7 @@ impl<R: Real> PhaseBufs<R> {
                     key_offset: (g * p.key_stride()) as u64,
                 },
                 x: self.x(),
+                list: self.list(),
                 _r: core::marker::PhantomData,
             };
         }
@@ -319,6 +340,7 @@ impl<R: Real> PhaseBufs<R> {
                 key_offset: 0,
             },
             x: self.x(),
+            list: self.list(),
             _r: core::marker::PhantomData,
         }
     }
@@ -680,8 +702,10 @@ pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
 #[derive(Clone, Copy, Debug)]
 pub struct HSolveArgs<R> {
     pub ph: PhaseBufs<R>,
-    /// Initial h per particle; null: the reference h for all (the dust, solved afresh).
+    /// Initial h per particle; null: from the phase's current density (`warm` = 1, the dust:
+    /// its last solve's ρ gives its h, [`kernel::h_of_density`]) or the reference h.
     pub h0: *const R,
+    pub warm: u32,
     /// Out: h, Ω (null for the dust), Newton iterations; ρ goes to the phase's `rho`.
     pub h: *mut R,
     pub omega: *mut R,
@@ -702,12 +726,19 @@ pub unsafe fn solve_h<R: Real>(t: usize, a: &HSolveArgs<R>) {
         return;
     }
     let s = ph.sorted(&a.p, ph.group_of(t));
-    let h0 = if a.h0.is_null() { a.p.h } else { *a.h0.add(t) };
+    let rho = *ph.rho.add(t);
+    let h0 = if !a.h0.is_null() {
+        *a.h0.add(t)
+    } else if a.warm != 0 && rho > R::ZERO && rho.is_finite() {
+        crate::kernel::h_of_density(ph.m()[t], rho, a.hfact, a.p.dim, a.p.h)
+    } else {
+        a.p.h
+    };
     let o = kernels::solve_h_at(
         &s,
         ph.m(),
         ph.fixed(),
-        *ph.rho.add(t),
+        rho,
         t,
         h0,
         a.hfact,

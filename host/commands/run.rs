@@ -157,7 +157,7 @@ fn write_snapshot(
             phys.variable_h.map(|hf| {
                 d.m.iter()
                     .zip(&d.rho)
-                    .map(|(&m, &r)| dustsph_device::kernel::h_of_density(m, r, hf, dim))
+                    .map(|(&m, &r)| dustsph_device::kernel::h_of_density(m, r, hf, dim, h))
                     .collect()
             })
         })

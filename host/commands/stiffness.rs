@@ -396,6 +396,7 @@ fn slab() -> (Physics, State, f64, f64) {
         gradient: crate::scene::GradientMethod::Standard,
         integrator: crate::scene::Integrator::FirstOrder,
         precision: crate::scene::Precision::F64,
+        neighbour_list: crate::scene::ListChoice::Auto,
     };
     (phys, st, 1e-3, 0.5)
 }

@@ -163,6 +163,14 @@ impl Backend {
         let f32 = phys.precision == Precision::F32;
         Ok(match choice {
             DeviceChoice::Cuda => {
+                if phys.neighbour_list == crate::scene::ListChoice::On {
+                    return Err(StepError::Unsupported(
+                        "numerics.neighbour_list = \"on\": the GPU kernels are built without \
+                         neighbour lists (they would cost the forces kernel registers; \
+                         docs/performance.md); use \"auto\" or \"off\""
+                            .into(),
+                    ));
+                }
                 let dev = Cuda::new(0, gpu::PTX)?;
                 check_device_memory(&dev, state, f32)?;
                 if f32 {

@@ -54,6 +54,8 @@ pub struct Physics {
     pub integrator: Integrator,
     /// The float type of the step's kernels.
     pub precision: Precision,
+    /// Neighbour lists for the gas's passes (`numerics.neighbour_list`).
+    pub neighbour_list: crate::scene::ListChoice,
 }
 
 impl Physics {
@@ -111,6 +113,7 @@ impl Physics {
             gradient: scene.sph.gradient,
             integrator: scene.time.integrator,
             precision: scene.numerics.precision,
+            neighbour_list: scene.numerics.neighbour_list,
         }
     }
 

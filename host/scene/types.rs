@@ -434,6 +434,30 @@ pub struct NumericsCfg {
     /// `f64` (the reference) or `f32`; `--precision` on the command line sets it too.
     #[serde(default)]
     pub precision: Precision,
+    /// Per-particle neighbour lists, built once per layer and replayed by every neighbour
+    /// pass of the gas: `auto` (on with the CPU launcher; the GPU kernels are built without lists),
+    /// `on`, `off`. Results are bit-identical either way (docs/performance.md).
+    #[serde(default)]
+    pub neighbour_list: ListChoice,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ListChoice {
+    #[default]
+    Auto,
+    On,
+    Off,
+}
+
+impl ListChoice {
+    pub fn name(self) -> &'static str {
+        match self {
+            ListChoice::Auto => "auto",
+            ListChoice::On => "on",
+            ListChoice::Off => "off",
+        }
+    }
 }
 
 /// The float type the step's kernels run in, on the CPU and the GPU alike. The host's time,

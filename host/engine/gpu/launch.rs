@@ -50,6 +50,11 @@ pub trait Launcher {
         args: &A,
         f: unsafe fn(usize, &A),
     ) -> Result<(), GpuError>;
+    /// Whether `numerics.neighbour_list = "auto"` builds neighbour lists here: measured on
+    /// the CPU (docs/performance.md); the GPU kernels are built without them.
+    fn lists_by_default(&self) -> bool {
+        true
+    }
 }
 
 /// Host memory, 8-byte aligned.
@@ -304,6 +309,10 @@ impl Cuda {
 }
 
 impl Launcher for Cuda {
+    fn lists_by_default(&self) -> bool {
+        false
+    }
+
     type Mem = CudaSlice<u8>;
 
     fn describe(&self) -> String {

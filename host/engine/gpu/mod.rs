@@ -16,7 +16,7 @@ use super::{Forces, StepError};
 use super::{Physics, Pipeline};
 use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
 use crate::particles::{Phase, State};
-use crate::scene::PositionUpdate;
+use crate::scene::{ListChoice, PositionUpdate};
 use bytemuck::Pod;
 use dustsph_device::eos::Eos;
 use dustsph_device::kernel::{KernelAt, SUPPORT};
@@ -36,7 +36,8 @@ pub const PTX_NOTE: &str = env!("DUSTSPH_PTX_NOTE");
 /// launcher, which allocates the very buffers a GPU does (`tests/gpu_parity.rs`,
 /// `device_memory_estimate_bounds_what_the_engine_allocates`: at most 516 B (f64) and 326 B
 /// (f32) per particle over the 23 parity scenes after three steps, the leapfrog with the
-/// kernel coupling the largest), with a margin for the dense tables of sparser clouds.
+/// kernel coupling the largest), with a margin for the dense tables of sparser clouds. Without
+/// neighbour lists (the GPU kernels have none).
 pub const DEVICE_BYTES_PER_PARTICLE: [f64; 2] = [700.0, 420.0];
 
 /// Threads per chunk of the device scan (each thread scans one chunk serially).
@@ -259,7 +260,29 @@ struct DevPhase<L: Launcher, R: Float> {
     s_u8: Option<Buf<L, u8>>,
     /// Kinetic energy lost in the drag update (drag heating only).
     loss: Option<Buf<L, R>>,
+    /// The neighbour list of the current layer, when this phase keeps one.
+    nl: Option<NeighbourList<L>>,
 }
+
+/// A phase's neighbour list ([`dustsph_device::kernels::NeighbourList`]): built after each
+/// sort (and after the search radius widens), stale from the next drift on.
+struct NeighbourList<L: Launcher> {
+    index: Buf<L, u32>,
+    count: Buf<L, u32>,
+    /// The largest neighbour count recorded since the list was allocated.
+    max: Buf<L, u32>,
+    stride: usize,
+    valid: std::cell::Cell<bool>,
+}
+
+/// The first list's slots per particle (grown to 9/8 of the largest count, in steps of 8).
+const LIST_STRIDE0: usize = 64;
+/// Beyond this many neighbours per particle the phase drops its list: the pair work then
+/// dominates the cell scan, and the list would cost 4 B per slot per particle.
+const LIST_STRIDE_MAX: usize = 512;
+/// The most a gas particle's neighbour list takes (slots and count; CPU memory: the GPU
+/// kernels are built without lists).
+pub const LIST_BYTES_PER_GAS_PARTICLE: f64 = 4.0 * (LIST_STRIDE_MAX as f64 + 1.0);
 
 impl<L: Launcher, R: Float> DevPhase<L, R> {
     fn new(d: &Dev<L>, phases: &[&Phase], heating: bool) -> Result<DevPhase<L, R>, GpuError> {
@@ -315,11 +338,12 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
             s_u64: d.buf(n)?,
             s_u8: if any_fixed { Some(d.buf(n)?) } else { None },
             loss: if heating { Some(d.buf(n)?) } else { None },
+            nl: None,
         })
     }
 
     fn bufs(&self, d: &Dev<L>) -> PhaseBufs<R> {
-        PhaseBufs {
+        let b = PhaseBufs {
             x: d.ptr(&self.x),
             v: d.ptr(&self.v),
             m: d.ptr(&self.m),
@@ -333,6 +357,27 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
             n: self.n as u32,
             groups: self.groups as u32,
             off: self.off,
+            nl: std::ptr::null_mut(),
+            nl_count: std::ptr::null_mut(),
+            nl_max: std::ptr::null_mut(),
+            nl_stride: 0,
+        };
+        match &self.nl {
+            Some(l) if l.valid.get() => PhaseBufs {
+                nl: d.ptr(&l.index),
+                nl_count: d.ptr(&l.count),
+                nl_max: d.ptr(&l.max),
+                nl_stride: l.stride as u32,
+                ..b
+            },
+            _ => b,
+        }
+    }
+
+    /// The list no longer matches the positions or the grid.
+    fn stale_list(&self) {
+        if let Some(l) = &self.nl {
+            l.valid.set(false);
         }
     }
 
@@ -347,6 +392,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
         extra_v3: &mut [&mut Buf<L, [R; 3]>],
         sparse: bool,
     ) -> Result<(), GpuError> {
+        self.stale_list();
         if sparse {
             self.sort_on_host(d, p)?;
         } else {
@@ -530,6 +576,9 @@ struct DevCells<L: Launcher, R: Float> {
     /// Sparse mode: the union was built at the sort (its size); `None`: dense, built by the
     /// union kernels.
     sparse: Option<u32>,
+    /// The dense union matches the current sort (it depends on the positions only: built once
+    /// per layer, not once per kick).
+    union_fresh: bool,
 }
 
 impl<L: Launcher, R: Float> DevCells<L, R> {
@@ -578,6 +627,8 @@ pub struct GpuEngine<L: Launcher, R: Float> {
     t: f64,
     /// Always use the sparse cell tables (checks that both forms give the same step).
     pub force_sparse: bool,
+    /// The gas keeps a neighbour list per layer (`numerics.neighbour_list`).
+    lists: bool,
     /// Variable h and IAD (`sph.variable_h`, `sph.gradient = "iad"`).
     sm: DevSmoothing<L, R>,
     /// The leapfrog (`time.integrator = "kdk"`).
@@ -708,6 +759,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 u_new: d.buf(cap * nf.max(1))?,
                 heat: d.buf(cap)?,
                 sparse: None,
+                union_fresh: false,
             },
             coupling: if pipe.kernel_coupling {
                 Some(DevCoupling {
@@ -738,6 +790,11 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             step: state.step,
             t: state.t,
             force_sparse: false,
+            lists: match phys.neighbour_list {
+                ListChoice::On => true,
+                ListChoice::Off => false,
+                ListChoice::Auto => d.0.lists_by_default(),
+            },
             kdk: {
                 let k = pipe.kdk;
                 let save = k || phys.position_update == PositionUpdate::Old;
@@ -807,6 +864,16 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         };
         eng.regrid()?;
         eng.gas_density_eos(None)?;
+        // A resumed variable-h run keeps its dust densities too: the next solve starts from
+        // them (as the uninterrupted run's does), so the resume stays bit-identical.
+        let g = &state.gas;
+        eng.dust_density_fresh = eng.pipe.variable_h
+            && g.h.is_some()
+            && g.omega.is_some()
+            && state
+                .dust
+                .iter()
+                .all(|d| d.rho.len() == d.len() && d.rho.iter().all(|r| *r > 0.0 && r.is_finite()));
         eng.dust_density()?;
         eng.sync(state)?;
         eng.check(state)?;
@@ -850,8 +917,9 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     pub fn force_sparse_tables(&mut self) -> Result<(), StepError> {
         self.force_sparse = true;
         self.regrid()?;
+        // The densities of this layer are kept (variable h: the gas's h and the dust's
+        // densities seed the next solves; re-solving from them would not be the dense run).
         self.gas_density_eos(None)?;
-        self.dust_density_fresh = false;
         self.dust_density()
     }
 
@@ -973,6 +1041,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         self.dust
             .sort(&self.d, &p, &mut self.sums, &mut [], &mut [], sparse)?;
         self.cells.sparse = None;
+        self.cells.union_fresh = false;
         if sparse {
             // The IDIC union: every occupied cell of any phase, sorted.
             let ks = self.grid.total_cells() + 1;
@@ -983,6 +1052,51 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             self.d.put(&mut self.cells.ukey, &u)?;
             self.cells.sparse = Some(u.len() as u32);
         }
+        Ok(self.reset_list()?)
+    }
+
+    /// A fresh neighbour list for the gas's current layer (when lists are on): emptied, to be
+    /// recorded by the layer's first neighbour pass and replayed by the others (h solve or
+    /// density, IAD matrices, forces). The stride grows to 9/8 of the largest count seen.
+    fn reset_list(&mut self) -> Result<(), GpuError> {
+        if !self.lists || self.gas.n == 0 {
+            return Ok(());
+        }
+        let n = self.gas.n;
+        let d = &self.d;
+        let mut stride = LIST_STRIDE0;
+        if let Some(l) = &self.gas.nl {
+            stride = l.stride;
+            let most = d.get(&l.max, 1)?[0] as usize;
+            if most > stride {
+                stride = (most + most / 8).next_multiple_of(8);
+                self.gas.nl = None;
+                if stride > LIST_STRIDE_MAX {
+                    // Too many neighbours for a list to pay (or to fit): the cell walk stays.
+                    self.lists = false;
+                    return Ok(());
+                }
+            }
+        }
+        if self.gas.nl.is_none() {
+            // A list is a speed-up, never a reason to run out of memory: only while it fits
+            // in a quarter of what the machine has free (host memory: the CPU launcher).
+            let bytes = (n * (stride + 1) * 4) as f64;
+            if crate::setup::available_memory().is_some_and(|free| bytes > 0.25 * free) {
+                self.lists = false;
+                return Ok(());
+            }
+            self.gas.nl = Some(NeighbourList {
+                index: d.buf(n * stride)?,
+                count: d.buf(n)?,
+                max: d.buf(1)?,
+                stride,
+                valid: std::cell::Cell::new(false),
+            });
+        }
+        let l = self.gas.nl.as_mut().expect("allocated above");
+        d.zeroed(&mut l.count, n)?;
+        l.valid.set(true);
         Ok(())
     }
 
@@ -1017,7 +1131,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     }
 
     /// Variable h of the gas (`gas = true`, from its current h, or the reference h at the
-    /// start) or of every dust fraction (from the reference h): h, ρ (and Ω) by Newton–Raphson.
+    /// start) or of every dust fraction (from the h of its last density): h, ρ (and Ω) by Newton–Raphson.
     /// A particle whose h runs into the search radius widens the grid's reach (same cells and
     /// order) and the solve is repeated, as on the CPU.
     fn solve_h(&mut self, gas: bool, step: u64) -> Result<(), StepError> {
@@ -1032,6 +1146,9 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                     (Some(h), true) => d.ptr(h),
                     _ => std::ptr::null(),
                 },
+                // The dust starts from its last density's h: one Newton pass a step instead of
+                // two from the reference h (docs/performance.md).
+                warm: (!gas) as u32,
                 h: d.ptr(&self.sm.h_new),
                 omega: if gas {
                     d.ptr(&self.sm.omega_new)
@@ -1069,6 +1186,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             let iters = d.get(&self.sm.iters, i + 1)?[i];
             if iters < 30 && self.grid.geom.support < 1e300 {
                 self.grid = self.grid.with_support(1.02 * self.grid.geom.support);
+                self.reset_list()?;
                 continue;
             }
             let ids = d.get(&ph.id, i + 1)?;
@@ -1312,7 +1430,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         let d = &self.d;
         let p = self.params(tau)?;
         let nb = p.stride();
-        if self.cells.sparse.is_some() {
+        if self.cells.sparse.is_some() || self.cells.union_fresh {
             return self.cell_step_on_union(tau, acc_zero);
         }
         d.zeroed(&mut self.cells.uidx, nb)?;
@@ -1327,6 +1445,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         d.scan(&self.cells.uidx, nb, &mut self.sums)?;
         ua.ukey = d.ptr(&self.cells.ukey);
         d.run("dustsph_union_keys", nb - 1, &ua, th::union_keys)?;
+        self.cells.union_fresh = true;
         self.cell_step_on_union(tau, acc_zero)
     }
 
@@ -1456,6 +1575,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     }
 
     fn drift(&self, ph: &DevPhase<L, R>, tau: f64) -> Result<(), GpuError> {
+        ph.stale_list();
         let a = th::DriftArgs {
             ph: ph.bufs(&self.d),
             p: self.params(tau)?.dev,
