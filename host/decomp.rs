@@ -57,11 +57,22 @@ impl CellBox {
         b
     }
 
-    fn index(&self, c: [u32; 3]) -> usize {
+    /// Number of cells.
+    pub fn len(&self) -> usize {
+        self.n.iter().map(|&n| n as usize).product()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Row-major index of a cell.
+    pub fn index(&self, c: [u32; 3]) -> usize {
         (c[2] as usize * self.n[1] as usize + c[1] as usize) * self.n[0] as usize + c[0] as usize
     }
 
-    fn cell_of(&self, p: [f64; 3]) -> [u32; 3] {
+    /// The cell holding position p (clamped to the box).
+    pub fn cell_of(&self, p: [f64; 3]) -> [u32; 3] {
         [0, 1, 2].map(|k| {
             let i = ((p[k] - self.lo[k]) / self.size[k]).floor();
             (i.max(0.0) as u32).min(self.n[k] - 1)
@@ -81,13 +92,17 @@ pub struct Cells {
 
 impl Cells {
     pub fn bin(points: impl Iterator<Item = [f64; 3]>, cbox: CellBox) -> Cells {
-        let cells = cbox.n.iter().map(|&n| n as usize).product();
-        let mut count = vec![0u32; cells];
-        let mut total = 0u64;
+        let mut count = vec![0u32; cbox.len()];
         for p in points {
             count[cbox.index(cbox.cell_of(p))] += 1;
-            total += 1;
         }
+        Cells::from_counts(count, cbox)
+    }
+
+    /// From per-cell counts (row-major), e.g. summed over ranks.
+    pub fn from_counts(count: Vec<u32>, cbox: CellBox) -> Cells {
+        assert_eq!(count.len(), cbox.len(), "one count per cell");
+        let total = count.iter().map(|&c| c as u64).sum();
         let mut order = Vec::new();
         for z in 0..cbox.n[2] {
             for y in 0..cbox.n[1] {
@@ -111,6 +126,11 @@ impl Cells {
 /// A partition of the cells into contiguous Morton ranges, and its halo.
 #[derive(Debug, Clone)]
 pub struct Partition {
+    pub cbox: CellBox,
+    /// The rank owning each cell (row-major; `u32::MAX` for empty cells).
+    pub owner: Vec<u32>,
+    /// The occupied cells' Morton keys and owners, in key order.
+    pub keys: Vec<(u64, u32)>,
     /// Particles each rank owns.
     pub owned: Vec<u64>,
     /// Particles each rank receives as halo (owned elsewhere, in a cell touching its cells).
@@ -142,43 +162,78 @@ impl Partition {
         let mut halo = vec![0u64; r as usize];
         let mut peer_sets: Vec<std::collections::BTreeSet<u32>> =
             vec![Default::default(); r as usize];
+        let keys = cells
+            .order
+            .iter()
+            .map(|&(k, c)| (k, owner[b.index(c)]))
+            .collect();
+        let mut p = Partition {
+            cbox: *b,
+            owner,
+            keys,
+            owned,
+            halo: Vec::new(),
+            peers: Vec::new(),
+        };
         let mut to: Vec<u32> = Vec::with_capacity(27);
         for &(_, c) in &cells.order {
             let i = b.index(c);
-            to.clear();
-            for d in 0..27i64 {
-                let off = [d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1];
-                let mut q = [0u32; 3];
-                let mut inside = true;
-                for k in 0..3 {
-                    let v = c[k] as i64 + off[k];
-                    let n = b.n[k] as i64;
-                    q[k] = if (0..n).contains(&v) {
-                        v as u32
-                    } else if b.periodic[k] {
-                        v.rem_euclid(n) as u32
-                    } else {
-                        inside = false;
-                        0
-                    };
-                }
-                if !inside {
-                    continue;
-                }
-                let o = owner[b.index(q)];
-                if o != NOBODY && o != owner[i] && !to.contains(&o) {
-                    to.push(o);
-                }
-            }
+            p.halo_ranks(c, &mut to);
             for &o in &to {
                 halo[o as usize] += cells.count[i] as u64;
-                peer_sets[o as usize].insert(owner[i]);
+                peer_sets[o as usize].insert(p.owner[i]);
             }
         }
-        Partition {
-            owned,
-            halo,
-            peers: peer_sets.iter().map(|s| s.len() as u32).collect(),
+        p.halo = halo;
+        p.peers = peer_sets.iter().map(|s| s.len() as u32).collect();
+        p
+    }
+
+    /// The rank owning the cell of position x: the cell's owner, or for a cell no particle
+    /// occupied when the cut was made (one has moved there since) the owner of the occupied
+    /// cell before it along the curve (ranks hold contiguous key ranges; rank 0 before all).
+    pub fn owner_at(&self, x: [f64; 3]) -> u32 {
+        let c = self.cbox.cell_of(x);
+        let o = self.owner[self.cbox.index(c)];
+        if o != NOBODY {
+            return o;
+        }
+        let key = morton(c);
+        match self.keys.partition_point(|&(k, _)| k <= key) {
+            0 => 0,
+            i => self.keys[i - 1].1,
+        }
+    }
+
+    /// The ranks other than the cell's owner that own one of the 26 cells around cell c (across
+    /// the period on periodic axes): the ranks a particle in c is halo of, written to `to`.
+    pub fn halo_ranks(&self, c: [u32; 3], to: &mut Vec<u32>) {
+        let b = &self.cbox;
+        to.clear();
+        let own = self.owner[b.index(c)];
+        for d in 0..27i64 {
+            let off = [d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1];
+            let mut q = [0u32; 3];
+            let mut inside = true;
+            for k in 0..3 {
+                let v = c[k] as i64 + off[k];
+                let n = b.n[k] as i64;
+                q[k] = if (0..n).contains(&v) {
+                    v as u32
+                } else if b.periodic[k] {
+                    v.rem_euclid(n) as u32
+                } else {
+                    inside = false;
+                    0
+                };
+            }
+            if !inside {
+                continue;
+            }
+            let o = self.owner[b.index(q)];
+            if o != NOBODY && o != own && !to.contains(&o) {
+                to.push(o);
+            }
         }
     }
 

@@ -7,6 +7,7 @@
 pub mod analysis;
 pub mod commands;
 pub mod decomp;
+pub mod dist;
 pub mod engine;
 pub mod exact;
 pub mod grid;

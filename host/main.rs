@@ -46,6 +46,25 @@ enum Cmd {
     /// The multi-rank model (docs/scaling.md): the Morton decomposition of a ball and a slab of
     /// N particles over R ranks, its halo and what exchanging it costs; no physics, no MPI.
     Scaling(ScalingArgs),
+    /// Under `mpirun -n R` (a build with the mpi feature): the decomposition, migration and
+    /// halo exchange of a scene's particles over the ranks, checked on every rank (no physics;
+    /// exit 1 on every rank if any rank's check fails).
+    MpiCheck(MpiCheckArgs),
+}
+
+#[derive(clap::Args)]
+struct MpiCheckArgs {
+    /// Scene file (TOML)
+    scene: PathBuf,
+    /// Override a scene key (repeatable)
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Halo depth in kernel supports (2h): the cells of the cut are this wide
+    #[arg(long, default_value_t = 1.0)]
+    depth: f64,
+    /// Make this rank report a failure (checks that every rank then stops)
+    #[arg(long, hide = true)]
+    fail_rank: Option<u32>,
 }
 
 #[derive(clap::Args)]
@@ -263,7 +282,17 @@ fn drive(r: Result<Runner, RunError>, checkpoint_every: Option<u64>) -> ExitCode
 }
 
 fn main() -> ExitCode {
-    match Cli::parse().cmd {
+    let cmd = Cli::parse().cmd;
+    // One process per job, except for the MPI check: several ranks would each run the whole
+    // command into the same output.
+    if !matches!(cmd, Cmd::MpiCheck(_)) {
+        if let Err(e) = dustsph::dist::refuse_many_ranks("this dustsph command") {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    }
+    match cmd {
+        Cmd::MpiCheck(a) => mpi_check(a),
         Cmd::Run(a) => run(a),
         Cmd::Bench(a) => bench(a),
         Cmd::Profile(a) => profile(a),
@@ -678,4 +707,76 @@ fn scaling(a: ScalingArgs) -> ExitCode {
         }
     }
     ExitCode::SUCCESS
+}
+
+#[cfg(not(feature = "mpi"))]
+fn mpi_check(_: MpiCheckArgs) -> ExitCode {
+    eprintln!(
+        "error: this dustsph was built without MPI (cargo feature `mpi`; scripts/features turns \
+         it on where OpenMPI is installed)"
+    );
+    ExitCode::from(2)
+}
+
+#[cfg(feature = "mpi")]
+fn mpi_check(a: MpiCheckArgs) -> ExitCode {
+    use dustsph::commands::mpi_check;
+    if !(a.depth.is_finite() && a.depth >= 1.0) {
+        eprintln!("error: --depth must be a number ≥ 1 (kernel supports)");
+        return ExitCode::from(2);
+    }
+    let loaded = match dustsph::scene::load(&a.scene, &a.set) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let world = match dustsph::dist::comm::World::init() {
+        Ok(w) => w,
+        Err(e) => {
+            eprintln!("error: MPI: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    match mpi_check::run(&world, &loaded.scene, a.depth, a.fail_rank) {
+        Err(e) => {
+            eprintln!("error: rank {}: {e}", world.rank());
+            ExitCode::from(1)
+        }
+        Ok((reports, ok)) => {
+            if world.rank() == 0 {
+                println!(
+                    "{}: {} ranks, halo depth {} kernel support(s)",
+                    loaded.scene.scene.name,
+                    reports.len(),
+                    a.depth
+                );
+                println!("| rank | owned | halo | halo/owned | peers | MB sent | migrate ms | halo ms | check |");
+                println!("|---|---|---|---|---|---|---|---|---|");
+                for r in &reports {
+                    println!(
+                        "| {} | {} | {} | {:.3} | {} | {:.3} | {:.2} | {:.2} | {} |",
+                        r.rank,
+                        r.owned,
+                        r.halo,
+                        r.halo as f64 / r.owned.max(1) as f64,
+                        r.peers,
+                        r.bytes_sent as f64 / 1e6,
+                        r.migrate_s * 1e3,
+                        r.halo_s * 1e3,
+                        if r.failure.is_empty() { "ok" } else { "FAILED" }
+                    );
+                }
+                for r in reports.iter().filter(|r| !r.failure.is_empty()) {
+                    eprintln!("error: rank {}: {}", r.rank, r.failure);
+                }
+            }
+            if ok {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(1)
+            }
+        }
+    }
 }

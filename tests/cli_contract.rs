@@ -438,3 +438,36 @@ fn scaling_model_prints_its_table_and_refuses_bad_arguments() {
         assert!(String::from_utf8_lossy(&out.stderr).contains("--"));
     }
 }
+
+/// A single-process command started as one of several MPI ranks (the launcher's environment
+/// says so) refuses with exit 2 and writes nothing: every rank would otherwise run the whole
+/// scene into the same output directory.
+#[test]
+fn a_run_launched_as_one_of_several_mpi_ranks_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = out_dir(tmp.path());
+    for (size_var, rank_var) in [
+        ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"),
+        ("PMI_SIZE", "PMI_RANK"),
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_dustsph"))
+            .args(["run", "configs/dustybox.toml", "--out", &dir, "-q"])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .env(size_var, "3")
+            .env(rank_var, "1")
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "{size_var}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("rank 1 of 3"), "{err}");
+        assert!(!Path::new(&dir).exists(), "output written");
+    }
+    // One rank is an ordinary run.
+    let o = Command::new(env!("CARGO_BIN_EXE_dustsph"))
+        .args(["run", "configs/dustybox.toml", "--out", &dir, "-q"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("OMPI_COMM_WORLD_SIZE", "1")
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0));
+}

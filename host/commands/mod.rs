@@ -3,6 +3,8 @@
 //! `parity` ([`parity`]), `profile` ([`profile`]), `scaling` ([`scaling`]). `host/main.rs` only parses arguments and
 //! calls these.
 pub mod bench;
+#[cfg(feature = "mpi")]
+pub mod mpi_check;
 pub mod parity;
 pub mod profile;
 pub mod run;

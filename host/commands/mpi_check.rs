@@ -1,0 +1,262 @@
+//! `dustsph mpi-check SCENE`, under `mpirun -n R`: the decomposition and the particle exchange
+//! of issue 14 on a scene's real particles, checked on every rank (docs/scaling.md).
+//!
+//! Every rank builds the scene's particles (the set-up is deterministic) and starts from a
+//! scrambled share (particle k on rank k mod R). Then, as a run over ranks would each step:
+//! global bounds and per-cell counts by all-reduce, the same Morton cut on every rank
+//! ([`Partition`], cells at least `depth` kernel supports wide), migration of each particle to
+//! the rank owning its cell, and the halo exchange (copies of the particles in cells that touch
+//! another rank's cells). Checks: every particle is owned by exactly one rank, the one owning
+//! its cell; owned and halo counts equal the partition's; and no particle within `depth`
+//! supports of an owned particle (minimum image on periodic axes) is missing from owned ∪ halo.
+//! A rank that fails reports why and every rank exits 1 (an all-reduce of the failure flag:
+//! no rank waits forever on another).
+use crate::decomp::{CellBox, Cells, Partition};
+use crate::dist::comm::World;
+use std::time::Instant;
+
+/// One particle on the wire: id, phase (0 gas, 1 + k dust fraction k), position bits.
+type Rec = [u64; 5];
+
+fn rec(id: u64, phase: u64, x: [f64; 3]) -> Rec {
+    [id, phase, x[0].to_bits(), x[1].to_bits(), x[2].to_bits()]
+}
+
+fn pos(r: &Rec) -> [f64; 3] {
+    [
+        f64::from_bits(r[2]),
+        f64::from_bits(r[3]),
+        f64::from_bits(r[4]),
+    ]
+}
+
+/// What one rank measured.
+#[derive(Debug, Clone, Default)]
+pub struct RankReport {
+    pub rank: u32,
+    pub owned: usize,
+    pub halo: usize,
+    pub peers: usize,
+    pub bytes_sent: usize,
+    pub migrate_s: f64,
+    pub halo_s: f64,
+    /// Why this rank's checks failed (empty: passed).
+    pub failure: String,
+}
+
+/// Run the check on this rank; `fail_rank` makes that rank report a failure (to test the
+/// clean stop). Returns every rank's report (on every rank) and whether all passed.
+pub fn run(
+    world: &World,
+    scene: &crate::scene::Scene,
+    depth: f64,
+    fail_rank: Option<u32>,
+) -> Result<(Vec<RankReport>, bool), String> {
+    let (me, ranks) = (world.rank(), world.size());
+    let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
+    let phys = crate::engine::Physics::from_scene(scene, su.h, su.domain);
+    let reach = depth * phys.support();
+    let st = &su.state;
+    let all: Vec<Rec> = std::iter::once(&st.gas.ph)
+        .chain(st.dust.iter())
+        .enumerate()
+        .flat_map(|(k, ph)| {
+            ph.id
+                .iter()
+                .zip(&ph.x)
+                .map(move |(&id, &x)| rec(id, k as u64, x))
+        })
+        .collect();
+    let mine: Vec<Rec> = all
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| *k as u32 % ranks == me)
+        .map(|(_, r)| *r)
+        .collect();
+
+    // Global bounds (periodic axes: the period), then the same cells and cut everywhere.
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for r in &mine {
+        let x = pos(r);
+        for k in 0..3 {
+            lo[k] = lo[k].min(x[k]);
+            hi[k] = hi[k].max(x[k]);
+        }
+    }
+    world.min_f64(&mut lo);
+    world.max_f64(&mut hi);
+    let mut periodic = [false; 3];
+    for k in 0..3 {
+        if let Some((p0, len)) = su.domain.periodic[k] {
+            (lo[k], hi[k], periodic[k]) = (p0, p0 + len, true);
+        }
+    }
+    let cbox = CellBox::new(lo, hi, reach, periodic);
+    let mut counts = vec![0u64; cbox.len()];
+    for r in &mine {
+        counts[cbox.index(cbox.cell_of(pos(r)))] += 1;
+    }
+    world.sum_u64(&mut counts);
+    let cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
+    let part = Partition::of(&cells, ranks);
+
+    // Migration to the owners.
+    let t0 = Instant::now();
+    let mut sends: Vec<Vec<Rec>> = vec![Vec::new(); ranks as usize];
+    for r in &mine {
+        sends[part.owner_at(pos(r)) as usize].push(*r);
+    }
+    let mut bytes_sent: usize = sends
+        .iter()
+        .enumerate()
+        .filter(|(q, _)| *q as u32 != me)
+        .map(|(_, s)| s.len() * std::mem::size_of::<Rec>())
+        .sum();
+    let owned = world.exchange(&sends)?;
+    let migrate_s = t0.elapsed().as_secs_f64();
+
+    // Halo: each owned particle to the ranks owning a cell next to its own.
+    let t1 = Instant::now();
+    let mut sends: Vec<Vec<Rec>> = vec![Vec::new(); ranks as usize];
+    let mut to = Vec::new();
+    for r in &owned {
+        part.halo_ranks(cbox.cell_of(pos(r)), &mut to);
+        for &q in &to {
+            sends[q as usize].push(*r);
+        }
+    }
+    bytes_sent += sends
+        .iter()
+        .map(|s| s.len() * std::mem::size_of::<Rec>())
+        .sum::<usize>();
+    let halo = world.exchange(&sends)?;
+    let halo_s = t1.elapsed().as_secs_f64();
+    let peers = {
+        let mut p: Vec<u64> = halo.iter().map(|r| part.owner_at(pos(r)) as u64).collect();
+        p.sort_unstable();
+        p.dedup();
+        p.len()
+    };
+
+    let mut failure = check(me, &all, &owned, &halo, &part, reach, &su.domain);
+    let mut total = [owned.len() as u64];
+    world.sum_u64(&mut total);
+    if total[0] != all.len() as u64 && failure.is_empty() {
+        failure = format!(
+            "{} particles owned over all ranks, of {}",
+            total[0],
+            all.len()
+        );
+    }
+    if fail_rank == Some(me) {
+        failure = "failure requested by --fail-rank".into();
+    }
+    let report = RankReport {
+        rank: me,
+        owned: owned.len(),
+        halo: halo.len(),
+        peers,
+        bytes_sent,
+        migrate_s,
+        halo_s,
+        failure,
+    };
+    let failed = world.any(!report.failure.is_empty());
+    let reports = world
+        .all_gather_bytes(encode(&report).as_bytes())
+        .iter()
+        .map(|b| decode(&String::from_utf8_lossy(b)))
+        .collect();
+    Ok((reports, !failed))
+}
+
+/// This rank's checks (empty string: passed).
+fn check(
+    me: u32,
+    all: &[Rec],
+    owned: &[Rec],
+    halo: &[Rec],
+    part: &Partition,
+    reach: f64,
+    domain: &crate::grid::Domain,
+) -> String {
+    for r in owned {
+        let o = part.owner_at(pos(r));
+        if o != me {
+            return format!(
+                "particle id {} (phase {}) is owned here, its cell by rank {o}",
+                r[0], r[1]
+            );
+        }
+    }
+    if owned.len() as u64 != part.owned[me as usize] || halo.len() as u64 != part.halo[me as usize]
+    {
+        return format!(
+            "owned {} / halo {}, the partition says {} / {}",
+            owned.len(),
+            halo.len(),
+            part.owned[me as usize],
+            part.halo[me as usize]
+        );
+    }
+    let key = |r: &Rec| (r[0], r[1]);
+    let mut have: Vec<(u64, u64)> = owned.iter().chain(halo).map(key).collect();
+    have.sort_unstable();
+    if have.windows(2).any(|w| w[0] == w[1]) {
+        return "a particle arrived twice (owned and halo, or two copies)".into();
+    }
+    // Completeness by brute force: every particle within reach of an owned one is here.
+    let sep = |a: [f64; 3], b: [f64; 3]| -> f64 {
+        let mut s = 0.0;
+        for k in 0..3 {
+            let mut d = a[k] - b[k];
+            if let Some((_, len)) = domain.periodic[k] {
+                d -= len * (d / len).round();
+            }
+            s += d * d;
+        }
+        s
+    };
+    let r2 = reach * reach;
+    for p in all {
+        if have.binary_search(&key(p)).is_ok() {
+            continue;
+        }
+        let x = pos(p);
+        if let Some(o) = owned.iter().find(|o| sep(pos(o), x) < r2) {
+            return format!(
+                "particle id {} (phase {}) lies within {reach:e} of owned particle id {} but is \
+                 neither owned nor halo here",
+                p[0], p[1], o[0]
+            );
+        }
+    }
+    String::new()
+}
+
+fn encode(r: &RankReport) -> String {
+    format!(
+        "{}\t{}\t{}\t{}\t{}\t{:e}\t{:e}\t{}",
+        r.rank, r.owned, r.halo, r.peers, r.bytes_sent, r.migrate_s, r.halo_s, r.failure
+    )
+}
+
+fn decode(s: &str) -> RankReport {
+    let f: Vec<&str> = s.splitn(8, '\t').collect();
+    let num = |i: usize| {
+        f.get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(f64::NAN)
+    };
+    RankReport {
+        rank: num(0) as u32,
+        owned: num(1) as usize,
+        halo: num(2) as usize,
+        peers: num(3) as usize,
+        bytes_sent: num(4) as usize,
+        migrate_s: num(5),
+        halo_s: num(6),
+        failure: f.get(7).unwrap_or(&"").to_string(),
+    }
+}

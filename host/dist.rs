@@ -1,0 +1,169 @@
+//! Runs over several processes (issue 14, docs/scaling.md): how this process was launched, and
+//! with the `mpi` feature the communicator and the particle exchange over it (rsmpi over the
+//! system's OpenMPI).
+//!
+//! Built so far: the decomposition of a cloud into Morton key ranges agreed by every rank
+//! (global bounds and cell counts by all-reduce, [`crate::decomp::Partition`]), the migration
+//! of particles to the rank owning their cell, and the halo exchange (copies of the particles
+//! in cells touching another rank's cells), checked by `dustsph mpi-check`. Not built: the step
+//! over ranks (`dustsph run` under more than one rank is refused, naming this).
+
+/// The rank and the rank count this process was started as by an MPI launcher (`mpirun`,
+/// `mpiexec`), read from the launcher's environment without any MPI call; `None` outside one.
+pub fn launched() -> Option<(u32, u32)> {
+    let get = |k: &str| std::env::var(k).ok()?.trim().parse::<u32>().ok();
+    let size = get("OMPI_COMM_WORLD_SIZE").or_else(|| get("PMI_SIZE"))?;
+    let rank = get("OMPI_COMM_WORLD_RANK")
+        .or_else(|| get("PMI_RANK"))
+        .unwrap_or(0);
+    Some((rank, size))
+}
+
+/// Refuse to run a single-process command as one of several MPI ranks: every rank would run
+/// the whole scene and write the same output directory. The message names the rank count.
+pub fn refuse_many_ranks(what: &str) -> Result<(), String> {
+    match launched() {
+        Some((rank, size)) if size > 1 => Err(format!(
+            "{what} runs on one process: launched as rank {rank} of {size} MPI ranks, every rank \
+             would run the whole scene into the same output; run it without mpirun (or with \
+             -n 1). Splitting a run over ranks is not built yet (issue 14; `dustsph mpi-check` \
+             exercises the decomposition and the exchange)"
+        )),
+        _ => Ok(()),
+    }
+}
+
+#[cfg(feature = "mpi")]
+pub mod comm {
+    //! The communicator and the collective operations the decomposition needs.
+    use mpi::collective::SystemOperation;
+    use mpi::datatype::{Partition, PartitionMut};
+    use mpi::traits::*;
+    use mpi::Count;
+
+    pub struct World {
+        world: mpi::topology::SimpleCommunicator,
+        // Finalises MPI when dropped: declared last, dropped last.
+        _universe: mpi::environment::Universe,
+    }
+
+    impl World {
+        /// Initialise MPI (once per process).
+        pub fn init() -> Result<World, String> {
+            let universe = mpi::initialize().ok_or("MPI was already initialised")?;
+            Ok(World {
+                world: universe.world(),
+                _universe: universe,
+            })
+        }
+
+        pub fn rank(&self) -> u32 {
+            self.world.rank() as u32
+        }
+
+        pub fn size(&self) -> u32 {
+            self.world.size() as u32
+        }
+
+        /// Element-wise minimum over ranks.
+        pub fn min_f64(&self, v: &mut [f64]) {
+            let send = v.to_vec();
+            self.world
+                .all_reduce_into(&send[..], v, SystemOperation::min());
+        }
+
+        /// Element-wise maximum over ranks.
+        pub fn max_f64(&self, v: &mut [f64]) {
+            let send = v.to_vec();
+            self.world
+                .all_reduce_into(&send[..], v, SystemOperation::max());
+        }
+
+        /// Element-wise sum over ranks.
+        pub fn sum_u64(&self, v: &mut [u64]) {
+            let send = v.to_vec();
+            self.world
+                .all_reduce_into(&send[..], v, SystemOperation::sum());
+        }
+
+        /// Whether any rank says so (every rank must call it: the clean stop of all ranks).
+        pub fn any(&self, flag: bool) -> bool {
+            let mut n = [flag as u64];
+            self.sum_u64(&mut n);
+            n[0] > 0
+        }
+
+        /// Every rank's bytes, in rank order, on every rank.
+        pub fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
+            let mut counts = vec![0 as Count; self.size() as usize];
+            self.world
+                .all_gather_into(&(mine.len() as Count), &mut counts[..]);
+            let displs = displacements(&counts);
+            let total: usize = counts.iter().map(|&c| c as usize).sum();
+            let mut buf = vec![0u8; total.max(1)];
+            {
+                let mut part = PartitionMut::new(&mut buf[..total], &counts[..], &displs[..]);
+                self.world.all_gather_varcount_into(mine, &mut part);
+            }
+            split(&buf[..total], &counts, &displs)
+        }
+
+        /// All-to-all of plain records: `sends[q]` goes to rank q; returns what every rank sent
+        /// here, in rank order. Per rank pair at most 2 GiB (MPI's int counts).
+        pub fn exchange<T: bytemuck::Pod>(&self, sends: &[Vec<T>]) -> Result<Vec<T>, String> {
+            let size = self.size() as usize;
+            assert_eq!(sends.len(), size, "one send list per rank");
+            let item = std::mem::size_of::<T>();
+            let mut send_counts = Vec::with_capacity(size);
+            for s in sends {
+                let bytes = s.len() * item;
+                send_counts.push(
+                    Count::try_from(bytes)
+                        .map_err(|_| format!("{bytes} B to one rank: above MPI's 2 GiB"))?,
+                );
+            }
+            let mut recv_counts = vec![0 as Count; size];
+            self.world
+                .all_to_all_into(&send_counts[..], &mut recv_counts[..]);
+            // Never an empty allocation: two empty Vecs share one dangling address, and MPI
+            // refuses a send buffer equal to the receive buffer (MPI_ERR_ARG) even with no data.
+            let mut send: Vec<u8> = Vec::with_capacity(1);
+            for s in sends {
+                send.extend_from_slice(bytemuck::cast_slice::<T, u8>(s));
+            }
+            let sd = displacements(&send_counts);
+            let rd = displacements(&recv_counts);
+            let total: usize = recv_counts.iter().map(|&c| c as usize).sum();
+            let mut recv = vec![0u8; total.max(1)];
+            {
+                let sp = Partition::new(&send[..], &send_counts[..], &sd[..]);
+                let mut rp = PartitionMut::new(&mut recv[..total], &recv_counts[..], &rd[..]);
+                self.world.all_to_all_varcount_into(&sp, &mut rp);
+            }
+            // Records are read back by value (the byte buffer has no alignment for T).
+            Ok(recv[..total]
+                .chunks_exact(item)
+                .map(bytemuck::pod_read_unaligned::<T>)
+                .collect())
+        }
+    }
+
+    fn displacements(counts: &[Count]) -> Vec<Count> {
+        counts
+            .iter()
+            .scan(0, |acc, &c| {
+                let d = *acc;
+                *acc += c;
+                Some(d)
+            })
+            .collect()
+    }
+
+    fn split(buf: &[u8], counts: &[Count], displs: &[Count]) -> Vec<Vec<u8>> {
+        counts
+            .iter()
+            .zip(displs)
+            .map(|(&c, &d)| buf[d as usize..(d + c) as usize].to_vec())
+            .collect()
+    }
+}
