@@ -193,6 +193,11 @@ struct ScalingArgs {
     /// 3D box at 56 neighbours on 2 cores)
     #[arg(long, default_value_t = 1.95e6)]
     rate: f64,
+    /// Halo depth in kernel supports: 1 for an exchange before each neighbour pass; the length
+    /// of the step's chain of neighbour passes for one exchange per step (then halo/owned is
+    /// also the redundant compute)
+    #[arg(long, default_value_t = 1.0)]
+    depth: f64,
 }
 
 #[derive(clap::Args)]
@@ -663,17 +668,21 @@ fn scaling(a: ScalingArgs) -> ExitCode {
         eprintln!("error: --particles must be in [1, 2e9]");
         return ExitCode::from(2);
     }
-    if a.ranks.is_empty() || a.ranks.contains(&0) || !(a.gbps > 0.0 && a.rate > 0.0) {
-        eprintln!("error: --ranks must be ≥ 1, --gbps and --rate > 0");
+    if a.ranks.is_empty()
+        || a.ranks.contains(&0)
+        || !(a.gbps > 0.0 && a.rate > 0.0 && a.depth >= 1.0 && a.depth <= 64.0)
+    {
+        eprintln!("error: --ranks must be ≥ 1, --gbps and --rate > 0, --depth in [1, 64]");
         return ExitCode::from(2);
     }
     let bw = a.gbps * 1e9 / 8.0;
     for kind in ["ball", "slab"] {
         let t0 = std::time::Instant::now();
-        let (n, rows) = scaling::model(kind, a.particles, &a.ranks, bw);
+        let (n, rows) = scaling::model(kind, a.particles, &a.ranks, bw, a.depth);
         println!(
-            "\n{kind}: {n} particles, h = 1.2 Δ, reach 2h ({:.1} s); {} B per halo particle, \
+            "\n{kind}: {n} particles, h = 1.2 Δ, halo {} × 2h deep ({:.1} s); {} B per halo particle, \
              {} exchanges per step, {} µs per message; compute at {:.3e} particle-steps/s per rank",
+            a.depth,
             t0.elapsed().as_secs_f64(),
             scaling::HALO_BYTES_F64,
             scaling::EXCHANGES,

@@ -429,9 +429,39 @@ fn scaling_model_prints_its_table_and_refuses_bad_arguments() {
             _ => assert!(halo > 0.0, "{r:?}"),
         }
     }
+    // A halo three supports deep (one exchange per step for a chain of three passes) is
+    // larger than the one-support halo of an exchange before each pass.
+    let deep = dustsph(&[
+        "scaling",
+        "--particles",
+        "2e4",
+        "--ranks",
+        "8",
+        "--depth",
+        "3",
+    ]);
+    let halo_of = |o: &std::process::Output| -> Vec<f64> {
+        String::from_utf8_lossy(&o.stdout)
+            .lines()
+            .filter(|l| l.starts_with("| 8 |"))
+            .map(|l| l.split('|').map(str::trim).nth(4).unwrap().parse().unwrap())
+            .collect()
+    };
+    let thin: Vec<f64> = rows
+        .iter()
+        .filter(|r| r[1] == "8")
+        .map(|r| r[4].parse().unwrap())
+        .collect();
+    let thick = halo_of(&deep);
+    assert_eq!(thick.len(), 2);
+    assert!(
+        thick[0] > thin[0] && thick[1] > thin[1],
+        "{thin:?} {thick:?}"
+    );
     for bad in [
         &["scaling", "--ranks", "0"][..],
         &["scaling", "--particles", "1e20"],
+        &["scaling", "--depth", "0.5"],
     ] {
         let out = dustsph(bad);
         assert_eq!(out.status.code(), Some(2), "{bad:?}");

@@ -27,7 +27,8 @@ pub struct Row {
 
 /// The geometries: a ball of radius 1 (open) and Phantom's slab 1 × 0.32 × 0.27 (periodic),
 /// simple cubic lattices of spacing Δ with N points, h = 1.2 Δ, reach 2h.
-pub fn cloud(kind: &str, n: f64) -> (CellBox, Box<dyn Iterator<Item = [f64; 3]>>) {
+/// `depth`: the halo's depth in kernel supports (the cells of the cut are this wide).
+pub fn cloud(kind: &str, n: f64, depth: f64) -> (CellBox, Box<dyn Iterator<Item = [f64; 3]>>) {
     match kind {
         "ball" => {
             let d = (4.0 * std::f64::consts::PI / (3.0 * n)).cbrt();
@@ -41,7 +42,7 @@ pub fn cloud(kind: &str, n: f64) -> (CellBox, Box<dyn Iterator<Item = [f64; 3]>>
                 })
             });
             (
-                CellBox::new([-1.0; 3], [1.0; 3], 2.4 * d, [false; 3]),
+                CellBox::new([-1.0; 3], [1.0; 3], depth * 2.4 * d, [false; 3]),
                 Box::new(pts),
             )
         }
@@ -61,16 +62,17 @@ pub fn cloud(kind: &str, n: f64) -> (CellBox, Box<dyn Iterator<Item = [f64; 3]>>
                 })
             });
             (
-                CellBox::new([0.0; 3], len, 2.4 * d, [true; 3]),
+                CellBox::new([0.0; 3], len, depth * 2.4 * d, [true; 3]),
                 Box::new(pts),
             )
         }
     }
 }
 
-/// The model for `kind` ("ball" or "slab") at N particles over each rank count.
-pub fn model(kind: &str, n: f64, ranks: &[u32], bandwidth: f64) -> (u64, Vec<Row>) {
-    let (cbox, pts) = cloud(kind, n);
+/// The model for `kind` ("ball" or "slab") at N particles over each rank count, with a halo
+/// `depth` kernel supports deep.
+pub fn model(kind: &str, n: f64, ranks: &[u32], bandwidth: f64, depth: f64) -> (u64, Vec<Row>) {
+    let (cbox, pts) = cloud(kind, n, depth);
     let cells = Cells::bin(pts, cbox);
     let rows = ranks
         .iter()
