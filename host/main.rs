@@ -66,8 +66,9 @@ struct MpiCheckArgs {
     #[arg(long, hide = true)]
     fail_rank: Option<u32>,
     /// Then step the scene N times over the ranks (a halo `--depth` supports deep, recomputed
-    /// on every rank) and compare every particle with one process on rank 0 (exit 1 above
-    /// 1e-12 of a field's scale); first-order, fixed h and fixed time.dt only
+    /// on every rank; 3 for the first-order step, 4 for the leapfrog with variable h) and
+    /// compare every particle with one process on rank 0 (exit 1 above 1e-12 of a field's
+    /// scale); not the kernel coupling
     #[arg(long, default_value_t = 0)]
     steps: u64,
 }

@@ -80,65 +80,43 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
     );
 }
 
-/// `configs/NAME.toml` with a fixed step `dt` instead of its CFL factor, written to `dir`.
-fn fixed_dt(dir: &std::path::Path, name: &str, dt: &str) -> String {
-    let text = std::fs::read_to_string(format!(
-        "{}/configs/{name}.toml",
-        env!("CARGO_MANIFEST_DIR")
-    ))
-    .unwrap();
-    let lines: Vec<String> = text
-        .lines()
-        .map(|l| {
-            if l.starts_with("cfl =") {
-                format!("dt = {dt}")
-            } else {
-                l.to_string()
-            }
-        })
-        .collect();
-    assert!(
-        lines.iter().any(|l| l.starts_with("dt =")),
-        "{name}: no cfl line"
-    );
-    let path = dir.join(format!("{name}.toml"));
-    std::fs::write(&path, lines.join("\n")).unwrap();
-    path.display().to_string()
-}
-
-/// The decomposition with physics: stepping over 1–4 ranks, each rank its owned particles with
-/// a halo three supports deep (the step's chain of passes recomputed on it), matches one
-/// process to 1e-12 of each field's scale (velocities: at least the sound speed) for every
-/// particle matched by id, on the 1D wave, the shock tube (walls, adiabatic, heating), the 3D
-/// box and the open 3D ball; a one-support halo is caught (the wave's velocities then differ
-/// by 1e-2 of the sound speed).
+/// The decomposition with physics: stepping over 1–4 ranks (each rank its owned particles with
+/// a halo four supports deep, the step's chain of neighbour passes recomputed on it, and a
+/// fixed shell one support beyond at its owners' values; the step size from the maxima over
+/// all ranks) matches one process to 1e-12 of each field's scale (velocities: at least the
+/// sound speed) for every particle matched by id — on the 3D box, the 1D wave, the Phantom slab
+/// (leapfrog, variable h, IAD, CFL), the shock tube (walls, adiabatic, heating) and the open 3D
+/// ball. Too thin a halo is caught: three supports for the leapfrog's longer chain, one for the
+/// first-order wave.
 #[test]
 fn stepping_over_ranks_with_a_deep_halo_matches_one_process() {
-    let tmp = tempfile::tempdir().unwrap();
-    let wave = fixed_dt(tmp.path(), "dustywave", "1e-3");
-    let shock = fixed_dt(tmp.path(), "dustyshock", "2e-4");
-    let cases: [Vec<&str>; 4] = [
-        vec![&wave, "--steps", "20"],
-        vec![&shock, "--steps", "20"],
-        vec!["configs/dustybox.toml", "--steps", "20"],
-        vec![
-            "configs/dusty_ball.toml",
-            "--set",
-            "sph.n=12",
-            "--steps",
-            "10",
-        ],
+    let cases: [&[&str]; 5] = [
+        &["configs/dustybox.toml"],
+        &["configs/dustywave.toml"],
+        &["configs/dustywave_phantom.toml", "--set", "sph.n=32"],
+        &["configs/dustyshock.toml"],
+        &["configs/dusty_ball.toml", "--set", "sph.n=12"],
     ];
     for ranks in 1..=4 {
-        for args in &cases {
-            let mut a = args.clone();
-            a.extend(["--depth", "3"]);
+        for args in cases {
+            let mut a = args.to_vec();
+            a.extend(["--depth", "4", "--steps", "20"]);
             let (code, text) = mpi_check(ranks, &a);
             assert_eq!(code, Some(0), "-n {ranks} {a:?}:\n{text}");
             assert!(text.contains("against one process"), "{text}");
         }
     }
-    let (code, text) = mpi_check(3, &[&wave, "--steps", "20", "--depth", "1"]);
-    assert_eq!(code, Some(1), "a one-support halo passed:\n{text}");
-    assert!(text.contains("ABOVE 1e-12"), "{text}");
+    for (depth, args) in [
+        (
+            "3",
+            &["configs/dustywave_phantom.toml", "--set", "sph.n=32"][..],
+        ),
+        ("1", &["configs/dustywave.toml"][..]),
+    ] {
+        let mut a = args.to_vec();
+        a.extend(["--depth", depth, "--steps", "20"]);
+        let (code, text) = mpi_check(3, &a);
+        assert_eq!(code, Some(1), "{a:?}: a halo too thin passed:\n{text}");
+        assert!(text.contains("ABOVE 1e-12"), "{text}");
+    }
 }

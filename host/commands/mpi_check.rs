@@ -261,26 +261,23 @@ fn decode(s: &str) -> RankReport {
     }
 }
 
-/// A particle's whole state for the stepping check: id, phase, x, v, m, ρ, e, fixed (as bits).
-type Full = [u64; 13];
+/// A particle's whole state for the stepping check, as bits: id, phase, x, v, m, ρ, e, fixed,
+/// flags (1: h and Ω, 2: the leapfrog's closing forces), h, Ω, the closing forces (5).
+type Full = [u64; 20];
 
-fn pack(id: u64, phase: usize, ph: &crate::particles::Phase, i: usize, e: f64) -> Full {
+fn pack(id: u64, phase: usize, ph: &crate::particles::Phase, i: usize) -> Full {
     let b = |v: f64| v.to_bits();
-    [
-        id,
-        phase as u64,
-        b(ph.x[i][0]),
-        b(ph.x[i][1]),
-        b(ph.x[i][2]),
-        b(ph.v[i][0]),
-        b(ph.v[i][1]),
-        b(ph.v[i][2]),
-        b(ph.m[i]),
-        b(ph.rho.get(i).copied().unwrap_or(0.0)),
-        b(e),
-        ph.is_fixed(i) as u64,
-        0,
-    ]
+    let mut r = [0u64; 20];
+    r[0] = id;
+    r[1] = phase as u64;
+    for k in 0..3 {
+        r[2 + k] = b(ph.x[i][k]);
+        r[5 + k] = b(ph.v[i][k]);
+    }
+    r[8] = b(ph.m[i]);
+    r[9] = b(ph.rho.get(i).copied().unwrap_or(0.0));
+    r[11] = ph.is_fixed(i) as u64;
+    r
 }
 
 fn full_pos(r: &Full) -> [f64; 3] {
@@ -299,11 +296,25 @@ fn records(st: &crate::particles::State) -> Vec<Full> {
         .enumerate()
     {
         for i in 0..ph.len() {
-            let e = match (&st.gas.e, k) {
-                (Some(e), 0) => e[i],
-                _ => 0.0,
-            };
-            out.push(pack(ph.id[i], k, ph, i, e));
+            let mut r = pack(ph.id[i], k, ph, i);
+            if k == 0 {
+                let g = &st.gas;
+                if let Some(e) = &g.e {
+                    r[10] = e[i].to_bits();
+                }
+                if let (Some(h), Some(o)) = (&g.h, &g.omega) {
+                    r[12] |= 1;
+                    r[13] = h[i].to_bits();
+                    r[14] = o[i].to_bits();
+                }
+                if let Some(f) = &g.next_forces {
+                    r[12] |= 2;
+                    for (j, v) in f[i].iter().enumerate() {
+                        r[15 + j] = v.to_bits();
+                    }
+                }
+            }
+            out.push(r);
         }
     }
     out
@@ -317,6 +328,8 @@ fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::particl
     let mut phases: Vec<Phase> = (0..nph).map(|_| Phase::default()).collect();
     let mut fixed: Vec<Vec<bool>> = vec![Vec::new(); nph];
     let mut e = Vec::new();
+    let (mut h, mut omega, mut nf) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut all_h, mut all_nf) = (true, true);
     for r in recs {
         let k = r[1] as usize;
         let f = |j: usize| f64::from_bits(r[j]);
@@ -329,9 +342,18 @@ fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::particl
         fixed[k].push(r[11] != 0);
         if k == 0 {
             e.push(f(10));
+            all_h &= r[12] & 1 != 0;
+            all_nf &= r[12] & 2 != 0;
+            h.push(f(13));
+            omega.push(f(14));
+            nf.push([f(15), f(16), f(17), f(18), f(19)]);
         }
     }
-    let with_fixed = |k: usize, t: &Phase| t.fixed.as_ref().map(|_| fixed[k].clone());
+    let some_gas = recs.iter().any(|r| r[1] == 0);
+    // Fixed particles: the scene's walls, and the halo's outer shell.
+    let with_fixed = |k: usize, t: &Phase| {
+        (t.fixed.is_some() || fixed[k].iter().any(|&f| f)).then(|| fixed[k].clone())
+    };
     let mut gas_ph = std::mem::take(&mut phases[0]);
     gas_ph.fixed = with_fixed(0, &template.gas.ph);
     let dust = phases
@@ -349,22 +371,21 @@ fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::particl
         gas: Gas {
             ph: gas_ph,
             e: template.gas.e.as_ref().map(|_| e),
+            // A resumed layer: the solved h and Ω and the closing forces travel with their
+            // particles (the engine then keeps them, as on resume).
+            h: (some_gas && all_h).then_some(h),
+            omega: (some_gas && all_h).then_some(omega),
+            next_forces: (some_gas && all_nf).then_some(nf),
             ..Gas::default()
         },
         dust,
     }
 }
 
-/// The first-order, fixed-h, fixed-τ step the stepping check supports, or why not.
+/// The steps the stepping check supports (not yet the kernel coupling), or why not.
 pub fn steppable(scene: &crate::scene::Scene) -> Result<(), String> {
-    use crate::scene::{Coupling, Integrator};
-    let why = if scene.time.dt.is_none() {
-        "a CFL step (needs the maxima over owned particles only; give time.dt)"
-    } else if scene.sph.variable_h {
-        "variable h"
-    } else if scene.time.integrator == Integrator::Kdk {
-        "the leapfrog"
-    } else if scene.idic.coupling == Coupling::Kernel {
+    use crate::scene::Coupling;
+    let why = if scene.idic.coupling == Coupling::Kernel {
         "the kernel coupling"
     } else {
         return Ok(());
@@ -399,7 +420,10 @@ pub fn step_over_ranks(
     let (me, ranks) = (world.rank(), world.size());
     let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
     let phys = crate::engine::Physics::from_scene(scene, su.h, su.domain);
-    let reach = depth * phys.support();
+    // The cut's cells hold the recomputed halo (`depth` supports) and, one support beyond,
+    // a shell held fixed at its owners' values.
+    let inner = depth * phys.support();
+    let reach = (depth + 1.0) * phys.support();
     let template = su.state.clone();
     let drv = Driver::new(&scene.time, phys.h);
     let all = records(&su.state);
@@ -454,34 +478,73 @@ pub fn step_over_ranks(
         let mine: std::collections::HashSet<(u64, u64)> =
             owned.iter().map(|r| (r[0], r[1])).collect();
         let mut local_recs = owned.clone();
-        local_recs.extend_from_slice(&halo);
+        local_recs.extend(shell(&owned, &halo, inner, &su.domain));
         let mut local = state_of(&local_recs, &template);
         local.t = t;
         local.step = step;
-        let failed;
+        // The step: forces on every rank, the step size from the maxima over all ranks (the
+        // one process's), then the advance.
+        let mut err = String::new();
+        let mut eng = None;
+        let mut forces = None;
+        if !local_recs.is_empty() {
+            match Backend::new(DeviceChoice::Cpu, phys.clone(), &mut local) {
+                Ok(mut e) => {
+                    match e.forces(&local) {
+                        Ok(f) => forces = Some(f),
+                        Err(x) => err = x.to_string(),
+                    }
+                    eng = Some(e);
+                }
+                Err(x) => err = x.to_string(),
+            }
+        }
+        if world.any(!err.is_empty()) {
+            return Err(format!("step {step}: rank {me}: {err}"));
+        }
+        let mut most = [
+            forces.as_ref().map_or(0.0, |f| f.vsig_max),
+            forces.as_ref().map_or(0.0, |f| f.acc_max),
+        ];
+        world.max_f64(&mut most);
         let mut next = Vec::new();
-        if local_recs.is_empty() {
-            failed = String::new();
-        } else {
+        if let (Some(e), Some(f)) = (&mut eng, forces) {
+            let global = crate::engine::Forces {
+                acc: Vec::new(),
+                dedt: None,
+                vsig_max: most[0],
+                acc_max: most[1],
+            };
             let r = (|| -> Result<(), crate::engine::StepError> {
-                let mut eng = Backend::new(DeviceChoice::Cpu, phys.clone(), &mut local)?;
-                drv.step(&mut eng, &mut local, scene.time.t_end)?;
+                let plan = drv.plan(e, &local, &global, scene.time.t_end)?;
+                drv.take(
+                    e,
+                    &mut local,
+                    &crate::engine::driver::Taken { plan, forces: f },
+                )?;
                 // Densities as an output has them (the dust's is refreshed only for output
                 // unless its drag law needs it each step).
-                eng.refresh_dust_density(&mut local)?;
-                eng.sync(&mut local)
+                e.refresh_dust_density(&mut local)?;
+                e.sync(&mut local)
             })();
-            failed = r.err().map(|e| e.to_string()).unwrap_or_default();
+            err = r.err().map(|x| x.to_string()).unwrap_or_default();
             next = records(&local)
                 .into_iter()
                 .filter(|r| mine.contains(&(r[0], r[1])))
                 .collect();
         }
-        if world.any(!failed.is_empty()) {
-            return Err(format!("step {step}: rank {me}: {failed}"));
+        if world.any(!err.is_empty()) {
+            return Err(format!("step {step}: rank {me}: {err}"));
         }
-        // Every rank took the same fixed τ: the time advances alike.
-        t = local.t;
+        // Every rank took the same τ: the time advances alike (a rank without particles
+        // learns it from the others).
+        let mut tt = [if local_recs.is_empty() {
+            f64::NEG_INFINITY
+        } else {
+            local.t
+        }];
+        world.max_f64(&mut tt);
+        t = tt[0];
         owned = next;
     }
     // Gather to rank 0 and compare with one process.
@@ -549,4 +612,67 @@ pub fn step_over_ranks(
         particles: reference.len(),
         fields: out,
     }))
+}
+
+/// The halo as the step needs it: particles within `inner` of an owned particle are stepped
+/// (their passes recomputed here); the rest are held fixed at their owners' values (their
+/// density and pressure are exact at the start of the step, so the stepped halo's forces are
+/// too, and no particle with an incomplete neighbourhood enters the step's maxima).
+fn shell(owned: &[Full], halo: &[Full], inner: f64, domain: &crate::grid::Domain) -> Vec<Full> {
+    use std::collections::HashMap;
+    let cell = |x: [f64; 3]| -> [i64; 3] { x.map(|v| (v / inner).floor() as i64) };
+    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>> = HashMap::new();
+    for r in owned {
+        let x = full_pos(r);
+        grid.entry(cell(x)).or_default().push(x);
+    }
+    let sep2 = |a: [f64; 3], b: [f64; 3]| -> f64 {
+        (0..3)
+            .map(|k| {
+                let mut d = a[k] - b[k];
+                if let Some((_, len)) = domain.periodic[k] {
+                    d -= len * (d / len).round();
+                }
+                d * d
+            })
+            .sum()
+    };
+    // Near a periodic boundary the owned particle may be an image away: look in the cells of
+    // the halo particle's images too.
+    let images: Vec<[f64; 3]> = {
+        let shifts = |k: usize| -> Vec<f64> {
+            match domain.periodic[k] {
+                Some((_, len)) => vec![0.0, len, -len],
+                None => vec![0.0],
+            }
+        };
+        let mut v = Vec::new();
+        for a in shifts(0) {
+            for b in shifts(1) {
+                for c in shifts(2) {
+                    v.push([a, b, c]);
+                }
+            }
+        }
+        v
+    };
+    let r2 = inner * inner;
+    halo.iter()
+        .map(|h| {
+            let x = full_pos(h);
+            let near = images.iter().any(|s| {
+                let c = cell([x[0] + s[0], x[1] + s[1], x[2] + s[2]]);
+                (0..27).any(|d| {
+                    let q = [c[0] + d % 3 - 1, c[1] + (d / 3) % 3 - 1, c[2] + d / 9 - 1];
+                    grid.get(&q)
+                        .is_some_and(|v| v.iter().any(|&o| sep2(o, x) <= r2))
+                })
+            });
+            let mut r = *h;
+            if !near {
+                r[11] = 1;
+            }
+            r
+        })
+        .collect()
 }
