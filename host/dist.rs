@@ -34,6 +34,9 @@ pub fn refuse_many_ranks(what: &str) -> Result<(), String> {
 }
 
 #[cfg(feature = "mpi")]
+pub mod ranks;
+
+#[cfg(feature = "mpi")]
 pub mod comm {
     //! The communicator and the collective operations the decomposition needs.
     use mpi::collective::SystemOperation;

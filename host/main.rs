@@ -793,9 +793,10 @@ fn mpi_check(a: MpiCheckArgs) -> ExitCode {
             if a.steps == 0 {
                 return ExitCode::SUCCESS;
             }
-            match mpi_check::step_over_ranks(&world, &loaded.scene, a.depth, a.steps) {
+            let size = world.size();
+            match mpi_check::step_over_ranks(world, &loaded.scene, a.depth, a.steps) {
                 Err(e) => {
-                    eprintln!("error: rank {}: {e}", world.rank());
+                    eprintln!("error: {e}");
                     ExitCode::from(1)
                 }
                 Ok(None) => ExitCode::SUCCESS,
@@ -803,9 +804,7 @@ fn mpi_check(a: MpiCheckArgs) -> ExitCode {
                     println!(
                         "{} steps over {} ranks against one process, {} particles matched by id \
                          (max |difference| / field scale):",
-                        r.steps,
-                        world.size(),
-                        r.particles
+                        r.steps, size, r.particles
                     );
                     let mut pass = true;
                     for (name, d) in &r.fields {

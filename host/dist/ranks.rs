@@ -1,0 +1,426 @@
+//! Stepping a scene over MPI ranks, the deep-halo way (docs/scaling.md, "Stepping over ranks
+//! with a deep halo"): each step the particles are cut along the Morton curve and migrated;
+//! every rank builds an engine on its owned particles plus a halo `depth` kernel supports deep
+//! (the whole state from the owners, the step's chain of neighbour passes recomputed here) and
+//! a shell one support beyond held fixed at the owners' values; the step size comes from the
+//! maxima over all ranks; each rank keeps its owned particles' results.
+use super::comm::World;
+use crate::decomp::{CellBox, Cells, Partition};
+use crate::engine::backend::{Backend, DeviceChoice};
+use crate::engine::driver::{Driver, Plan, Taken};
+use crate::engine::{Forces, Physics};
+use crate::particles::State;
+
+/// Halo depth in kernel supports that `dustsph run` uses over ranks: the leapfrog with
+/// variable h and IAD needs 4 (measured: 3 fails), the first-order step 3.
+pub const RUN_DEPTH: f64 = 4.0;
+
+/// A particle's whole state for the stepping check, as bits: id, phase, x, v, m, ρ, e, fixed,
+/// flags (1: h and Ω, 2: the leapfrog's closing forces), h, Ω, the closing forces (5).
+pub type Full = [u64; 20];
+
+pub(crate) fn pack(id: u64, phase: usize, ph: &crate::particles::Phase, i: usize) -> Full {
+    let b = |v: f64| v.to_bits();
+    let mut r = [0u64; 20];
+    r[0] = id;
+    r[1] = phase as u64;
+    for k in 0..3 {
+        r[2 + k] = b(ph.x[i][k]);
+        r[5 + k] = b(ph.v[i][k]);
+    }
+    r[8] = b(ph.m[i]);
+    r[9] = b(ph.rho.get(i).copied().unwrap_or(0.0));
+    r[11] = ph.is_fixed(i) as u64;
+    r
+}
+
+pub(crate) fn full_pos(r: &Full) -> [f64; 3] {
+    [
+        f64::from_bits(r[2]),
+        f64::from_bits(r[3]),
+        f64::from_bits(r[4]),
+    ]
+}
+
+/// Every particle of a state as records.
+pub fn records(st: &crate::particles::State) -> Vec<Full> {
+    let mut out = Vec::new();
+    for (k, ph) in std::iter::once(&st.gas.ph)
+        .chain(st.dust.iter())
+        .enumerate()
+    {
+        for i in 0..ph.len() {
+            let mut r = pack(ph.id[i], k, ph, i);
+            if k == 0 {
+                let g = &st.gas;
+                if let Some(e) = &g.e {
+                    r[10] = e[i].to_bits();
+                }
+                if let (Some(h), Some(o)) = (&g.h, &g.omega) {
+                    r[12] |= 1;
+                    r[13] = h[i].to_bits();
+                    r[14] = o[i].to_bits();
+                }
+                if let Some(f) = &g.next_forces {
+                    r[12] |= 2;
+                    for (j, v) in f[i].iter().enumerate() {
+                        r[15 + j] = v.to_bits();
+                    }
+                }
+            }
+            out.push(r);
+        }
+    }
+    out
+}
+
+/// A state from records (phases in order; `template` gives the phase count and whether the
+/// gas has an energy or fixed particles).
+pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::particles::State {
+    use crate::particles::{Gas, Phase, State};
+    let nph = 1 + template.dust.len();
+    let mut phases: Vec<Phase> = (0..nph).map(|_| Phase::default()).collect();
+    let mut fixed: Vec<Vec<bool>> = vec![Vec::new(); nph];
+    let mut e = Vec::new();
+    let (mut h, mut omega, mut nf) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut all_h, mut all_nf) = (true, true);
+    for r in recs {
+        let k = r[1] as usize;
+        let f = |j: usize| f64::from_bits(r[j]);
+        let ph = &mut phases[k];
+        ph.id.push(r[0]);
+        ph.x.push([f(2), f(3), f(4)]);
+        ph.v.push([f(5), f(6), f(7)]);
+        ph.m.push(f(8));
+        ph.rho.push(f(9));
+        fixed[k].push(r[11] != 0);
+        if k == 0 {
+            e.push(f(10));
+            all_h &= r[12] & 1 != 0;
+            all_nf &= r[12] & 2 != 0;
+            h.push(f(13));
+            omega.push(f(14));
+            nf.push([f(15), f(16), f(17), f(18), f(19)]);
+        }
+    }
+    let some_gas = recs.iter().any(|r| r[1] == 0);
+    // Fixed particles: the scene's walls, and the halo's outer shell.
+    let with_fixed = |k: usize, t: &Phase| {
+        (t.fixed.is_some() || fixed[k].iter().any(|&f| f)).then(|| fixed[k].clone())
+    };
+    let mut gas_ph = std::mem::take(&mut phases[0]);
+    gas_ph.fixed = with_fixed(0, &template.gas.ph);
+    let dust = phases
+        .into_iter()
+        .enumerate()
+        .skip(1)
+        .map(|(k, mut p)| {
+            p.fixed = with_fixed(k, &template.dust[k - 1]);
+            p
+        })
+        .collect();
+    State {
+        t: template.t,
+        step: template.step,
+        gas: Gas {
+            ph: gas_ph,
+            e: template.gas.e.as_ref().map(|_| e),
+            // A resumed layer: the solved h and Ω and the closing forces travel with their
+            // particles (the engine then keeps them, as on resume).
+            h: (some_gas && all_h).then_some(h),
+            omega: (some_gas && all_h).then_some(omega),
+            next_forces: (some_gas && all_nf).then_some(nf),
+            ..Gas::default()
+        },
+        dust,
+    }
+}
+
+/// What a scene needs that stepping over ranks does not do yet, or nothing.
+pub fn supported(phys: &Physics) -> Result<(), String> {
+    if phys.drag == crate::scene::DragMethod::Explicit {
+        return Err(
+            "the explicit drag baseline (drag.method = \"explicit\") is not yet stepped \
+                    over ranks: its step limit is a minimum over cells on every rank"
+                .into(),
+        );
+    }
+    if phys.coupling == crate::scene::Coupling::Kernel {
+        return Err(
+            "the kernel coupling (idic.coupling = \"kernel\") is not yet stepped over \
+                    ranks: its dust→gas walk lengthens the halo's chain"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
+/// One rank's share of a scene stepped over the ranks.
+pub struct RankStepper {
+    pub world: World,
+    phys: Physics,
+    template: State,
+    owned: Vec<Full>,
+    depth: f64,
+}
+
+impl RankStepper {
+    /// This rank's share of `full` (the scene's whole state, built alike on every rank): the
+    /// particles k with k mod R = rank, until the first step's cut moves them to their owners.
+    pub fn new(
+        world: World,
+        phys: Physics,
+        full: &State,
+        depth: f64,
+    ) -> Result<RankStepper, String> {
+        supported(&phys)?;
+        let (me, ranks) = (world.rank(), world.size());
+        let owned = records(full)
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| *k as u32 % ranks == me)
+            .map(|(_, r)| r)
+            .collect();
+        let mut template = full.clone();
+        template.gas.h = None;
+        template.gas.omega = None;
+        template.gas.next_forces = None;
+        Ok(RankStepper {
+            world,
+            phys,
+            template,
+            owned,
+            depth,
+        })
+    }
+
+    /// Particles this rank owns.
+    pub fn owned(&self) -> usize {
+        self.owned.len()
+    }
+
+    /// One step from time `t` (step count `step`) toward `t_target` on every rank: the plan
+    /// taken (the same on every rank: the one process's) and the new time.
+    pub fn step(
+        &mut self,
+        drv: &Driver,
+        t: f64,
+        step: u64,
+        t_target: f64,
+    ) -> Result<(Plan, f64, f64), String> {
+        let world = &self.world;
+        let (me, ranks) = (world.rank(), world.size());
+        let domain = self.phys.domain;
+        let inner = self.depth * self.phys.support();
+        let reach = (self.depth + 1.0) * self.phys.support();
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for r in &self.owned {
+            let x = full_pos(r);
+            for k in 0..3 {
+                lo[k] = lo[k].min(x[k]);
+                hi[k] = hi[k].max(x[k]);
+            }
+        }
+        world.min_f64(&mut lo);
+        world.max_f64(&mut hi);
+        let mut periodic = [false; 3];
+        for k in 0..3 {
+            if let Some((p0, len)) = domain.periodic[k] {
+                (lo[k], hi[k], periodic[k]) = (p0, p0 + len, true);
+            }
+        }
+        let cbox = CellBox::new(lo, hi, reach, periodic);
+        let mut counts = vec![0u64; cbox.len()];
+        for r in &self.owned {
+            counts[cbox.index(cbox.cell_of(full_pos(r)))] += 1;
+        }
+        world.sum_u64(&mut counts);
+        let cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
+        let part = Partition::of(&cells, ranks);
+        let mut sends: Vec<Vec<Full>> = vec![Vec::new(); ranks as usize];
+        for r in &self.owned {
+            sends[part.owner_at(full_pos(r)) as usize].push(*r);
+        }
+        let owned = world.exchange(&sends)?;
+        let mut sends: Vec<Vec<Full>> = vec![Vec::new(); ranks as usize];
+        let mut to = Vec::new();
+        for r in &owned {
+            part.halo_ranks(cbox.cell_of(full_pos(r)), &mut to);
+            for &q in &to {
+                sends[q as usize].push(*r);
+            }
+        }
+        let halo = world.exchange(&sends)?;
+        let mine: std::collections::HashSet<(u64, u64)> =
+            owned.iter().map(|r| (r[0], r[1])).collect();
+        let mut local_recs = owned.clone();
+        local_recs.extend(shell(&owned, &halo, inner, &domain));
+        let mut local = state_of(&local_recs, &self.template);
+        local.t = t;
+        local.step = step;
+        // Forces on every rank, the step size from the maxima over all ranks, the advance.
+        let mut err = String::new();
+        let mut eng = None;
+        let mut forces = None;
+        if !local_recs.is_empty() {
+            match Backend::new(DeviceChoice::Cpu, self.phys.clone(), &mut local) {
+                Ok(mut e) => {
+                    match e.forces(&local) {
+                        Ok(f) => forces = Some(f),
+                        Err(x) => err = x.to_string(),
+                    }
+                    eng = Some(e);
+                }
+                Err(x) => err = x.to_string(),
+            }
+        }
+        if world.any(!err.is_empty()) {
+            return Err(failure(world, step, me, &err));
+        }
+        let mut most = [
+            forces.as_ref().map_or(0.0, |f| f.vsig_max),
+            forces.as_ref().map_or(0.0, |f| f.acc_max),
+        ];
+        world.max_f64(&mut most);
+        let global = Forces {
+            acc: Vec::new(),
+            dedt: None,
+            vsig_max: most[0],
+            acc_max: most[1],
+        };
+        let mut plan = None;
+        let mut next = Vec::new();
+        if let (Some(e), Some(f)) = (&mut eng, forces) {
+            let r = (|| -> Result<Plan, crate::engine::StepError> {
+                let p = drv.plan(e, &local, &global, t_target)?;
+                drv.take(e, &mut local, &Taken { plan: p, forces: f })?;
+                // Densities as an output has them (the dust's is refreshed only for output
+                // unless its drag law needs it each step).
+                e.refresh_dust_density(&mut local)?;
+                e.sync(&mut local)?;
+                Ok(p)
+            })();
+            match r {
+                Ok(p) => plan = Some(p),
+                Err(x) => err = x.to_string(),
+            }
+            next = records(&local)
+                .into_iter()
+                .filter(|r| mine.contains(&(r[0], r[1])))
+                .collect();
+        }
+        if world.any(!err.is_empty()) {
+            return Err(failure(world, step, me, &err));
+        }
+        // Every rank took the same step (a rank without particles learns it from the others).
+        let mut tt = [if plan.is_some() {
+            local.t
+        } else {
+            f64::NEG_INFINITY
+        }];
+        world.max_f64(&mut tt);
+        // A rank without particles rebuilds the step from the new time (the others' plan).
+        let plan = plan.unwrap_or(Plan {
+            dt: tt[0] - t,
+            dt_free: tt[0] - t,
+            by_drag: false,
+            landing: tt[0] == t_target,
+            t_target,
+        });
+        self.owned = next;
+        Ok((plan, tt[0], most[0]))
+    }
+
+    /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),
+    /// at time `t`, step `step`; `None` on the other ranks. Collective.
+    pub fn gather(&self, t: f64, step: u64) -> Result<Option<State>, String> {
+        let bytes: Vec<u8> = bytemuck::cast_slice(&self.owned).to_vec();
+        let parts = self.world.all_gather_bytes(&bytes);
+        if self.world.rank() != 0 {
+            return Ok(None);
+        }
+        let mut all: Vec<Full> = parts
+            .iter()
+            .flat_map(|b| b.chunks_exact(std::mem::size_of::<Full>()))
+            .map(bytemuck::pod_read_unaligned::<Full>)
+            .collect();
+        all.sort_unstable_by_key(|r| (r[1], r[0]));
+        let mut st = state_of(&all, &self.template);
+        st.t = t;
+        st.step = step;
+        Ok(Some(st))
+    }
+}
+
+/// A step's failure, with the rank that saw it (every rank reports its own; all stop).
+fn failure(_world: &World, step: u64, me: u32, err: &str) -> String {
+    if err.is_empty() {
+        format!("step {step}: another rank failed (its message above)")
+    } else {
+        format!("step {step}: rank {me}: {err}")
+    }
+}
+
+/// The halo as the step needs it: particles within `inner` of an owned particle are stepped
+/// (their passes recomputed here); the rest are held fixed at their owners' values (their
+/// density and pressure are exact at the start of the step, so the stepped halo's forces are
+/// too, and no particle with an incomplete neighbourhood enters the step's maxima).
+fn shell(owned: &[Full], halo: &[Full], inner: f64, domain: &crate::grid::Domain) -> Vec<Full> {
+    use std::collections::HashMap;
+    let cell = |x: [f64; 3]| -> [i64; 3] { x.map(|v| (v / inner).floor() as i64) };
+    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>> = HashMap::new();
+    for r in owned {
+        let x = full_pos(r);
+        grid.entry(cell(x)).or_default().push(x);
+    }
+    let sep2 = |a: [f64; 3], b: [f64; 3]| -> f64 {
+        (0..3)
+            .map(|k| {
+                let mut d = a[k] - b[k];
+                if let Some((_, len)) = domain.periodic[k] {
+                    d -= len * (d / len).round();
+                }
+                d * d
+            })
+            .sum()
+    };
+    // Near a periodic boundary the owned particle may be an image away: look in the cells of
+    // the halo particle's images too.
+    let images: Vec<[f64; 3]> = {
+        let shifts = |k: usize| -> Vec<f64> {
+            match domain.periodic[k] {
+                Some((_, len)) => vec![0.0, len, -len],
+                None => vec![0.0],
+            }
+        };
+        let mut v = Vec::new();
+        for a in shifts(0) {
+            for b in shifts(1) {
+                for c in shifts(2) {
+                    v.push([a, b, c]);
+                }
+            }
+        }
+        v
+    };
+    let r2 = inner * inner;
+    halo.iter()
+        .map(|h| {
+            let x = full_pos(h);
+            let near = images.iter().any(|s| {
+                let c = cell([x[0] + s[0], x[1] + s[1], x[2] + s[2]]);
+                (0..27).any(|d| {
+                    let q = [c[0] + d % 3 - 1, c[1] + (d / 3) % 3 - 1, c[2] + d / 9 - 1];
+                    grid.get(&q)
+                        .is_some_and(|v| v.iter().any(|&o| sep2(o, x) <= r2))
+                })
+            });
+            let mut r = *h;
+            if !near {
+                r[11] = 1;
+            }
+            r
+        })
+        .collect()
+}
