@@ -2,11 +2,11 @@
 //! with the `mpi` feature the communicator and the particle exchange over it (rsmpi over the
 //! system's OpenMPI).
 //!
-//! Built so far: the decomposition of a cloud into Morton key ranges agreed by every rank
-//! (global bounds and cell counts by all-reduce, [`crate::decomp::Partition`]), the migration
-//! of particles to the rank owning their cell, and the halo exchange (copies of the particles
-//! in cells touching another rank's cells), checked by `dustsph mpi-check`. Not built: the step
-//! over ranks (`dustsph run` under more than one rank is refused, naming this).
+//! Built: the decomposition of a cloud into Morton key ranges agreed by every rank (global
+//! bounds and cell counts by all-reduce, [`crate::decomp::Partition`]), the migration of
+//! particles to the rank owning their cell, the halo exchange, and stepping over ranks with a
+//! deep halo ([`ranks`]): `mpirun -n R dustsph run` (rank 0 gathers and writes the output).
+//! Every other command runs on one process and refuses to start as one of several ranks.
 
 /// The rank and the rank count this process was started as by an MPI launcher (`mpirun`,
 /// `mpiexec`), read from the launcher's environment without any MPI call; `None` outside one.
@@ -26,8 +26,8 @@ pub fn refuse_many_ranks(what: &str) -> Result<(), String> {
         Some((rank, size)) if size > 1 => Err(format!(
             "{what} runs on one process: launched as rank {rank} of {size} MPI ranks, every rank \
              would run the whole scene into the same output; run it without mpirun (or with \
-             -n 1). Splitting a run over ranks is not built yet (issue 14; `dustsph mpi-check` \
-             exercises the decomposition and the exchange)"
+             -n 1). Only `dustsph run` (in a build with the mpi feature) and `dustsph \
+             mpi-check` split over ranks"
         )),
         _ => Ok(()),
     }

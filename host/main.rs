@@ -271,6 +271,7 @@ fn drive(r: Result<Runner, RunError>, checkpoint_every: Option<u64>) -> ExitCode
     }
     match r.advance(None, checkpoint_every, Some(&stop)) {
         Ok(Stop::Finished) => {}
+        Ok(Stop::Interrupted) if !r.is_root() => return ExitCode::from(130),
         Ok(Stop::Interrupted) => {
             eprintln!(
                 "interrupted at step {}, t = {}: checkpoint written; continue with `dustsph resume {}`",
@@ -283,9 +284,12 @@ fn drive(r: Result<Runner, RunError>, checkpoint_every: Option<u64>) -> ExitCode
         Err(e) => return fail(e),
     }
     let out = r.out_dir().to_path_buf();
+    let root = r.is_root();
     match r.finish() {
         Ok((s, _)) => {
-            report(&s, &out);
+            if root {
+                report(&s, &out);
+            }
             ExitCode::SUCCESS
         }
         Err(e) => fail(e),
@@ -296,7 +300,8 @@ fn main() -> ExitCode {
     let cmd = Cli::parse().cmd;
     // One process per job, except for the MPI check: several ranks would each run the whole
     // command into the same output.
-    if !matches!(cmd, Cmd::MpiCheck(_)) {
+    let over_ranks = cfg!(feature = "mpi") && matches!(cmd, Cmd::Run(_));
+    if !matches!(cmd, Cmd::MpiCheck(_)) && !over_ranks {
         if let Err(e) = dustsph::dist::refuse_many_ranks("this dustsph command") {
             eprintln!("error: {e}");
             return ExitCode::from(2);
@@ -348,6 +353,28 @@ fn run(a: RunArgs) -> ExitCode {
         verbose: !quiet,
         device,
     };
+    // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
+    #[cfg(feature = "mpi")]
+    if dustsph::dist::launched().is_some_and(|(_, n)| n > 1) {
+        let world = match dustsph::dist::comm::World::init() {
+            Ok(w) => w,
+            Err(e) => {
+                eprintln!("error: MPI: {e}");
+                return ExitCode::from(2);
+            }
+        };
+        // A rank that panics must not finalise MPI while the others wait in a collective
+        // (that hangs the job): print and leave at once, and mpirun stops the others.
+        let hook = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            hook(info);
+            std::process::exit(70);
+        }));
+        return drive(
+            Runner::start_over_ranks(&loaded, &opts, world),
+            checkpoint_every,
+        );
+    }
     drive(Runner::start(&loaded, &opts), checkpoint_every)
 }
 

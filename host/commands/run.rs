@@ -12,6 +12,38 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// A run over MPI ranks: this rank's share and its stepper (`dist::ranks`); without the
+/// `mpi` feature there is none.
+#[cfg(feature = "mpi")]
+pub type Ranks = crate::dist::ranks::RankStepper;
+#[cfg(not(feature = "mpi"))]
+pub enum Ranks {}
+
+#[cfg(not(feature = "mpi"))]
+impl Ranks {
+    fn is_root(&self) -> bool {
+        match *self {}
+    }
+    fn any(&self, _: bool) -> bool {
+        match *self {}
+    }
+    fn describe(&self) -> String {
+        match *self {}
+    }
+    fn gather(&self, _: f64, _: u64) -> Result<Option<State>, String> {
+        match *self {}
+    }
+    fn step(
+        &mut self,
+        _: &Driver,
+        _: f64,
+        _: u64,
+        _: f64,
+    ) -> Result<(crate::engine::driver::Plan, f64, f64), String> {
+        match *self {}
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct RunOptions {
     pub out: PathBuf,
@@ -22,7 +54,7 @@ pub struct RunOptions {
     pub device: DeviceChoice,
 }
 
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub enum RunError {
     /// Bad input (scene key at fault); nothing was written.
     Input(String),
@@ -279,15 +311,60 @@ pub struct Runner {
     prog: Progress,
     wall0: Instant,
     verbose: bool,
+    /// Over MPI ranks (rank 0 writes; its `state` is the gathered whole after a sync).
+    ranks: Option<Ranks>,
+    /// Rank 0 over ranks: `eng` no longer matches the gathered `state` (rebuilt before output).
+    eng_stale: bool,
 }
 
 impl Runner {
     /// Validate, set up, and write the t = 0 snapshot.
     pub fn start(loaded: &LoadedScene, opts: &RunOptions) -> Result<Runner, RunError> {
+        Self::start_on(loaded, opts, |_, _| Ok(None))
+    }
+
+    /// [`Runner::start`] as one of several MPI ranks: every rank sets up the whole scene, keeps
+    /// its share and steps it ([`crate::dist::ranks`]); rank 0 writes every output.
+    #[cfg(feature = "mpi")]
+    pub fn start_over_ranks(
+        loaded: &LoadedScene,
+        opts: &RunOptions,
+        world: crate::dist::comm::World,
+    ) -> Result<Runner, RunError> {
+        Self::start_on(loaded, opts, move |phys, state| {
+            crate::dist::ranks::RankStepper::new(
+                world,
+                phys.clone(),
+                state,
+                crate::dist::ranks::RUN_DEPTH,
+            )
+            .map(Some)
+            .map_err(RunError::Input)
+        })
+    }
+
+    fn start_on(
+        loaded: &LoadedScene,
+        opts: &RunOptions,
+        ranks: impl FnOnce(&Physics, &State) -> Result<Option<Ranks>, RunError>,
+    ) -> Result<Runner, RunError> {
         let (mut eng, mut state) = Self::engine(loaded, None, opts.device, opts.verbose)?;
-        // All input is valid: only now touch the output directory.
-        let out = io::prepare_output_dir(&opts.out, opts.force)
-            .map_err(|e| RunError::Io(e.to_string()))?;
+        let ranks = ranks(eng.phys(), &state)?;
+        let root = ranks.as_ref().is_none_or(|r| r.is_root());
+        // All input is valid: only now touch the output directory (rank 0's).
+        let out = if root {
+            io::prepare_output_dir(&opts.out, opts.force).map_err(|e| RunError::Io(e.to_string()))
+        } else {
+            Ok(opts.out.clone())
+        };
+        if let Some(r) = &ranks {
+            if r.any(out.is_err()) {
+                return Err(out.err().unwrap_or_else(|| {
+                    RunError::Io("rank 0 could not prepare the output directory".into())
+                }));
+            }
+        }
+        let out = out?;
         let counts = ParticleCounts {
             gas: state.gas.ph.len(),
             gas_fixed: (0..state.gas.ph.len())
@@ -327,7 +404,9 @@ impl Runner {
             out,
             prog,
             wall0: Instant::now(),
-            verbose: opts.verbose,
+            verbose: opts.verbose && root,
+            ranks,
+            eng_stale: false,
             eng: {
                 *eng.timers_mut() = Default::default();
                 eng
@@ -373,6 +452,8 @@ impl Runner {
             prog,
             wall0: Instant::now(),
             verbose,
+            ranks: None,
+            eng_stale: false,
         })
     }
 
@@ -426,8 +507,30 @@ impl Runner {
 
     fn write_output(&mut self) -> Result<(), RunError> {
         let name = io::snapshot_name(self.prog.snapshots.len());
+        let written = self.write_files(&name);
+        if let Some(r) = &self.ranks {
+            // Every rank goes on, or none (no rank may wait on one that stopped).
+            if r.any(written.is_err()) {
+                written.clone()?;
+                return Err(RunError::Io("rank 0 could not write the output".into()));
+            }
+        }
+        written?;
+        self.prog.snapshots.push(name);
+        self.prog.snapshot_times.push(self.state.t);
+        self.prog.next_output += 1;
+        Ok(())
+    }
+
+    /// The snapshot, its errors against the exact solution and the XDMF series (rank 0 only
+    /// over ranks).
+    fn write_files(&mut self, name: &str) -> Result<(), RunError> {
+        if !self.is_root() {
+            return Ok(());
+        }
+        self.fresh_engine()?;
         write_snapshot(
-            &self.out.join(&name),
+            &self.out.join(name),
             &self.loaded,
             &mut self.eng,
             &mut self.state,
@@ -447,17 +550,37 @@ impl Runner {
                 self.state.t, self.state.step, name
             );
         }
-        self.prog.snapshots.push(name);
-        self.prog.snapshot_times.push(self.state.t);
         let series: Vec<(f64, String)> = self
             .prog
             .snapshot_times
             .iter()
             .copied()
-            .zip(self.prog.snapshots.iter().cloned())
+            .chain([self.state.t])
+            .zip(
+                self.prog
+                    .snapshots
+                    .iter()
+                    .cloned()
+                    .chain([name.to_string()]),
+            )
             .collect();
-        io::write_xdmf_series(&self.out, &series).map_err(|e| RunError::Io(e.to_string()))?;
-        self.prog.next_output += 1;
+        io::write_xdmf_series(&self.out, &series).map_err(|e| RunError::Io(e.to_string()))
+    }
+
+    /// This process writes the output (always, unless it is a rank other than 0).
+    pub fn is_root(&self) -> bool {
+        self.ranks.as_ref().is_none_or(|r| r.is_root())
+    }
+
+    /// Rank 0 over ranks: an engine on the gathered state, for what an output computes from
+    /// it (dust densities and stopping times).
+    fn fresh_engine(&mut self) -> Result<(), RunError> {
+        if self.eng_stale {
+            let phys = self.eng.phys().clone();
+            self.eng = Backend::new(DeviceChoice::Cpu, phys, &mut self.state)
+                .map_err(|e| RunError::Step(e.to_string()))?;
+            self.eng_stale = false;
+        }
         Ok(())
     }
 
@@ -506,6 +629,15 @@ impl Runner {
 
     /// Host state up to date with the backend.
     fn sync(&mut self) -> Result<(), RunError> {
+        if let Some(r) = &self.ranks {
+            // Over ranks: every rank's particles gathered on rank 0 (collective).
+            let (t, step) = (self.state.t, self.state.step);
+            if let Some(st) = r.gather(t, step).map_err(RunError::Step)? {
+                self.state = st;
+                self.eng_stale = true;
+            }
+            return Ok(());
+        }
         self.eng
             .sync(&mut self.state)
             .map_err(|e| RunError::Step(e.to_string()))
@@ -523,12 +655,23 @@ impl Runner {
                 .expect("strings serialise"),
             progress_json: serde_json::to_string(&prog).map_err(|e| RunError::Io(e.to_string()))?,
         };
-        io::checkpoint::write_checkpoint(
-            &self.out.join(io::checkpoint::CHECKPOINT_NAME),
-            &self.state,
-            &meta,
-        )
-        .map_err(|e| RunError::Io(e.to_string()))
+        let written = if self.is_root() {
+            io::checkpoint::write_checkpoint(
+                &self.out.join(io::checkpoint::CHECKPOINT_NAME),
+                &self.state,
+                &meta,
+            )
+            .map_err(|e| RunError::Io(e.to_string()))
+        } else {
+            Ok(())
+        };
+        if let Some(r) = &self.ranks {
+            if r.any(written.is_err()) {
+                written.clone()?;
+                return Err(RunError::Io("rank 0 could not write the checkpoint".into()));
+            }
+        }
+        written
     }
 
     /// Step until t_end (or `max_steps` more steps, or `stop` is raised); a checkpoint every
@@ -544,7 +687,13 @@ impl Runner {
         let bar = progress_bar(self.verbose);
         let mut taken = 0u64;
         while self.prog.next_output < self.times.len() {
-            if stop.is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed)) {
+            let asked = stop.is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed));
+            // Over ranks, one rank's Ctrl-C stops all at the same step.
+            let asked = match &self.ranks {
+                Some(r) => r.any(asked),
+                None => asked,
+            };
+            if asked {
                 bar.finish_and_clear();
                 self.checkpoint()?;
                 return Ok(Stop::Interrupted);
@@ -555,11 +704,28 @@ impl Runner {
             }
             let t_out = self.times[self.prog.next_output];
             let driver = Driver::new(&self.loaded.scene.time, h);
-            let step = driver
-                .step(&mut self.eng, &mut self.state, t_out)
-                .map_err(|e| {
-                    RunError::Step(format!("{e}; the snapshots written so far are kept"))
-                })?;
+            let kept =
+                |e: String| RunError::Step(format!("{e}; the snapshots written so far are kept"));
+            let step = match &mut self.ranks {
+                Some(r) => {
+                    let (t, n) = (self.state.t, self.state.step);
+                    let (plan, t_new, vsig_max) = r.step(&driver, t, n, t_out).map_err(kept)?;
+                    self.state.t = t_new;
+                    self.state.step += 1;
+                    crate::engine::driver::Taken {
+                        plan,
+                        forces: crate::engine::Forces {
+                            acc: Vec::new(),
+                            dedt: None,
+                            vsig_max,
+                            acc_max: 0.0,
+                        },
+                    }
+                }
+                None => driver
+                    .step(&mut self.eng, &mut self.state, t_out)
+                    .map_err(|e| kept(e.to_string()))?,
+            };
             let (dt, landing) = (step.plan.dt, step.plan.landing);
             self.prog.drag_limited_steps += u64::from(step.plan.by_drag);
             self.prog.dt_min = self.prog.dt_min.min(dt);
@@ -599,6 +765,7 @@ impl Runner {
             state,
             prog,
             wall0,
+            ranks,
             ..
         } = self;
         let scene = &loaded.scene;
@@ -622,8 +789,9 @@ impl Runner {
                 0.0
             }
         };
+        let root = ranks.as_ref().is_none_or(|r| r.is_root());
         let post = match (scene.ball(), prog.snapshots.last()) {
-            (Some(_), Some(last)) => Some(
+            (Some(_), Some(last)) if root => Some(
                 crate::commands::profile::post_process(&out.join(last), 100)
                     .map_err(|e| RunError::Io(e.to_string()))?,
             ),
@@ -653,7 +821,10 @@ impl Runner {
             scene_file: loaded.path.display().to_string(),
             overrides: loaded.overrides.clone(),
             dimension: scene.dim(),
-            backend: eng.describe(),
+            backend: match &ranks {
+                Some(r) => format!("{}, {}", eng.describe(), r.describe()),
+                None => eng.describe(),
+            },
             precision: eng.phys().precision.name(),
             particles: prog.counts.clone(),
             h: eng.phys().h,
@@ -700,8 +871,10 @@ impl Runner {
             stage_seconds: eng.timers().entries().to_vec(),
             ball,
         };
-        io::write_json_atomic(&out.join("summary.json"), &summary)
-            .map_err(|e| RunError::Io(e.to_string()))?;
+        if root {
+            io::write_json_atomic(&out.join("summary.json"), &summary)
+                .map_err(|e| RunError::Io(e.to_string()))?;
+        }
         Ok((summary, state))
     }
 }

@@ -16,12 +16,13 @@ use crate::particles::State;
 pub const RUN_DEPTH: f64 = 4.0;
 
 /// A particle's whole state for the stepping check, as bits: id, phase, x, v, m, ρ, e, fixed,
-/// flags (1: h and Ω, 2: the leapfrog's closing forces), h, Ω, the closing forces (5).
-pub type Full = [u64; 20];
+/// flags (1: h and Ω, 2: the leapfrog's closing forces), h, Ω, the closing forces (5), and the
+/// gas's pressure and sound speed.
+pub type Full = [u64; 22];
 
 pub(crate) fn pack(id: u64, phase: usize, ph: &crate::particles::Phase, i: usize) -> Full {
     let b = |v: f64| v.to_bits();
-    let mut r = [0u64; 20];
+    let mut r = [0u64; 22];
     r[0] = id;
     r[1] = phase as u64;
     for k in 0..3 {
@@ -61,6 +62,10 @@ pub fn records(st: &crate::particles::State) -> Vec<Full> {
                     r[13] = h[i].to_bits();
                     r[14] = o[i].to_bits();
                 }
+                if g.p.len() == ph.len() && g.c.len() == ph.len() {
+                    r[20] = g.p[i].to_bits();
+                    r[21] = g.c[i].to_bits();
+                }
                 if let Some(f) = &g.next_forces {
                     r[12] |= 2;
                     for (j, v) in f[i].iter().enumerate() {
@@ -83,6 +88,7 @@ pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::par
     let mut fixed: Vec<Vec<bool>> = vec![Vec::new(); nph];
     let mut e = Vec::new();
     let (mut h, mut omega, mut nf) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut pres, mut cs) = (Vec::new(), Vec::new());
     let (mut all_h, mut all_nf) = (true, true);
     for r in recs {
         let k = r[1] as usize;
@@ -101,6 +107,8 @@ pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::par
             h.push(f(13));
             omega.push(f(14));
             nf.push([f(15), f(16), f(17), f(18), f(19)]);
+            pres.push(f(20));
+            cs.push(f(21));
         }
     }
     let some_gas = recs.iter().any(|r| r[1] == 0);
@@ -130,7 +138,8 @@ pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::par
             h: (some_gas && all_h).then_some(h),
             omega: (some_gas && all_h).then_some(omega),
             next_forces: (some_gas && all_nf).then_some(nf),
-            ..Gas::default()
+            p: pres,
+            c: cs,
         },
         dust,
     }
@@ -197,6 +206,25 @@ impl RankStepper {
     /// Particles this rank owns.
     pub fn owned(&self) -> usize {
         self.owned.len()
+    }
+
+    /// Rank 0 writes the output.
+    pub fn is_root(&self) -> bool {
+        self.world.rank() == 0
+    }
+
+    /// Whether any rank says so (collective).
+    pub fn any(&self, flag: bool) -> bool {
+        self.world.any(flag)
+    }
+
+    /// "R MPI ranks", for the summary.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} MPI ranks (halo {} supports)",
+            self.world.size(),
+            self.depth
+        )
     }
 
     /// One step from time `t` (step count `step`) toward `t_target` on every rank: the plan
