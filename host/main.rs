@@ -344,6 +344,8 @@ fn run(a: RunArgs) -> ExitCode {
         }
     };
     let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.scene.name));
+    // Over MPI ranks only rank 0 speaks (and writes).
+    let quiet = quiet || dustsph::dist::launched().is_some_and(|(r, _)| r != 0);
     if !quiet {
         eprintln!("dustsph: {} → {}", scene.display(), out.display());
     }
