@@ -471,26 +471,38 @@ fn scaling_model_prints_its_table_and_refuses_bad_arguments() {
 
 /// A single-process command started as one of several MPI ranks (the launcher's environment
 /// says so) refuses with exit 2 and writes nothing: every rank would otherwise run the whole
-/// scene into the same output directory.
+/// command into the same output directory. (`run` itself splits over ranks in a build with the
+/// mpi feature, tests/mpi.rs; without it, it refuses too.)
 #[test]
 fn a_run_launched_as_one_of_several_mpi_ranks_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = out_dir(tmp.path());
-    for (size_var, rank_var) in [
-        ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"),
-        ("PMI_SIZE", "PMI_RANK"),
-    ] {
-        let o = Command::new(env!("CARGO_BIN_EXE_dustsph"))
-            .args(["run", "configs/dustybox.toml", "--out", &dir, "-q"])
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .env(size_var, "3")
-            .env(rank_var, "1")
-            .output()
-            .unwrap();
-        assert_eq!(o.status.code(), Some(2), "{size_var}");
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(err.contains("rank 1 of 3"), "{err}");
-        assert!(!Path::new(&dir).exists(), "output written");
+    let mut commands = vec![vec![
+        "study",
+        "configs/studies/ball_small.toml",
+        "--out",
+        &dir,
+    ]];
+    if !cfg!(feature = "mpi") {
+        commands.push(vec!["run", "configs/dustybox.toml", "--out", &dir, "-q"]);
+    }
+    for args in &commands {
+        for (size_var, rank_var) in [
+            ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"),
+            ("PMI_SIZE", "PMI_RANK"),
+        ] {
+            let o = Command::new(env!("CARGO_BIN_EXE_dustsph"))
+                .args(args)
+                .current_dir(env!("CARGO_MANIFEST_DIR"))
+                .env(size_var, "3")
+                .env(rank_var, "1")
+                .output()
+                .unwrap();
+            assert_eq!(o.status.code(), Some(2), "{args:?} {size_var}");
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(err.contains("rank 1 of 3"), "{err}");
+            assert!(!Path::new(&dir).exists(), "output written");
+        }
     }
     // One rank is an ordinary run.
     let o = Command::new(env!("CARGO_BIN_EXE_dustsph"))
