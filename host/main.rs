@@ -89,6 +89,10 @@ struct RunArgs {
     /// Write DIR/checkpoint.h5 every N steps (Ctrl-C always writes one)
     #[arg(long, value_name = "N")]
     checkpoint_every: Option<u64>,
+    /// Stop as if interrupted after N steps (with --checkpoint-every N: a checkpoint to resume
+    /// from; for tests)
+    #[arg(long, value_name = "N", hide = true)]
+    stop_after: Option<u64>,
     /// No progress output
     #[arg(long, short)]
     quiet: bool,
@@ -251,7 +255,11 @@ fn print_field(f: &dustsph::analysis::FieldError) {
     }
 }
 
-fn drive(r: Result<Runner, RunError>, checkpoint_every: Option<u64>) -> ExitCode {
+fn drive(
+    r: Result<Runner, RunError>,
+    checkpoint_every: Option<u64>,
+    stop_after: Option<u64>,
+) -> ExitCode {
     let fail = |e: RunError| {
         eprintln!("error: {e}");
         ExitCode::from(match e {
@@ -269,7 +277,7 @@ fn drive(r: Result<Runner, RunError>, checkpoint_every: Option<u64>) -> ExitCode
     if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
         eprintln!("warning: Ctrl-C will not checkpoint ({e})");
     }
-    match r.advance(None, checkpoint_every, Some(&stop)) {
+    match r.advance(stop_after, checkpoint_every, Some(&stop)) {
         Ok(Stop::Finished) => {}
         Ok(Stop::Interrupted) if !r.is_root() => return ExitCode::from(130),
         Ok(Stop::Interrupted) => {
@@ -300,7 +308,7 @@ fn main() -> ExitCode {
     let cmd = Cli::parse().cmd;
     // One process per job, except for the MPI check: several ranks would each run the whole
     // command into the same output.
-    let over_ranks = cfg!(feature = "mpi") && matches!(cmd, Cmd::Run(_));
+    let over_ranks = cfg!(feature = "mpi") && matches!(cmd, Cmd::Run(_) | Cmd::Resume(_));
     if !matches!(cmd, Cmd::MpiCheck(_)) && !over_ranks {
         if let Err(e) = dustsph::dist::refuse_many_ranks("this dustsph command") {
             eprintln!("error: {e}");
@@ -328,6 +336,7 @@ fn run(a: RunArgs) -> ExitCode {
         out,
         force,
         checkpoint_every,
+        stop_after,
         quiet,
         device,
         precision,
@@ -358,26 +367,17 @@ fn run(a: RunArgs) -> ExitCode {
     // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
     #[cfg(feature = "mpi")]
     if dustsph::dist::launched().is_some_and(|(_, n)| n > 1) {
-        let world = match dustsph::dist::comm::World::init() {
+        let world = match mpi_world() {
             Ok(w) => w,
-            Err(e) => {
-                eprintln!("error: MPI: {e}");
-                return ExitCode::from(2);
-            }
+            Err(code) => return code,
         };
-        // A rank that panics must not finalise MPI while the others wait in a collective
-        // (that hangs the job): print and leave at once, and mpirun stops the others.
-        let hook = std::panic::take_hook();
-        std::panic::set_hook(Box::new(move |info| {
-            hook(info);
-            std::process::exit(70);
-        }));
         return drive(
             Runner::start_over_ranks(&loaded, &opts, world),
             checkpoint_every,
+            stop_after,
         );
     }
-    drive(Runner::start(&loaded, &opts), checkpoint_every)
+    drive(Runner::start(&loaded, &opts), checkpoint_every, stop_after)
 }
 
 fn bench(a: BenchArgs) -> ExitCode {
@@ -618,10 +618,24 @@ fn resume(a: ResumeArgs) -> ExitCode {
         quiet,
         device,
     } = a;
+    let quiet = quiet || dustsph::dist::launched().is_some_and(|(r, _)| r != 0);
     if !quiet {
         eprintln!("dustsph: resuming {}", dir.display());
     }
-    drive(Runner::resume(&dir, !quiet, device), checkpoint_every)
+    // Started as one of several MPI ranks: the rest of the run is split over them.
+    #[cfg(feature = "mpi")]
+    if dustsph::dist::launched().is_some_and(|(_, n)| n > 1) {
+        let world = match mpi_world() {
+            Ok(w) => w,
+            Err(code) => return code,
+        };
+        return drive(
+            Runner::resume_over_ranks(&dir, !quiet, device, world),
+            checkpoint_every,
+            None,
+        );
+    }
+    drive(Runner::resume(&dir, !quiet, device), checkpoint_every, None)
 }
 
 fn parity(a: ParityArgs) -> ExitCode {
@@ -853,4 +867,21 @@ fn mpi_check(a: MpiCheckArgs) -> ExitCode {
             }
         }
     }
+}
+
+/// MPI for a run over ranks. A rank that panics must not finalise MPI while the others wait
+/// in a collective (that hangs the job): it prints and leaves at once, and mpirun stops the
+/// others.
+#[cfg(feature = "mpi")]
+fn mpi_world() -> Result<dustsph::dist::comm::World, ExitCode> {
+    let world = dustsph::dist::comm::World::init().map_err(|e| {
+        eprintln!("error: MPI: {e}");
+        ExitCode::from(2)
+    })?;
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        hook(info);
+        std::process::exit(70);
+    }));
+    Ok(world)
 }

@@ -237,3 +237,85 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
         }
     }
 }
+
+/// A checkpoint written by a run over 3 ranks (stopped after 20 steps) resumes on 2 ranks and
+/// on one process, and both end where an uninterrupted one-process run ends: every particle of
+/// the last snapshot within 1e-12 of the field's scale (the Phantom slab: leapfrog, variable h).
+#[test]
+fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bin = env!("CARGO_BIN_EXE_dustsph");
+    let scene = [
+        "configs/dustywave_phantom.toml",
+        "--set",
+        "sph.n=32",
+        "--set",
+        "time.t_end=0.3",
+        "-q",
+    ];
+    let one = tmp.path().join("one");
+    let mut cmd = Command::new(bin);
+    cmd.arg("run").args(scene).arg("--out").arg(&one);
+    assert!(finish(cmd, "run").status.success());
+    let (reference, vscale, t1) = last_snapshot(&one);
+    let three = tmp.path().join("three");
+    let mut cmd = Command::new("mpirun");
+    cmd.args([
+        "--allow-run-as-root",
+        "--oversubscribe",
+        "-n",
+        "3",
+        bin,
+        "run",
+    ])
+    .args(scene)
+    .arg("--out")
+    .arg(&three)
+    .args(["--checkpoint-every", "20", "--stop-after", "20"]);
+    let o = finish(cmd, "mpirun -n 3 run --stop-after 20");
+    assert!(!o.status.success(), "the run was to stop early");
+    assert!(three.join("checkpoint.h5").exists());
+    for ranks in [1u32, 2] {
+        let dir = tmp.path().join(format!("resumed{ranks}"));
+        let copy = Command::new("cp")
+            .arg("-r")
+            .arg(&three)
+            .arg(&dir)
+            .status()
+            .unwrap();
+        assert!(copy.success());
+        let mut cmd = if ranks == 1 {
+            Command::new(bin)
+        } else {
+            let mut c = Command::new("mpirun");
+            c.args(["--allow-run-as-root", "--oversubscribe", "-n", "2", bin]);
+            c
+        };
+        cmd.arg("resume").arg(&dir).arg("-q");
+        let o = finish(cmd, "resume");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let (got, _, t) = last_snapshot(&dir);
+        assert_eq!(t, t1);
+        assert_eq!(got.len(), reference.len());
+        let xs = reference.values().fold(0.0f64, |a, (x, _, _)| {
+            x.iter().fold(a, |m, v| m.max(v.abs()))
+        });
+        for (k, (x, v, r)) in &reference {
+            let (gx, gv, gr) = got.get(k).expect("every particle present");
+            for d in 0..3 {
+                assert!(
+                    (gx[d] - x[d]).abs() <= 1e-12 * xs,
+                    "resumed on {ranks}: x {k:?}"
+                );
+                assert!(
+                    (gv[d] - v[d]).abs() <= 1e-12 * vscale,
+                    "resumed on {ranks}: v {k:?}"
+                );
+            }
+            assert!(
+                (gr - r).abs() <= 1e-12 * r.abs(),
+                "resumed on {ranks}: rho {k:?}"
+            );
+        }
+    }
+}

@@ -423,6 +423,36 @@ impl Runner {
 
     /// Continue a run from `DIR/checkpoint.h5`.
     pub fn resume(dir: &Path, verbose: bool, device: DeviceChoice) -> Result<Runner, RunError> {
+        Self::resume_on(dir, verbose, device, |_, _| Ok(None))
+    }
+
+    /// [`Runner::resume`] as one of several MPI ranks: every rank reads the checkpoint (one
+    /// written by any number of ranks, or by one process) and steps its share from there.
+    #[cfg(feature = "mpi")]
+    pub fn resume_over_ranks(
+        dir: &Path,
+        verbose: bool,
+        device: DeviceChoice,
+        world: crate::dist::comm::World,
+    ) -> Result<Runner, RunError> {
+        Self::resume_on(dir, verbose, device, move |phys, state| {
+            crate::dist::ranks::RankStepper::new(
+                world,
+                phys.clone(),
+                state,
+                crate::dist::ranks::RUN_DEPTH,
+            )
+            .map(Some)
+            .map_err(RunError::Input)
+        })
+    }
+
+    fn resume_on(
+        dir: &Path,
+        verbose: bool,
+        device: DeviceChoice,
+        ranks: impl FnOnce(&Physics, &State) -> Result<Option<Ranks>, RunError>,
+    ) -> Result<Runner, RunError> {
         let ck = dir.join(io::checkpoint::CHECKPOINT_NAME);
         // Everything resume checks is input: on a mismatch it exits 2 and changes nothing.
         let (state, meta) =
@@ -443,6 +473,8 @@ impl Runner {
             serde_json::from_str(&meta.progress_json).map_err(|e| bad(e.to_string()))?;
         verify_resume(dir, &state, &loaded, &prog).map_err(bad)?;
         let (eng, state) = Self::engine(&loaded, Some(state), device, verbose)?;
+        let ranks = ranks(eng.phys(), &state)?;
+        let root = ranks.as_ref().is_none_or(|r| r.is_root());
         Ok(Runner {
             times: output_times(&loaded),
             loaded,
@@ -451,8 +483,8 @@ impl Runner {
             state,
             prog,
             wall0: Instant::now(),
-            verbose,
-            ranks: None,
+            verbose: verbose && root,
+            ranks,
             eng_stale: false,
         })
     }
