@@ -319,3 +319,78 @@ fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
         }
     }
 }
+
+/// Killing one rank mid-run stops the job (mpirun says which rank died) and the snapshots
+/// written before stay readable; no summary is written.
+#[test]
+fn killing_one_rank_stops_the_job_and_keeps_the_snapshots() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("killed");
+    let mut child = Command::new("mpirun")
+        .args(["--allow-run-as-root", "--oversubscribe", "-n", "3"])
+        .arg(env!("CARGO_BIN_EXE_dustsph"))
+        .args([
+            "run",
+            "configs/dustywave_phantom.toml",
+            "--set",
+            "sph.n=32",
+            "--set",
+            "time.t_end=100",
+            "--set",
+            "time.output_dt=0.1",
+            "-q",
+            "--out",
+        ])
+        .arg(&dir)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while !dir.join("snapshot_0001.h5").exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "no second snapshot"
+        );
+        assert!(child.try_wait().unwrap().is_none(), "the run ended early");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // One of mpirun's ranks (its children), not the first.
+    let ranks = String::from_utf8(
+        Command::new("pgrep")
+            .args(["-P", &child.id().to_string()])
+            .output()
+            .unwrap()
+            .stdout,
+    )
+    .unwrap();
+    let victim = ranks.lines().nth(1).expect("three ranks");
+    assert!(Command::new("kill")
+        .args(["-9", victim])
+        .status()
+        .unwrap()
+        .success());
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > Duration::from_secs(180) {
+            child.kill().ok();
+            panic!("the job went on after a rank was killed");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let o = child.wait_with_output().unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("signal 9"), "{err}");
+    assert!(!dir.join("summary.json").exists());
+    let mut n = 0;
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "h5") {
+            dustsph::io::snapshot::read_snapshot(&p)
+                .expect("a snapshot written before stays readable");
+            n += 1;
+        }
+    }
+    assert!(n >= 2, "{n} snapshots");
+}
