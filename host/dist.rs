@@ -98,6 +98,7 @@ pub mod comm {
 
         /// Every rank's bytes, in rank order, on every rank.
         pub fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
+            let mine = &heap(mine)[..];
             let mut counts = vec![0 as Count; self.size() as usize];
             self.world
                 .all_gather_into(&(mine.len() as Count), &mut counts[..]);
@@ -109,6 +110,29 @@ pub mod comm {
                 self.world.all_gather_varcount_into(mine, &mut part);
             }
             split(&buf[..total], &counts, &displs)
+        }
+
+        /// Every rank's bytes, in rank order, on rank 0 only (`None` elsewhere): the output's
+        /// gather (MPI_Gatherv; the other ranks receive nothing).
+        pub fn gather_bytes(&self, mine: &[u8]) -> Option<Vec<Vec<u8>>> {
+            let mine = &heap(mine)[..];
+            let root = self.world.process_at_rank(0);
+            let n = mine.len() as Count;
+            if self.rank() != 0 {
+                root.gather_into(&n);
+                root.gather_varcount_into(mine);
+                return None;
+            }
+            let mut counts = vec![0 as Count; self.size() as usize];
+            root.gather_into_root(&n, &mut counts[..]);
+            let displs = displacements(&counts);
+            let total: usize = counts.iter().map(|&c| c as usize).sum();
+            let mut buf = vec![0u8; total.max(1)];
+            {
+                let mut part = PartitionMut::new(&mut buf[..total], &counts[..], &displs[..]);
+                root.gather_varcount_into_root(mine, &mut part);
+            }
+            Some(split(&buf[..total], &counts, &displs))
         }
 
         /// All-to-all of plain records: `sends[q]` goes to rank q; returns what every rank sent
@@ -128,8 +152,8 @@ pub mod comm {
             let mut recv_counts = vec![0 as Count; size];
             self.world
                 .all_to_all_into(&send_counts[..], &mut recv_counts[..]);
-            // Never an empty allocation: two empty Vecs share one dangling address, and MPI
-            // refuses a send buffer equal to the receive buffer (MPI_ERR_ARG) even with no data.
+            // Never an empty allocation: an empty Vec's dangling address is 0x1, which OpenMPI
+            // reads as MPI_IN_PLACE (MPI_ERR_ARG here) even with no data.
             let mut send: Vec<u8> = Vec::with_capacity(1);
             for s in sends {
                 send.extend_from_slice(bytemuck::cast_slice::<T, u8>(s));
@@ -149,6 +173,15 @@ pub mod comm {
                 .map(bytemuck::pod_read_unaligned::<T>)
                 .collect())
         }
+    }
+
+    /// A copy of `b` in a real allocation, even when empty: an empty slice's dangling address
+    /// is 0x1, which OpenMPI reads as MPI_IN_PLACE (an error on a non-root rank of a gather,
+    /// and a silent in-place operation in an all-gather).
+    fn heap(b: &[u8]) -> Vec<u8> {
+        let mut v = Vec::with_capacity(b.len().max(1));
+        v.extend_from_slice(b);
+        v
     }
 
     fn displacements(counts: &[Count]) -> Vec<Count> {

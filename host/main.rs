@@ -810,11 +810,11 @@ fn mpi_check(a: MpiCheckArgs) -> ExitCode {
                     reports.len(),
                     a.depth
                 );
-                println!("| rank | owned | halo | halo/owned | peers | MB sent | migrate ms | halo ms | check |");
-                println!("|---|---|---|---|---|---|---|---|---|");
+                println!("| rank | owned | halo | halo/owned | peers | MB sent | migrate ms | halo ms | gather ms | check |");
+                println!("|---|---|---|---|---|---|---|---|---|---|");
                 for r in &reports {
                     println!(
-                        "| {} | {} | {} | {:.3} | {} | {:.3} | {:.2} | {:.2} | {} |",
+                        "| {} | {} | {} | {:.3} | {} | {:.3} | {:.2} | {:.2} | {:.2} | {} |",
                         r.rank,
                         r.owned,
                         r.halo,
@@ -823,6 +823,7 @@ fn mpi_check(a: MpiCheckArgs) -> ExitCode {
                         r.bytes_sent as f64 / 1e6,
                         r.migrate_s * 1e3,
                         r.halo_s * 1e3,
+                        r.gather_s * 1e3,
                         if r.failure.is_empty() { "ok" } else { "FAILED" }
                     );
                 }

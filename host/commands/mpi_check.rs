@@ -41,6 +41,8 @@ pub struct RankReport {
     pub bytes_sent: usize,
     pub migrate_s: f64,
     pub halo_s: f64,
+    /// Gathering every particle's whole record (what a run's output gathers on rank 0).
+    pub gather_s: f64,
     /// Why this rank's checks failed (empty: passed).
     pub failure: String,
 }
@@ -140,6 +142,13 @@ pub fn run(
         p.len()
     };
 
+    // The output's gather: every owned particle's whole record to rank 0's buffer (the same
+    // volume as `dist::ranks::RankStepper::gather`).
+    let t2 = Instant::now();
+    let full = vec![0u8; owned.len() * std::mem::size_of::<crate::dist::ranks::Full>()];
+    let gathered = world.gather_bytes(&full);
+    let gather_s = t2.elapsed().as_secs_f64();
+    drop(gathered);
     let mut failure = check(me, &all, &owned, &halo, &part, reach, &su.domain);
     let mut total = [owned.len() as u64];
     world.sum_u64(&mut total);
@@ -161,6 +170,7 @@ pub fn run(
         bytes_sent,
         migrate_s,
         halo_s,
+        gather_s,
         failure,
     };
     let failed = world.any(!report.failure.is_empty());
@@ -238,13 +248,21 @@ fn check(
 
 fn encode(r: &RankReport) -> String {
     format!(
-        "{}\t{}\t{}\t{}\t{}\t{:e}\t{:e}\t{}",
-        r.rank, r.owned, r.halo, r.peers, r.bytes_sent, r.migrate_s, r.halo_s, r.failure
+        "{}\t{}\t{}\t{}\t{}\t{:e}\t{:e}\t{:e}\t{}",
+        r.rank,
+        r.owned,
+        r.halo,
+        r.peers,
+        r.bytes_sent,
+        r.migrate_s,
+        r.halo_s,
+        r.gather_s,
+        r.failure
     )
 }
 
 fn decode(s: &str) -> RankReport {
-    let f: Vec<&str> = s.splitn(8, '\t').collect();
+    let f: Vec<&str> = s.splitn(9, '\t').collect();
     let num = |i: usize| {
         f.get(i)
             .and_then(|v| v.parse::<f64>().ok())
@@ -258,7 +276,8 @@ fn decode(s: &str) -> RankReport {
         bytes_sent: num(4) as usize,
         migrate_s: num(5),
         halo_s: num(6),
-        failure: f.get(7).unwrap_or(&"").to_string(),
+        gather_s: num(7),
+        failure: f.get(8).unwrap_or(&"").to_string(),
     }
 }
 

@@ -364,10 +364,9 @@ impl RankStepper {
     /// at time `t`, step `step`; `None` on the other ranks. Collective.
     pub fn gather(&self, t: f64, step: u64) -> Result<Option<State>, String> {
         let bytes: Vec<u8> = bytemuck::cast_slice(&self.owned).to_vec();
-        let parts = self.world.all_gather_bytes(&bytes);
-        if self.world.rank() != 0 {
+        let Some(parts) = self.world.gather_bytes(&bytes) else {
             return Ok(None);
-        }
+        };
         let mut all: Vec<Full> = parts
             .iter()
             .flat_map(|b| b.chunks_exact(std::mem::size_of::<Full>()))
