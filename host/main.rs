@@ -366,16 +366,9 @@ fn run(a: RunArgs) -> ExitCode {
     };
     // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
     #[cfg(feature = "mpi")]
-    if dustsph::dist::launched().is_some_and(|(_, n)| n > 1) {
-        let world = match mpi_world() {
-            Ok(w) => w,
-            Err(code) => return code,
-        };
-        return drive(
-            Runner::start_over_ranks(&loaded, &opts, world),
-            checkpoint_every,
-            stop_after,
-        );
+    if let Some(world) = ranks_world() {
+        let r = world.and_then(|w| Runner::start_over_ranks(&loaded, &opts, w));
+        return drive(r, checkpoint_every, stop_after);
     }
     drive(Runner::start(&loaded, &opts), checkpoint_every, stop_after)
 }
@@ -624,16 +617,9 @@ fn resume(a: ResumeArgs) -> ExitCode {
     }
     // Started as one of several MPI ranks: the rest of the run is split over them.
     #[cfg(feature = "mpi")]
-    if dustsph::dist::launched().is_some_and(|(_, n)| n > 1) {
-        let world = match mpi_world() {
-            Ok(w) => w,
-            Err(code) => return code,
-        };
-        return drive(
-            Runner::resume_over_ranks(&dir, !quiet, device, world),
-            checkpoint_every,
-            None,
-        );
+    if let Some(world) = ranks_world() {
+        let r = world.and_then(|w| Runner::resume_over_ranks(&dir, !quiet, device, w));
+        return drive(r, checkpoint_every, None);
     }
     drive(Runner::resume(&dir, !quiet, device), checkpoint_every, None)
 }
@@ -870,19 +856,20 @@ fn mpi_check(a: MpiCheckArgs) -> ExitCode {
     }
 }
 
-/// MPI for a run over ranks. A rank that panics must not finalise MPI while the others wait
-/// in a collective (that hangs the job): it prints and leaves at once, and mpirun stops the
-/// others.
+/// MPI for a run started as one of several ranks (`None` otherwise). A rank that panics must
+/// not finalise MPI while the others wait in a collective (that hangs the job): it prints and
+/// leaves at once, and mpirun stops the others.
 #[cfg(feature = "mpi")]
-fn mpi_world() -> Result<dustsph::dist::comm::World, ExitCode> {
-    let world = dustsph::dist::comm::World::init().map_err(|e| {
-        eprintln!("error: MPI: {e}");
-        ExitCode::from(2)
-    })?;
+fn ranks_world() -> Option<Result<dustsph::dist::comm::World, RunError>> {
+    if dustsph::dist::launched().is_none_or(|(_, n)| n <= 1) {
+        return None;
+    }
+    let world =
+        dustsph::dist::comm::World::init().map_err(|e| RunError::Input(format!("MPI: {e}")));
     let hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
         hook(info);
         std::process::exit(70);
     }));
-    Ok(world)
+    Some(world)
 }

@@ -154,6 +154,23 @@ fn last_snapshot(dir: &std::path::Path) -> (ById, f64, f64) {
     (out, vmax, s.time)
 }
 
+/// Every particle of `got` within 1e-12 of `reference`: positions relative to the largest |x|,
+/// velocities to `vscale`, each density relative to itself.
+fn assert_same(reference: &ById, got: &ById, vscale: f64, what: &str) {
+    assert_eq!(got.len(), reference.len(), "{what}");
+    let xs = reference.values().fold(0.0f64, |a, (x, _, _)| {
+        x.iter().fold(a, |m, v| m.max(v.abs()))
+    });
+    for (k, (x, v, r)) in reference {
+        let (gx, gv, gr) = got.get(k).expect("every particle present");
+        for d in 0..3 {
+            assert!((gx[d] - x[d]).abs() <= 1e-12 * xs, "{what}: x {k:?}");
+            assert!((gv[d] - v[d]).abs() <= 1e-12 * vscale, "{what}: v {k:?}");
+        }
+        assert!((gr - r).abs() <= 1e-12 * r.abs(), "{what}: rho {k:?}");
+    }
+}
+
 /// `mpirun -n 2/3/4 dustsph run` on the box, the 1D wave, the Phantom slab (leapfrog, variable
 /// h, IAD), the shock tube and the small ball ends where one process ends: every particle of
 /// the last snapshot (rank 0 writes it, matched by ParticleIDs) within 1e-12 of the field's
@@ -208,32 +225,7 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             assert!(dir.join("summary.json").exists());
             let (got, _, t) = last_snapshot(&dir);
             assert_eq!(t, t1, "-n {ranks} {args:?}");
-            assert_eq!(got.len(), reference.len(), "-n {ranks} {args:?}");
-            let (xs, rs) = reference
-                .values()
-                .fold((0.0f64, 0.0f64), |(a, b), (x, _, r)| {
-                    (
-                        a.max(x.iter().fold(0.0f64, |m, v| m.max(v.abs()))),
-                        b.max(*r),
-                    )
-                });
-            for (k, (x, v, r)) in &reference {
-                let (gx, gv, gr) = got.get(k).expect("every particle present");
-                for d in 0..3 {
-                    assert!(
-                        (gx[d] - x[d]).abs() <= 1e-12 * xs,
-                        "-n {ranks} {args:?} x {k:?}"
-                    );
-                    assert!(
-                        (gv[d] - v[d]).abs() <= 1e-12 * vscale,
-                        "-n {ranks} {args:?} v {k:?}"
-                    );
-                }
-                assert!(
-                    (gr - r).abs() <= 1e-12 * rs,
-                    "-n {ranks} {args:?} rho {k:?}"
-                );
-            }
+            assert_same(&reference, &got, vscale, &format!("-n {ranks} {args:?}"));
         }
     }
 }
@@ -296,27 +288,7 @@ fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let (got, _, t) = last_snapshot(&dir);
         assert_eq!(t, t1);
-        assert_eq!(got.len(), reference.len());
-        let xs = reference.values().fold(0.0f64, |a, (x, _, _)| {
-            x.iter().fold(a, |m, v| m.max(v.abs()))
-        });
-        for (k, (x, v, r)) in &reference {
-            let (gx, gv, gr) = got.get(k).expect("every particle present");
-            for d in 0..3 {
-                assert!(
-                    (gx[d] - x[d]).abs() <= 1e-12 * xs,
-                    "resumed on {ranks}: x {k:?}"
-                );
-                assert!(
-                    (gv[d] - v[d]).abs() <= 1e-12 * vscale,
-                    "resumed on {ranks}: v {k:?}"
-                );
-            }
-            assert!(
-                (gr - r).abs() <= 1e-12 * r.abs(),
-                "resumed on {ranks}: rho {k:?}"
-            );
-        }
+        assert_same(&reference, &got, vscale, &format!("resumed on {ranks}"));
     }
 }
 

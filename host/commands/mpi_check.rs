@@ -11,9 +11,9 @@
 //! supports of an owned particle (minimum image on periodic axes) is missing from owned ∪ halo.
 //! A rank that fails reports why and every rank exits 1 (an all-reduce of the failure flag:
 //! no rank waits forever on another).
-use crate::decomp::{CellBox, Cells, Partition};
+use crate::decomp::Partition;
 use crate::dist::comm::World;
-use crate::dist::ranks::{records, Full, RankStepper};
+use crate::dist::ranks::{cut, halo_copies, migrate, records, Full, RankStepper};
 use std::time::Instant;
 
 /// One particle on the wire: id, phase (0 gas, 1 + k dust fraction k), position bits.
@@ -78,62 +78,18 @@ pub fn run(
         .collect();
 
     // Global bounds (periodic axes: the period), then the same cells and cut everywhere.
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for r in &mine {
-        let x = pos(r);
-        for k in 0..3 {
-            lo[k] = lo[k].min(x[k]);
-            hi[k] = hi[k].max(x[k]);
-        }
-    }
-    world.min_f64(&mut lo);
-    world.max_f64(&mut hi);
-    let mut periodic = [false; 3];
-    for k in 0..3 {
-        if let Some((p0, len)) = su.domain.periodic[k] {
-            (lo[k], hi[k], periodic[k]) = (p0, p0 + len, true);
-        }
-    }
-    let cbox = CellBox::new(lo, hi, reach, periodic);
-    let mut counts = vec![0u64; cbox.len()];
-    for r in &mine {
-        counts[cbox.index(cbox.cell_of(pos(r)))] += 1;
-    }
-    world.sum_u64(&mut counts);
-    let cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
-    let part = Partition::of(&cells, ranks);
+    let xs: Vec<[f64; 3]> = mine.iter().map(pos).collect();
+    let part = cut(world, &xs, &su.domain, reach);
 
     // Migration to the owners.
     let t0 = Instant::now();
-    let mut sends: Vec<Vec<Rec>> = vec![Vec::new(); ranks as usize];
-    for r in &mine {
-        sends[part.owner_at(pos(r)) as usize].push(*r);
-    }
-    let mut bytes_sent: usize = sends
-        .iter()
-        .enumerate()
-        .filter(|(q, _)| *q as u32 != me)
-        .map(|(_, s)| s.len() * std::mem::size_of::<Rec>())
-        .sum();
-    let owned = world.exchange(&sends)?;
+    let (owned, mut bytes_sent) = migrate(world, &part, &mine, pos)?;
     let migrate_s = t0.elapsed().as_secs_f64();
 
     // Halo: each owned particle to the ranks owning a cell next to its own.
     let t1 = Instant::now();
-    let mut sends: Vec<Vec<Rec>> = vec![Vec::new(); ranks as usize];
-    let mut to = Vec::new();
-    for r in &owned {
-        part.halo_ranks(cbox.cell_of(pos(r)), &mut to);
-        for &q in &to {
-            sends[q as usize].push(*r);
-        }
-    }
-    bytes_sent += sends
-        .iter()
-        .map(|s| s.len() * std::mem::size_of::<Rec>())
-        .sum::<usize>();
-    let halo = world.exchange(&sends)?;
+    let (halo, sent) = halo_copies(world, &part, &owned, pos)?;
+    bytes_sent += sent;
     let halo_s = t1.elapsed().as_secs_f64();
     let peers = {
         let mut p: Vec<u64> = halo.iter().map(|r| part.owner_at(pos(r)) as u64).collect();

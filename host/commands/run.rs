@@ -44,6 +44,23 @@ impl Ranks {
     }
 }
 
+/// How a run over ranks splits its state: this rank's share, stepped with the run's halo depth.
+#[cfg(feature = "mpi")]
+fn over_ranks(
+    world: crate::dist::comm::World,
+) -> impl FnOnce(&Physics, &State) -> Result<Option<Ranks>, RunError> {
+    move |phys, state| {
+        crate::dist::ranks::RankStepper::new(
+            world,
+            phys.clone(),
+            state,
+            crate::dist::ranks::RUN_DEPTH,
+        )
+        .map(Some)
+        .map_err(RunError::Input)
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct RunOptions {
     pub out: PathBuf,
@@ -331,16 +348,7 @@ impl Runner {
         opts: &RunOptions,
         world: crate::dist::comm::World,
     ) -> Result<Runner, RunError> {
-        Self::start_on(loaded, opts, move |phys, state| {
-            crate::dist::ranks::RankStepper::new(
-                world,
-                phys.clone(),
-                state,
-                crate::dist::ranks::RUN_DEPTH,
-            )
-            .map(Some)
-            .map_err(RunError::Input)
-        })
+        Self::start_on(loaded, opts, over_ranks(world))
     }
 
     fn start_on(
@@ -435,16 +443,7 @@ impl Runner {
         device: DeviceChoice,
         world: crate::dist::comm::World,
     ) -> Result<Runner, RunError> {
-        Self::resume_on(dir, verbose, device, move |phys, state| {
-            crate::dist::ranks::RankStepper::new(
-                world,
-                phys.clone(),
-                state,
-                crate::dist::ranks::RUN_DEPTH,
-            )
-            .map(Some)
-            .map_err(RunError::Input)
-        })
+        Self::resume_on(dir, verbose, device, over_ranks(world))
     }
 
     fn resume_on(

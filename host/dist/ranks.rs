@@ -164,6 +164,80 @@ pub fn supported(phys: &Physics) -> Result<(), String> {
     Ok(())
 }
 
+/// The Morton cut of this step, the same on every rank (collective): global bounds (the period
+/// on periodic axes) and per-cell counts of every rank's positions `xs`, cells `reach` wide.
+pub fn cut(world: &World, xs: &[[f64; 3]], domain: &crate::grid::Domain, reach: f64) -> Partition {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for x in xs {
+        for k in 0..3 {
+            lo[k] = lo[k].min(x[k]);
+            hi[k] = hi[k].max(x[k]);
+        }
+    }
+    world.min_f64(&mut lo);
+    world.max_f64(&mut hi);
+    let mut periodic = [false; 3];
+    for k in 0..3 {
+        if let Some((p0, len)) = domain.periodic[k] {
+            (lo[k], hi[k], periodic[k]) = (p0, p0 + len, true);
+        }
+    }
+    let cbox = CellBox::new(lo, hi, reach, periodic);
+    let mut counts = vec![0u64; cbox.len()];
+    for &x in xs {
+        counts[cbox.index(cbox.cell_of(x))] += 1;
+    }
+    world.sum_u64(&mut counts);
+    let cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
+    Partition::of(&cells, world.size())
+}
+
+/// Every record to the rank owning its cell (collective): what this rank now owns, and the
+/// bytes it sent to other ranks.
+pub fn migrate<T: bytemuck::Pod>(
+    world: &World,
+    part: &Partition,
+    recs: &[T],
+    pos: impl Fn(&T) -> [f64; 3],
+) -> Result<(Vec<T>, usize), String> {
+    let mut sends: Vec<Vec<T>> = vec![Vec::new(); world.size() as usize];
+    for r in recs {
+        sends[part.owner_at(pos(r)) as usize].push(*r);
+    }
+    let me = world.rank() as usize;
+    let bytes = sends
+        .iter()
+        .enumerate()
+        .filter(|(q, _)| *q != me)
+        .map(|(_, s)| std::mem::size_of_val(s.as_slice()))
+        .sum();
+    Ok((world.exchange(&sends)?, bytes))
+}
+
+/// Copies of the owned records in cells next to another rank's cells, to those ranks
+/// (collective): the halo this rank receives, and the bytes it sent.
+pub fn halo_copies<T: bytemuck::Pod>(
+    world: &World,
+    part: &Partition,
+    owned: &[T],
+    pos: impl Fn(&T) -> [f64; 3],
+) -> Result<(Vec<T>, usize), String> {
+    let mut sends: Vec<Vec<T>> = vec![Vec::new(); world.size() as usize];
+    let mut to = Vec::new();
+    for r in owned {
+        part.halo_ranks(part.cbox.cell_of(pos(r)), &mut to);
+        for &q in &to {
+            sends[q as usize].push(*r);
+        }
+    }
+    let bytes = sends
+        .iter()
+        .map(|s| std::mem::size_of_val(s.as_slice()))
+        .sum();
+    Ok((world.exchange(&sends)?, bytes))
+}
+
 /// One rank's share of a scene stepped over the ranks.
 pub struct RankStepper {
     pub world: World,
@@ -237,49 +311,14 @@ impl RankStepper {
         t_target: f64,
     ) -> Result<(Plan, f64, f64), String> {
         let world = &self.world;
-        let (me, ranks) = (world.rank(), world.size());
+        let me = world.rank();
         let domain = self.phys.domain;
         let inner = self.depth * self.phys.support();
         let reach = (self.depth + 1.0) * self.phys.support();
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for r in &self.owned {
-            let x = full_pos(r);
-            for k in 0..3 {
-                lo[k] = lo[k].min(x[k]);
-                hi[k] = hi[k].max(x[k]);
-            }
-        }
-        world.min_f64(&mut lo);
-        world.max_f64(&mut hi);
-        let mut periodic = [false; 3];
-        for k in 0..3 {
-            if let Some((p0, len)) = domain.periodic[k] {
-                (lo[k], hi[k], periodic[k]) = (p0, p0 + len, true);
-            }
-        }
-        let cbox = CellBox::new(lo, hi, reach, periodic);
-        let mut counts = vec![0u64; cbox.len()];
-        for r in &self.owned {
-            counts[cbox.index(cbox.cell_of(full_pos(r)))] += 1;
-        }
-        world.sum_u64(&mut counts);
-        let cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
-        let part = Partition::of(&cells, ranks);
-        let mut sends: Vec<Vec<Full>> = vec![Vec::new(); ranks as usize];
-        for r in &self.owned {
-            sends[part.owner_at(full_pos(r)) as usize].push(*r);
-        }
-        let owned = world.exchange(&sends)?;
-        let mut sends: Vec<Vec<Full>> = vec![Vec::new(); ranks as usize];
-        let mut to = Vec::new();
-        for r in &owned {
-            part.halo_ranks(cbox.cell_of(full_pos(r)), &mut to);
-            for &q in &to {
-                sends[q as usize].push(*r);
-            }
-        }
-        let halo = world.exchange(&sends)?;
+        let xs: Vec<[f64; 3]> = self.owned.iter().map(full_pos).collect();
+        let part = cut(world, &xs, &domain, reach);
+        let (owned, _) = migrate(world, &part, &self.owned, full_pos)?;
+        let (halo, _) = halo_copies(world, &part, &owned, full_pos)?;
         let mine: std::collections::HashSet<(u64, u64)> =
             owned.iter().map(|r| (r[0], r[1])).collect();
         let mut local_recs = owned.clone();
