@@ -366,3 +366,48 @@ fn killing_one_rank_stops_the_job_and_keeps_the_snapshots() {
     }
     assert!(n >= 2, "{n} snapshots");
 }
+
+/// Each rank steps on the device asked for (`--device`, rank r on GPU r mod count): where no
+/// GPU is usable, `cuda` stops every rank before anything is written, naming the option, and
+/// `auto` steps on the CPU and says so in summary.json's backend. (On a machine with a GPU the
+/// ranks' CUDA steps are checked by scripts/gpu-check, not here.)
+#[test]
+fn each_rank_steps_on_the_device_asked_for() {
+    let bin = env!("CARGO_BIN_EXE_dustsph");
+    let probe = Command::new(bin).arg("gpu").output().unwrap();
+    if !String::from_utf8_lossy(&probe.stdout).contains("device: none") {
+        eprintln!("a GPU is usable here: the no-GPU contract is not what this machine has");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let run = |device: &str, dir: &std::path::Path| {
+        let mut cmd = Command::new("mpirun");
+        cmd.args(["--allow-run-as-root", "--oversubscribe", "-n", "2"])
+            .arg(bin)
+            .args(["run", "configs/dustybox.toml", "--set", "time.t_end=0.05"])
+            .args(["--device", device, "--out"])
+            .arg(dir);
+        finish(cmd, &format!("mpirun -n 2 run --device {device}"))
+    };
+    let cuda = tmp.path().join("cuda");
+    let o = run("cuda", &cuda);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success(),
+        "--device cuda without a GPU ran: {err}"
+    );
+    assert!(err.contains("--device cuda"), "{err}");
+    assert!(!cuda.exists(), "--device cuda without a GPU wrote output");
+    let auto = tmp.path().join("auto");
+    let o = run("auto", &auto);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("no GPU used"), "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(auto.join("summary.json")).unwrap()).unwrap();
+    let backend = summary["backend"].as_str().unwrap();
+    assert!(
+        backend.starts_with("2 MPI ranks") && backend.contains("each stepping on cpu"),
+        "{backend}"
+    );
+}

@@ -261,7 +261,14 @@ pub fn step_over_ranks(
     let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
     let phys = crate::engine::Physics::from_scene(scene, su.h, su.domain);
     let drv = Driver::new(&scene.time, phys.h);
-    let mut ranks = RankStepper::new(world, phys.clone(), &su.state, depth)?;
+    let mut ranks = RankStepper::new(
+        world,
+        phys.clone(),
+        &su.state,
+        depth,
+        DeviceChoice::Cpu,
+        false,
+    )?;
     let mut t = su.state.t;
     for step in 0..steps {
         t = ranks.step(&drv, t, step, scene.time.t_end)?.1;

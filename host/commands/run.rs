@@ -48,6 +48,8 @@ impl Ranks {
 #[cfg(feature = "mpi")]
 fn over_ranks(
     world: crate::dist::comm::World,
+    device: DeviceChoice,
+    verbose: bool,
 ) -> impl FnOnce(&Physics, &State) -> Result<Option<Ranks>, RunError> {
     move |phys, state| {
         crate::dist::ranks::RankStepper::new(
@@ -55,6 +57,8 @@ fn over_ranks(
             phys.clone(),
             state,
             crate::dist::ranks::RUN_DEPTH,
+            device,
+            verbose,
         )
         .map(Some)
         .map_err(RunError::Input)
@@ -348,7 +352,12 @@ impl Runner {
         opts: &RunOptions,
         world: crate::dist::comm::World,
     ) -> Result<Runner, RunError> {
-        Self::start_on(loaded, opts, over_ranks(world))
+        // The set-up (and rank 0's outputs) on the CPU; the steps on each rank's device.
+        let setup = RunOptions {
+            device: DeviceChoice::Cpu,
+            ..opts.clone()
+        };
+        Self::start_on(loaded, &setup, over_ranks(world, opts.device, opts.verbose))
     }
 
     fn start_on(
@@ -443,7 +452,8 @@ impl Runner {
         device: DeviceChoice,
         world: crate::dist::comm::World,
     ) -> Result<Runner, RunError> {
-        Self::resume_on(dir, verbose, device, over_ranks(world))
+        let steps_on = over_ranks(world, device, verbose);
+        Self::resume_on(dir, verbose, DeviceChoice::Cpu, steps_on)
     }
 
     fn resume_on(
@@ -853,7 +863,7 @@ impl Runner {
             overrides: loaded.overrides.clone(),
             dimension: scene.dim(),
             backend: match &ranks {
-                Some(r) => format!("{}, {}", eng.describe(), r.describe()),
+                Some(r) => format!("{}; set-up and outputs: {}", r.describe(), eng.describe()),
                 None => eng.describe(),
             },
             precision: eng.phys().precision.name(),

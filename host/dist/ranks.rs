@@ -245,20 +245,85 @@ pub struct RankStepper {
     template: State,
     owned: Vec<Full>,
     depth: f64,
+    /// Where this rank steps: its own GPU (rank r on device r mod count), or the CPU.
+    dev: RankDevice,
+    /// Every rank's device, for the summary (gathered at the start).
+    devices: Vec<String>,
+}
+
+/// The launcher a rank steps on, kept across its steps (a GPU's kernels are loaded once).
+enum RankDevice {
+    Cpu,
+    Cuda(crate::engine::gpu::Cuda),
+}
+
+impl RankDevice {
+    /// The engine on this device for the rank's local state of one step.
+    fn engine(
+        &self,
+        phys: Physics,
+        state: &mut State,
+    ) -> Result<Backend, crate::engine::StepError> {
+        match self {
+            RankDevice::Cpu => Backend::new(DeviceChoice::Cpu, phys, state),
+            RankDevice::Cuda(d) => Backend::on_cuda(d.clone(), phys, state),
+        }
+    }
+}
+
+/// Rank `me`'s device for `asked` (`--device`): with a GPU, device `me` mod the count this
+/// process sees, tried on the rank's share before anything is written; `auto` falls back to
+/// the CPU (with a note) where that fails, `cuda` stops. `Err` is the rank's message.
+fn rank_device(
+    asked: DeviceChoice,
+    me: u32,
+    phys: &Physics,
+    share: &mut State,
+) -> Result<(RankDevice, Option<String>), String> {
+    use crate::engine::gpu::{self, Cuda};
+    let (device, note) = crate::engine::backend::select(asked)?;
+    if device != DeviceChoice::Cuda {
+        return Ok((RankDevice::Cpu, note));
+    }
+    let tried = gpu::launch::device_count()
+        .and_then(|n| {
+            let ordinal = me as usize % n.max(1);
+            Cuda::new(ordinal, gpu::PTX).map_err(|e| format!("CUDA device {ordinal}: {e}"))
+        })
+        .and_then(|d| {
+            if share.gas.ph.x.is_empty() && share.dust.iter().all(|p| p.x.is_empty()) {
+                return Ok(d);
+            }
+            Backend::on_cuda(d.clone(), phys.clone(), share)
+                .map(|_| d)
+                .map_err(|e| e.to_string())
+        });
+    match (tried, asked) {
+        (Ok(d), _) => Ok((RankDevice::Cuda(d), None)),
+        (Err(e), DeviceChoice::Auto) => Ok((
+            RankDevice::Cpu,
+            Some(format!("rank {me}: no GPU used ({e}); stepping on the CPU")),
+        )),
+        (Err(e), _) => Err(format!("--device cuda on rank {me}: {e}")),
+    }
 }
 
 impl RankStepper {
     /// This rank's share of `full` (the scene's whole state, built alike on every rank): the
     /// particles k with k mod R = rank, until the first step's cut moves them to their owners.
+    /// Each rank steps on the device `device` resolves to for it ([`rank_device`]); a rank
+    /// that cannot stops every rank (collective), before anything is written.
     pub fn new(
         world: World,
         phys: Physics,
         full: &State,
         depth: f64,
+        device: DeviceChoice,
+        verbose: bool,
     ) -> Result<RankStepper, String> {
         supported(&phys)?;
         let (me, ranks) = (world.rank(), world.size());
-        let owned = records(full)
+        let owned: Vec<Full> = records(full)
             .into_iter()
             .enumerate()
             .filter(|(k, _)| *k as u32 % ranks == me)
@@ -268,12 +333,40 @@ impl RankStepper {
         template.gas.h = None;
         template.gas.omega = None;
         template.gas.next_forces = None;
+        let mut share = state_of(&owned, &template);
+        let chosen = rank_device(device, me, &phys, &mut share);
+        if world.any(chosen.is_err()) {
+            return Err(chosen.err().unwrap_or_else(|| {
+                "another rank cannot use the device asked for (its message above)".into()
+            }));
+        }
+        let (dev, note) = chosen?;
+        // The same note on every rank (no GPU here at all) is said once, by rank 0.
+        if let (Some(n), true) = (note, verbose) {
+            if me == 0 || n.starts_with("rank ") {
+                eprintln!("dustsph: {n}");
+            }
+        }
+        let mine = match &dev {
+            RankDevice::Cpu => format!(
+                "cpu ({})",
+                crate::engine::gpu::launch::threads(rayon::current_num_threads())
+            ),
+            RankDevice::Cuda(d) => format!("cuda: {}", crate::engine::gpu::Launcher::describe(d)),
+        };
+        let devices = world
+            .all_gather_bytes(mine.as_bytes())
+            .into_iter()
+            .map(|b| String::from_utf8_lossy(&b).into_owned())
+            .collect();
         Ok(RankStepper {
             world,
             phys,
             template,
             owned,
             depth,
+            dev,
+            devices,
         })
     }
 
@@ -294,8 +387,16 @@ impl RankStepper {
 
     /// "R MPI ranks", for the summary.
     pub fn describe(&self) -> String {
+        let on = if self.devices.iter().all(|d| *d == self.devices[0]) {
+            format!("each stepping on {}", self.devices[0])
+        } else {
+            let each: Vec<String> = (self.devices.iter().enumerate())
+                .map(|(r, d)| format!("rank {r} on {d}"))
+                .collect();
+            format!("stepping {}", each.join("; "))
+        };
         format!(
-            "{} MPI ranks (halo {} supports)",
+            "{} MPI ranks (halo {} supports), {on}",
             self.world.size(),
             self.depth
         )
@@ -331,7 +432,7 @@ impl RankStepper {
         let mut eng = None;
         let mut forces = None;
         if !local_recs.is_empty() {
-            match Backend::new(DeviceChoice::Cpu, self.phys.clone(), &mut local) {
+            match self.dev.engine(self.phys.clone(), &mut local) {
                 Ok(mut e) => {
                     match e.forces(&local) {
                         Ok(f) => forces = Some(f),

@@ -54,8 +54,8 @@ pub fn select(choice: DeviceChoice) -> Result<(DeviceChoice, Option<String>), St
             Some(w) => (
                 DeviceChoice::Cpu,
                 Some(format!(
-                    "no GPU used ({w}); running on the CPU with {} threads",
-                    rayon::current_num_threads()
+                    "no GPU used ({w}); running on the CPU with {}",
+                    gpu::launch::threads(rayon::current_num_threads())
                 )),
             ),
         }),
@@ -92,8 +92,8 @@ fn start_resolved(
             };
             let eng = Backend::new(DeviceChoice::Cpu, phys, state).map_err(StartError::Step)?;
             let note = format!(
-                "{why}: running on the CPU with {} threads",
-                rayon::current_num_threads()
+                "{why}: running on the CPU with {}",
+                gpu::launch::threads(rayon::current_num_threads())
             );
             Ok((eng, Some(note)))
         }
@@ -154,34 +154,48 @@ impl Backend {
         })
     }
 
-    /// Build the engine for a resolved choice (`select` first); sorts `state` in place.
+    /// Build the engine for a resolved choice (`select` first); sorts `state` in place. CUDA
+    /// means device 0.
     pub fn new(
         choice: DeviceChoice,
         phys: Physics,
         state: &mut State,
     ) -> Result<Backend, StepError> {
-        let f32 = phys.precision == Precision::F32;
         Ok(match choice {
             DeviceChoice::Cuda => {
-                if phys.neighbour_list == crate::scene::ListChoice::On {
-                    return Err(StepError::Unsupported(
-                        "numerics.neighbour_list = \"on\": the GPU kernels are built without \
-                         neighbour lists (they would cost the forces kernel registers; \
-                         docs/performance.md); use \"auto\" or \"off\""
-                            .into(),
-                    ));
-                }
-                let dev = Cuda::new(0, gpu::PTX)?;
-                check_device_memory(&dev, state, f32)?;
-                if f32 {
-                    Backend::CudaF32(Box::new(GpuEngine::new(phys, state, dev)?))
-                } else {
-                    Backend::Cuda(Box::new(GpuEngine::new(phys, state, dev)?))
-                }
+                Self::refuse_on_cuda(&phys)?;
+                Self::on_cuda(Cuda::new(0, gpu::PTX)?, phys, state)?
             }
-            _ if f32 => Backend::CpuF32(Box::new(GpuEngine::new(phys, state, Rayon)?)),
+            _ if phys.precision == Precision::F32 => {
+                Backend::CpuF32(Box::new(GpuEngine::new(phys, state, Rayon)?))
+            }
             _ => Backend::Cpu(Box::new(GpuEngine::new(phys, state, Rayon)?)),
         })
+    }
+
+    /// The engine on an opened CUDA device (a rank's own GPU keeps one across its steps).
+    pub fn on_cuda(dev: Cuda, phys: Physics, state: &mut State) -> Result<Backend, StepError> {
+        Self::refuse_on_cuda(&phys)?;
+        let f32 = phys.precision == Precision::F32;
+        check_device_memory(&dev, state, f32)?;
+        Ok(if f32 {
+            Backend::CudaF32(Box::new(GpuEngine::new(phys, state, dev)?))
+        } else {
+            Backend::Cuda(Box::new(GpuEngine::new(phys, state, dev)?))
+        })
+    }
+
+    /// What the CUDA build of the step cannot do, refused before any device work.
+    fn refuse_on_cuda(phys: &Physics) -> Result<(), StepError> {
+        if phys.neighbour_list == crate::scene::ListChoice::On {
+            return Err(StepError::Unsupported(
+                "numerics.neighbour_list = \"on\": the GPU kernels are built without \
+                 neighbour lists (they would cost the forces kernel registers; \
+                 docs/performance.md); use \"auto\" or \"off\""
+                    .into(),
+            ));
+        }
+        Ok(())
     }
 
     pub fn phys(&self) -> &Physics {

@@ -74,7 +74,7 @@ impl Launcher for Rayon {
     type Mem = HostMem;
 
     fn describe(&self) -> String {
-        format!("rayon, {} threads", rayon::current_num_threads())
+        format!("rayon, {}", threads(rayon::current_num_threads()))
     }
 
     fn alloc(&self, bytes: usize) -> Result<HostMem, GpuError> {
@@ -238,7 +238,9 @@ pub fn f32_name(name: &'static str) -> &'static str {
         .unwrap_or(name)
 }
 
-/// An NVIDIA GPU through the CUDA driver (loaded at run time), one stream.
+/// An NVIDIA GPU through the CUDA driver (loaded at run time), one stream. Clones share the
+/// context, the stream and the loaded kernels.
+#[derive(Clone)]
 pub struct Cuda {
     ctx: Arc<CudaContext>,
     stream: Arc<CudaStream>,
@@ -259,6 +261,22 @@ pub fn probe() -> Result<String, String> {
     }
     let ctx = CudaContext::new(0).map_err(|e| format!("CUDA device 0: {e}"))?;
     ctx.name().map_err(|e| format!("CUDA device 0: {e}"))
+}
+
+/// "1 thread", "n threads".
+pub fn threads(n: usize) -> String {
+    if n == 1 {
+        "1 thread".into()
+    } else {
+        format!("{n} threads")
+    }
+}
+
+/// How many CUDA devices this process sees (after [`probe`]).
+pub fn device_count() -> Result<usize, String> {
+    probe()?;
+    let n = CudaContext::device_count().map_err(|e| format!("CUDA driver: {e}"))?;
+    Ok(n.max(0) as usize)
 }
 
 impl Cuda {
