@@ -535,52 +535,90 @@ fn failure(_world: &World, step: u64, me: u32, err: &str) -> String {
 /// too, and no particle with an incomplete neighbourhood enters the step's maxima).
 fn shell(owned: &[Full], halo: &[Full], inner: f64, domain: &crate::grid::Domain) -> Vec<Full> {
     use std::collections::HashMap;
-    let cell = |x: [f64; 3]| -> [i64; 3] { x.map(|v| (v / inner).floor() as i64) };
-    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>> = HashMap::new();
+    // Cells of about half the test radius (on a periodic axis a whole number per period, the
+    // indices wrapping): a halo particle scans only the cells across the edge of its sphere.
+    let axes: [(f64, f64, Option<i64>); 3] = [0, 1, 2].map(|k| match domain.periodic[k] {
+        Some((lo, len)) => {
+            let n = (len / (0.5 * inner)).ceil().max(1.0) as i64;
+            (lo, len / n as f64, Some(n))
+        }
+        None => (0.0, 0.5 * inner, None),
+    });
+    let index = |k: usize, v: f64| -> i64 {
+        let (lo, size, n) = axes[k];
+        let i = ((v - lo) / size).floor() as i64;
+        n.map_or(i, |n| i.clamp(0, n - 1))
+    };
+    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>, std::hash::BuildHasherDefault<CellHasher>> =
+        HashMap::default();
     for r in owned {
         let x = full_pos(r);
-        grid.entry(cell(x)).or_default().push(x);
+        grid.entry([0, 1, 2].map(|k| index(k, x[k])))
+            .or_default()
+            .push(x);
     }
+    // The minimum image as `d − L round(d/L)` (positions lie in the period), without libm.
     let sep2 = |a: [f64; 3], b: [f64; 3]| -> f64 {
-        (0..3)
-            .map(|k| {
-                let mut d = a[k] - b[k];
-                if let Some((_, len)) = domain.periodic[k] {
-                    d -= len * (d / len).round();
-                }
-                d * d
-            })
-            .sum()
-    };
-    // Near a periodic boundary the owned particle may be an image away: look in the cells of
-    // the halo particle's images too.
-    let images: Vec<[f64; 3]> = {
-        let shifts = |k: usize| -> Vec<f64> {
-            match domain.periodic[k] {
-                Some((_, len)) => vec![0.0, len, -len],
-                None => vec![0.0],
-            }
-        };
-        let mut v = Vec::new();
-        for a in shifts(0) {
-            for b in shifts(1) {
-                for c in shifts(2) {
-                    v.push([a, b, c]);
+        let mut s = 0.0;
+        for k in 0..3 {
+            let mut d = a[k] - b[k];
+            if let Some((_, len)) = domain.periodic[k] {
+                let q = d / len;
+                if q >= 0.5 {
+                    d -= len;
+                } else if q <= -0.5 {
+                    d += len;
                 }
             }
+            s += d * d;
         }
-        v
+        s
     };
     let r2 = inner * inner;
+    // Along axis k, the cells within `inner` of coordinate v: (index, lower bound of the
+    // distance, less a rounding margin); every cell of a period the reach spans whole.
+    let cells_along = |k: usize, v: f64, out: &mut Vec<(i64, f64)>| {
+        out.clear();
+        let (lo, size, n) = axes[k];
+        let c = index(k, v);
+        let reach = (inner / size).ceil() as i64;
+        if let Some(n) = n {
+            if 2 * reach + 1 >= n {
+                out.extend((0..n).map(|i| (i, 0.0)));
+                return;
+            }
+        }
+        let face_lo = v - (lo + c as f64 * size);
+        let face_hi = size - face_lo;
+        for o in -reach..=reach {
+            let g = match o {
+                0 => 0.0,
+                o if o > 0 => (o - 1) as f64 * size + face_hi,
+                o => (-o - 1) as f64 * size + face_lo,
+            };
+            let g = (g - 1e-9 * size).max(0.0);
+            if g * g <= r2 {
+                let i = n.map_or(c + o, |n| (c + o).rem_euclid(n));
+                out.push((i, g * g));
+            }
+        }
+    };
+    let (mut cx, mut cy, mut cz) = (Vec::new(), Vec::new(), Vec::new());
     halo.iter()
         .map(|h| {
             let x = full_pos(h);
-            let near = images.iter().any(|s| {
-                let c = cell([x[0] + s[0], x[1] + s[1], x[2] + s[2]]);
-                (0..27).any(|d| {
-                    let q = [c[0] + d % 3 - 1, c[1] + (d / 3) % 3 - 1, c[2] + d / 9 - 1];
-                    grid.get(&q)
-                        .is_some_and(|v| v.iter().any(|&o| sep2(o, x) <= r2))
+            cells_along(0, x[0], &mut cx);
+            cells_along(1, x[1], &mut cy);
+            cells_along(2, x[2], &mut cz);
+            let near = cz.iter().any(|&(iz, gz)| {
+                cy.iter().any(|&(iy, gy)| {
+                    gz + gy <= r2
+                        && cx.iter().any(|&(ix, gx)| {
+                            gz + gy + gx <= r2
+                                && grid
+                                    .get(&[ix, iy, iz])
+                                    .is_some_and(|v| v.iter().any(|&o| sep2(o, x) <= r2))
+                        })
                 })
             });
             let mut r = *h;
@@ -590,4 +628,28 @@ fn shell(owned: &[Full], halo: &[Full], inner: f64, domain: &crate::grid::Domain
             r
         })
         .collect()
+}
+
+/// A cheap hasher for small integer cell keys (FxHash's multiply-rotate; the std SipHash
+/// dominated the halo's shell test).
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl std::hash::Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes.chunks(8) {
+            let mut w = [0u8; 8];
+            w[..b.len()].copy_from_slice(b);
+            self.write_u64(u64::from_le_bytes(w));
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_i64(&mut self, v: i64) {
+        self.write_u64(v as u64);
+    }
 }
