@@ -111,6 +111,9 @@ struct GpuArgs {
     /// Write the embedded PTX to this file
     #[arg(long, value_name = "FILE")]
     write_ptx: Option<PathBuf>,
+    /// Replace FILE if it exists
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(clap::Args)]
@@ -383,6 +386,24 @@ fn bench(a: BenchArgs) -> ExitCode {
         precision,
         neighbour_list,
     } = a;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let bad = if steps == 0 {
+        Some("--steps must be at least 1".to_string())
+    } else if let Some(t) = threads.iter().find(|&&t| t == 0 || t > 16 * cores) {
+        Some(format!(
+            "--threads {t}: each count must be between 1 and {} (16 × the {cores} cores here)",
+            16 * cores
+        ))
+    } else {
+        box_n
+            .iter()
+            .find(|&&n| n < 2)
+            .map(|n| format!("--box-n {n}: at least 2 particles per side"))
+    };
+    if let Some(m) = bad {
+        eprintln!("error: {m}");
+        return ExitCode::from(2);
+    }
     let mut cases: Vec<(String, &str, Vec<String>)> = box_n
         .iter()
         .map(|n| {
@@ -433,7 +454,7 @@ fn bench(a: BenchArgs) -> ExitCode {
             "numerics.neighbour_list=\"{}\"",
             neighbour_list.name()
         ));
-        let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
+        let loaded = match dustsph::scene::load_shipped(file, &sets) {
             Ok(l) => l,
             Err(e) => {
                 eprintln!("error: {e}");
@@ -470,10 +491,14 @@ fn bench(a: BenchArgs) -> ExitCode {
     ExitCode::SUCCESS
 }
 
+/// More radial bins than this would hold fewer than one particle each in any snapshot that fits
+/// in memory.
+const MAX_BINS: usize = 1_000_000;
+
 fn profile(a: ProfileArgs) -> ExitCode {
     let ProfileArgs { snapshot, bins } = a;
-    if bins == 0 {
-        eprintln!("error: --bins must be at least 1");
+    if !(1..=MAX_BINS).contains(&bins) {
+        eprintln!("error: --bins must be between 1 and {MAX_BINS} (got {bins})");
         return ExitCode::from(2);
     }
     match dustsph::post::post_process(&snapshot, bins) {
@@ -630,7 +655,7 @@ fn parity(a: ParityArgs) -> ExitCode {
     for (label, file, sets, steps) in dustsph::parity::CASES {
         let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
         sets.push(format!("numerics.precision=\"{}\"", precision.name()));
-        let loaded = match dustsph::scene::load(std::path::Path::new(file), &sets) {
+        let loaded = match dustsph::scene::load_shipped(file, &sets) {
             Ok(l) => l,
             Err(e) => {
                 eprintln!("error: {e}");
@@ -667,7 +692,16 @@ fn parity(a: ParityArgs) -> ExitCode {
 }
 
 fn gpu(a: GpuArgs) -> ExitCode {
-    let GpuArgs { write_ptx } = a;
+    let GpuArgs { write_ptx, force } = a;
+    if let Some(f) = &write_ptx {
+        if f.exists() && !force {
+            eprintln!(
+                "error: {} exists: not replaced (--force replaces it)",
+                f.display()
+            );
+            return ExitCode::from(2);
+        }
+    }
     use dustsph::engine::gpu;
     use std::io::Write as _;
     // A reader that closes the pipe early (`dustsph gpu | head -1`) is not an error.

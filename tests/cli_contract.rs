@@ -381,8 +381,9 @@ fn exit_codes_hold_the_readme_table() {
     ]);
     assert_eq!(bad.status.code(), Some(2));
     assert!(!Path::new(&out("bad")).exists());
-    // A CFL step that collapses (c_s = 1e12: 2e14 steps) stops at once, naming the step, the
-    // limit and the particles that set it.
+    // A CFL step that collapses at t = 0 (c_s = 1e12: 2e14 steps) is refused before anything
+    // is written, naming the step, the limit and the particles that set it; with --force the
+    // earlier run in that directory stays whole.
     let stop = dustsph(&[
         "run",
         "configs/dustywave.toml",
@@ -392,14 +393,31 @@ fn exit_codes_hold_the_readme_table() {
         &out("stop"),
         "-q",
     ]);
-    assert_eq!(stop.status.code(), Some(1));
+    assert_eq!(stop.status.code(), Some(2));
     let err = String::from_utf8_lossy(&stop.stderr);
     assert!(
         err.contains("step 0") && err.contains("collapsed") && err.contains("gas particle id"),
         "{err}"
     );
-    assert!(Path::new(&out("stop")).join("snapshot_0000.h5").exists());
-    assert!(!Path::new(&out("stop")).join("summary.json").exists());
+    assert!(!Path::new(&out("stop")).exists());
+    let before = std::fs::read(Path::new(&out("ok")).join("summary.json")).unwrap();
+    let over = dustsph(&[
+        "run",
+        "configs/dustywave.toml",
+        "--set",
+        "gas.cs=1e12",
+        "--out",
+        &out("ok"),
+        "--force",
+        "-q",
+    ]);
+    assert_eq!(over.status.code(), Some(2));
+    let after = std::fs::read(Path::new(&out("ok")).join("summary.json")).unwrap();
+    assert_eq!(
+        before, after,
+        "a refused --force run touched the earlier run"
+    );
+    assert!(Path::new(&out("ok")).join("snapshot_0001.h5").exists());
 }
 
 /// `dustsph scaling` (docs/scaling.md): a small cloud gives one table row per rank count with

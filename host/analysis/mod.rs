@@ -453,8 +453,9 @@ fn settle_errors(scene: &Scene, c: &SettleCfg, state: &State) -> ExactErrors {
 /// Zones of the 1D reference: 2000 is converged to ~3e-5 in ρ (far below SPH errors).
 const BALL_REFERENCE_ZONES: usize = 2000;
 
-/// The 1D spherical equilibrium reference of a ball scene at time t (None for other scenes, and
-/// for isothermal gas: the γ → 1 limit is outside the reference).
+/// The 1D equilibrium reference of a ball scene at time t, in the scene's geometry (a slab in
+/// 1D, a disc in 2D, a ball in 3D); None for other scenes, and for isothermal gas (the γ → 1
+/// limit is outside the reference).
 pub fn ball_reference(scene: &Scene, t: f64) -> Option<radial::RadialCurve> {
     let b = scene.ball()?;
     if scene.gas.eos != EosKind::Adiabatic {
@@ -472,7 +473,12 @@ pub fn ball_reference(scene: &Scene, t: f64) -> Option<radial::RadialCurve> {
         gamma: scene.gas.gamma?,
         radius: b.radius,
     };
-    Some(spherical::equilibrium_ball(&prob, t, BALL_REFERENCE_ZONES))
+    Some(spherical::equilibrium_ball_in(
+        &prob,
+        scene.dim(),
+        t,
+        BALL_REFERENCE_ZONES,
+    ))
 }
 
 /// The ball against the 1D spherical equilibrium reference (method.md §6.1): L1/L2/L∞ of ρ_g,
@@ -503,6 +509,16 @@ fn ball_reference_errors(scene: &Scene, b: &BallCfg, state: &State) -> Vec<Exact
         let sel: Vec<usize> = (0..g.ph.len())
             .filter(|&i| radius(&g.ph.x[i]) < r_max)
             .collect();
+        // A region without particles (a ball under two smoothing lengths: R0 − 2h ≤ 0) has no
+        // error to report, rather than a zero one.
+        if sel.is_empty() {
+            out.push(ExactErrors {
+                t: state.t,
+                reference: format!("{label}: no particles, nothing compared"),
+                fields,
+            });
+            continue;
+        }
         let m: Vec<f64> = sel.iter().map(|&i| g.ph.m[i]).collect();
         let refs: Vec<_> = sel
             .iter()
@@ -554,7 +570,8 @@ fn ball_reference_errors(scene: &Scene, b: &BallCfg, state: &State) -> Vec<Exact
         out.push(ExactErrors {
             t: state.t,
             reference: format!(
-                "1D spherical Lagrangian equilibrium (t_stop → 0) solution, {BALL_REFERENCE_ZONES} zones; {label}; absolute errors, radial velocities"
+                "1D {} Lagrangian equilibrium (t_stop → 0) solution, {BALL_REFERENCE_ZONES} zones; {label}; absolute errors, radial velocities",
+                spherical::geometry_name(scene.dim())
             ),
             fields,
         });

@@ -47,6 +47,31 @@ pub fn equilibrium_ball(prob: &BallProblem, t_end: f64, n_zones: usize) -> Radia
     solve(prob, Geometry::Spherical, t_end, n_zones).curve()
 }
 
+/// [`equilibrium_ball`] for a "ball" of `dim` dimensions: a slab |x| < R0 (1D, planar zones
+/// with the symmetry plane as a wall), a disc (2D, cylindrical shells) or a ball (3D).
+pub fn equilibrium_ball_in(
+    prob: &BallProblem,
+    dim: u32,
+    t_end: f64,
+    n_zones: usize,
+) -> RadialCurve {
+    let geom = match dim {
+        1 => Geometry::Planar,
+        2 => Geometry::Cylindrical,
+        _ => Geometry::Spherical,
+    };
+    solve(prob, geom, t_end, n_zones).curve()
+}
+
+/// The shape's name for the reference's label.
+pub fn geometry_name(dim: u32) -> &'static str {
+    match dim {
+        1 => "planar",
+        2 => "cylindrical",
+        _ => "spherical",
+    }
+}
+
 /// Outer (vacuum-front) radius of the Lagrangian grid at t_end, for diagnostics.
 pub fn ball_edge(prob: &BallProblem, t_end: f64, n_zones: usize) -> f64 {
     let g = solve(prob, Geometry::Spherical, t_end, n_zones);
@@ -57,9 +82,10 @@ pub fn ball_edge(prob: &BallProblem, t_end: f64, n_zones: usize) -> f64 {
 /// planar rarefaction into vacuum.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Geometry {
-    /// Slabs of unit cross-section on x ≥ 0 (wall at x = 0); only the tests build these.
-    #[cfg_attr(not(test), allow(dead_code))]
+    /// Slabs of unit cross-section on x ≥ 0 (wall at x = 0: the symmetry plane of a slab).
     Planar,
+    /// Cylindrical shells of unit length around the axis (a disc in 2D).
+    Cylindrical,
     /// Spherical shells around r = 0.
     Spherical,
 }
@@ -69,6 +95,7 @@ impl Geometry {
     fn vol(self, r: f64) -> f64 {
         match self {
             Geometry::Planar => r,
+            Geometry::Cylindrical => PI * r * r,
             Geometry::Spherical => 4.0 / 3.0 * PI * r * r * r,
         }
     }
@@ -77,6 +104,7 @@ impl Geometry {
     fn area(self, r: f64) -> f64 {
         match self {
             Geometry::Planar => 1.0,
+            Geometry::Cylindrical => 2.0 * PI * r,
             Geometry::Spherical => 4.0 * PI * r * r,
         }
     }
@@ -143,7 +171,9 @@ impl Grid {
     fn new(prob: &BallProblem, geom: Geometry, n: usize) -> Grid {
         assert!(n >= 1, "need at least one zone");
         let nodes = match geom {
-            Geometry::Planar => (0..=n).map(|i| prob.radius * i as f64 / n as f64).collect(),
+            Geometry::Planar | Geometry::Cylindrical => {
+                (0..=n).map(|i| prob.radius * i as f64 / n as f64).collect()
+            }
             Geometry::Spherical => zoning(prob.radius, n),
         };
         let e_m = prob.p / ((prob.gamma - 1.0) * (prob.rho_gas + prob.rho_dust));

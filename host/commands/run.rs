@@ -366,11 +366,33 @@ impl Runner {
         ranks: impl FnOnce(&Physics, &State) -> Result<Option<Ranks>, RunError>,
     ) -> Result<Runner, RunError> {
         let (mut eng, mut state) = Self::engine(loaded, None, opts.device, opts.verbose)?;
+        // The first step's size, before anything is written (with --force the old run's files
+        // would already be gone): a CFL step that has collapsed at t = 0, or a t_end beyond the
+        // step count allowed, is bad input, not a run to start. The forces are computed again
+        // by the first step (the same ones: the engine's forces are a pure function of its state).
+        if let Some(&t1) = output_times(loaded).get(1) {
+            let drv = Driver::new(&loaded.scene.time, eng.phys().h);
+            let first = eng
+                .forces(&state)
+                .and_then(|f| drv.plan(&mut eng, &state, &f, t1));
+            if let Err(e) = first {
+                return Err(RunError::Input(format!(
+                    "{}: the first step cannot be taken: {e}",
+                    loaded.path.display()
+                )));
+            }
+        }
         let ranks = ranks(eng.phys(), &state)?;
         let root = ranks.as_ref().is_none_or(|r| r.is_root());
         // All input is valid: only now touch the output directory (rank 0's).
         let out = if root {
-            io::prepare_output_dir(&opts.out, opts.force).map_err(|e| RunError::Io(e.to_string()))
+            io::prepare_output_dir(&opts.out, opts.force).map_err(|e| match e {
+                // A directory the user must empty or name differently is input, not a failure.
+                io::IoError::DirNotEmpty { .. } | io::IoError::Invalid { .. } => {
+                    RunError::Input(e.to_string())
+                }
+                e => RunError::Io(e.to_string()),
+            })
         } else {
             Ok(opts.out.clone())
         };
@@ -953,8 +975,18 @@ fn verify_resume(
             "its particles are not {dim}-dimensional as its scene (scene.dim = {dim}) says"
         ));
     }
+    if let Some(&t_end) = output_times(loaded).last() {
+        if state.t >= t_end {
+            return Err(format!(
+                "its run already reached t_end = {t_end} (t = {}): nothing to resume, and the \
+                 output stays as it is (to run further, start a new run with a later \
+                 time.t_end)",
+                state.t
+            ));
+        }
+    }
     let n_dust: usize = have.1.iter().sum();
-    for name in &prog.snapshots {
+    for (k, name) in prog.snapshots.iter().enumerate() {
         let p = dir.join(name);
         let h = io::snapshot::read_header(&p).map_err(|e| {
             format!("the snapshot {name} its run wrote is missing or unreadable ({e})")
@@ -978,6 +1010,17 @@ fn verify_resume(
                 h.time, state.t
             ));
         }
+        // The run wrote this snapshot at a known time: another one copied over it is not it.
+        if let Some(&t) = prog.snapshot_times.get(k) {
+            if h.time != t {
+                return Err(format!(
+                    "{name} in {} is at t = {}, but the checkpoint's run wrote it at t = {t}: \
+                     it was replaced; put the run's own file back",
+                    dir.display(),
+                    h.time
+                ));
+            }
+        }
     }
     let listed: std::collections::HashSet<&str> =
         prog.snapshots.iter().map(|s| s.as_str()).collect();
@@ -985,6 +1028,19 @@ fn verify_resume(
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().to_string();
         if io::output_dir::is_snapshot_name(&name) && !listed.contains(name.as_str()) {
+            // The same run, written after the checkpoint was: say so.
+            if let Ok(h) = io::snapshot::read_header(&e.path()) {
+                if h.scene_text == loaded.text && h.time > state.t {
+                    return Err(format!(
+                        "{name} in {} (t = {}) was written after the checkpoint (t = {}); \
+                         resuming would overwrite it (move it and the later snapshots away \
+                         to continue from the checkpoint)",
+                        dir.display(),
+                        h.time,
+                        state.t
+                    ));
+                }
+            }
             return Err(format!(
                 "{name} in {} is not one the checkpoint's run wrote; resuming would overwrite \
                  it (move it away, or resume in the run's own directory)",

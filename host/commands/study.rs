@@ -365,6 +365,17 @@ fn check_settings(
     if c.name.trim().is_empty() {
         return Err(err(Some("study.name".into()), "must not be empty".into()));
     }
+    // The default output folder is output/studies/<name>: a name must not lead anywhere else.
+    if c.name.contains(['/', '\\', '\0']) || c.name == "." || c.name.contains("..") {
+        return Err(err(
+            Some("study.name".into()),
+            format!(
+                "{:?} is not a plain name: no path separators or \"..\" (it names the output \
+                 folder output/studies/<name>; use --out for another place)",
+                c.name
+            ),
+        ));
+    }
     if c.repeat == 0 {
         return Err(err(Some("study.repeat".into()), "must be ≥ 1".into()));
     }

@@ -84,12 +84,13 @@ impl Driver {
                 ("force (sqrt(h / max |A|))", forces.acc_max)
             };
             return Err(StepError::Blowup(format!(
-                "step {}, t = {:e}: the time step collapsed to {dt_free:e} ({limit}; max = {value:e}): \
-                 {:.1e} more steps to t_end = {}; {}",
+                "step {}, t = {:e}: at the time step {dt_free:e} ({limit}; max = {value:e}), \
+                 t_end = {} is {:.1e} steps away, more than the {MAX_FIXED_STEPS:.0e} allowed: the \
+                 step has collapsed or time.t_end is too far; {}",
                 state.step,
                 state.t,
-                left / dt_free,
                 self.time.t_end,
+                left / dt_free,
                 eng.dt_culprits()?
             )));
         }

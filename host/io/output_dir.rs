@@ -56,6 +56,26 @@ fn is_ours(name: &str) -> bool {
 /// files: only remove files that this program writes (snapshot_*.h5, summary.json, *.tmp left by
 /// us) and keep everything else. Returns the canonical path.
 pub fn prepare_output_dir(dir: &Path, force: bool) -> Result<PathBuf, IoError> {
+    // A file that only carries a snapshot's name (not a snapshot dustsph wrote) is the user's:
+    // refuse rather than remove it.
+    if force {
+        if let Ok(entries) = fs::read_dir(dir) {
+            for e in entries.flatten() {
+                let name = e.file_name().to_string_lossy().into_owned();
+                let path = e.path();
+                if is_snapshot_name(&name)
+                    && path.is_file()
+                    && super::snapshot::read_header(&path).is_err()
+                {
+                    return Err(IoError::invalid(
+                        &path,
+                        "has a snapshot's name but is not a dustsph snapshot: not removed by \
+                         --force (move it away, or choose another --out)",
+                    ));
+                }
+            }
+        }
+    }
     prepare_dir(dir, force, is_ours)
 }
 
@@ -237,13 +257,35 @@ mod tests {
         fs::create_dir(dir.join("sub")).unwrap();
         fs::write(dir.join("sub").join("snapshot_0004.h5"), b"keep").unwrap();
 
-        prepare_output_dir(&dir, true).unwrap();
+        // (By name: these stand-ins are not HDF5; `prepare_output_dir` would refuse them, below.)
+        prepare_dir(&dir, true, is_ours).unwrap();
         let mut want: Vec<&str> = theirs.to_vec();
         want.extend(["snapshot_0003.h5", "sub"]);
         want.sort();
         assert_eq!(names_in(&dir), want);
         assert_eq!(fs::read(dir.join("notes.txt")).unwrap(), b"notes.txt");
         assert!(dir.join("sub").join("snapshot_0004.h5").is_file());
+    }
+
+    /// A file named like a snapshot that is not one (no dustsph snapshot header) is the
+    /// user's: --force stops, naming it, and removes nothing.
+    #[test]
+    fn force_refuses_a_file_that_only_has_a_snapshots_name() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("out");
+        fs::create_dir(&dir).unwrap();
+        fs::write(dir.join("snapshot_9999.h5"), b"my notes").unwrap();
+        fs::write(dir.join("summary.json"), b"{}").unwrap();
+        let err = prepare_output_dir(&dir, true).unwrap_err().to_string();
+        assert!(
+            err.contains("snapshot_9999.h5") && err.contains("not a dustsph snapshot"),
+            "{err}"
+        );
+        assert_eq!(fs::read(dir.join("snapshot_9999.h5")).unwrap(), b"my notes");
+        assert!(
+            dir.join("summary.json").exists(),
+            "removed something before refusing"
+        );
     }
 
     #[test]

@@ -88,6 +88,54 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScene, SceneError
     })
 }
 
+/// The shipped scenes, compiled in, so that `bench` and `parity` (which name them) run from
+/// any directory.
+const SHIPPED: [(&str, &str); 7] = [
+    (
+        "configs/dustybox.toml",
+        include_str!("../../configs/dustybox.toml"),
+    ),
+    (
+        "configs/dustywave.toml",
+        include_str!("../../configs/dustywave.toml"),
+    ),
+    (
+        "configs/dustyshock.toml",
+        include_str!("../../configs/dustyshock.toml"),
+    ),
+    (
+        "configs/dusty_ball.toml",
+        include_str!("../../configs/dusty_ball.toml"),
+    ),
+    (
+        "configs/dustysettle.toml",
+        include_str!("../../configs/dustysettle.toml"),
+    ),
+    (
+        "configs/dustywave_phantom.toml",
+        include_str!("../../configs/dustywave_phantom.toml"),
+    ),
+    (
+        "configs/dustywave_phantom_poly.toml",
+        include_str!("../../configs/dustywave_phantom_poly.toml"),
+    ),
+];
+
+/// [`load`] for one of the shipped scenes (`configs/NAME.toml`) from the copy compiled in.
+pub fn load_shipped(name: &str, overrides: &[String]) -> Result<LoadedScene, SceneError> {
+    let Some((_, text)) = SHIPPED.iter().find(|(n, _)| *n == name) else {
+        return load(Path::new(name), overrides);
+    };
+    let path = Path::new(name);
+    let scene = parse(text, path, overrides)?;
+    Ok(LoadedScene {
+        scene,
+        path: path.to_path_buf(),
+        text: text.to_string(),
+        overrides: overrides.to_vec(),
+    })
+}
+
 /// Parse scene text (with `--set` overrides) and validate it; `file` is used in messages.
 pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
     let err = |key: Option<String>, msg: String| SceneError {
