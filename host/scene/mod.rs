@@ -150,6 +150,20 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         apply_override(&mut table, ov).map_err(|(key, msg)| err(key, msg))?;
     }
     check_tables(&table).map_err(|(key, msg)| err(Some(key), msg))?;
+    // Keys with defaults cannot tell "not given" after deserialising: note which were given.
+    let given = |section: &str, key: &str| {
+        table
+            .get(section)
+            .and_then(|t| t.as_table())
+            .is_some_and(|t| t.contains_key(key))
+    };
+    let given_av = ["alpha", "beta"].map(|k| given("sph", k));
+    let given_lattice = [
+        ("dustywave", "lattice"),
+        ("dustywave", "layers"),
+        ("dustybox", "lattice"),
+    ]
+    .map(|(s, k)| given(s, k));
     let value = toml::Value::Table(table);
     let file: SceneFile = serde_path_to_error::deserialize(value).map_err(|e| {
         // serde writes sequence indices as `a[0].b`; scene keys are `a.0.b` everywhere.
@@ -168,5 +182,32 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         err(key, msg)
     })?;
     file.validate().map_err(|(key, msg)| err(Some(key), msg))?;
+    // A key given but not used would silently not do what its author meant.
+    if !file.sph.viscosity {
+        if let Some(k) = ["sph.alpha", "sph.beta"]
+            .iter()
+            .zip(given_av)
+            .find_map(|(k, g)| g.then_some(k))
+        {
+            return Err(err(
+                Some(k.to_string()),
+                "used only with artificial viscosity: set sph.viscosity = true, or remove it"
+                    .into(),
+            ));
+        }
+    }
+    if file.scene.dim == 1 {
+        let keys = ["dustywave.lattice", "dustywave.layers", "dustybox.lattice"];
+        if let Some(k) = keys
+            .iter()
+            .zip(given_lattice)
+            .find_map(|(k, g)| g.then_some(k))
+        {
+            return Err(err(
+                Some(k.to_string()),
+                "2D/3D only: a 1D run is a uniform line of particles (remove it)".into(),
+            ));
+        }
+    }
     Ok(Scene::from_file(file))
 }
