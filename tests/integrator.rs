@@ -10,6 +10,9 @@ use common::*;
 fn velocities(integrator: &str, dt: f64) -> Vec<f64> {
     let sets = [
         "scene.dim=1".to_string(),
+        // (The 3D slab's lattice keys mean nothing on a line.)
+        "dustywave.lattice=".to_string(),
+        "dustywave.layers=".to_string(),
         "sph.n=64".to_string(),
         "sph.gradient=iad".to_string(),
         "dust.fractions.0.k=1e3".to_string(),

@@ -191,8 +191,10 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         {
             return Err(err(
                 Some(k.to_string()),
-                "used only with artificial viscosity: set sph.viscosity = true, or remove it"
-                    .into(),
+                format!(
+                    "used only with artificial viscosity: set sph.viscosity = true, or remove \
+                     it (--set {k}=)"
+                ),
             ));
         }
     }
@@ -205,7 +207,10 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         {
             return Err(err(
                 Some(k.to_string()),
-                "2D/3D only: a 1D run is a uniform line of particles (remove it)".into(),
+                format!(
+                    "2D/3D only: a 1D run is a uniform line of particles (remove it, e.g. \
+                     --set {k}=)"
+                ),
             ));
         }
     }
