@@ -87,7 +87,7 @@ struct RunArgs {
     #[arg(long)]
     force: bool,
     /// Write DIR/checkpoint.h5 every N steps (Ctrl-C always writes one)
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     checkpoint_every: Option<u64>,
     /// Stop as if interrupted after N steps (with --checkpoint-every N: a checkpoint to resume
     /// from; for tests)
@@ -216,7 +216,8 @@ struct ScalingArgs {
 #[derive(clap::Args)]
 struct ResumeArgs {
     dir: PathBuf,
-    #[arg(long, value_name = "N")]
+    /// Write DIR/checkpoint.h5 every N steps (Ctrl-C always writes one)
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     checkpoint_every: Option<u64>,
     #[arg(long, short)]
     quiet: bool,
@@ -574,6 +575,18 @@ fn study(a: StudyArgs) -> ExitCode {
                 .count();
             if failed > 0 {
                 eprintln!("error: {failed} point(s) failed (see results.md)");
+                return ExitCode::from(1);
+            }
+            // Every point skipped (over max_steps): the tables and plots hold no measurement.
+            if !results.is_empty()
+                && results
+                    .iter()
+                    .all(|r| matches!(r.status, dustsph::study::Status::Skipped(_)))
+            {
+                eprintln!(
+                    "error: every point was skipped (each would need more than study.max_steps \
+                     steps; see results.md): raise study.max_steps or coarsen the grid"
+                );
                 return ExitCode::from(1);
             }
             ExitCode::SUCCESS

@@ -154,6 +154,14 @@ fn bad_study_files_exit_2_naming_file_and_key_and_write_nothing() {
             base.replace("\"idic\", \"explicit\"", "\"idic\", \"rk4\""),
             "axis.0.values.1",
         ),
+        (
+            base.replace("[0.02, 0.01, 0.005]", "[0.02, 0.01, 0.02]"),
+            "axis.1.values.2",
+        ),
+        (
+            base.replace("name = \"box\"", "name = \"../escaped\""),
+            "study.name",
+        ),
     ];
     for (i, (text, key)) in cases.iter().enumerate() {
         let dir = tmp.path().join(format!("c{i}"));

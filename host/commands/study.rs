@@ -452,6 +452,15 @@ fn check_axes(
                 "must list at least one value".into(),
             ));
         }
+        if let Some(j) = (1..a.values.len()).find(|&j| a.values[..j].contains(&a.values[j])) {
+            return Err(err(
+                Some(format!("axis.{i}.values.{j}")),
+                format!(
+                    "{} is listed twice (each point would run twice)",
+                    a.values[j]
+                ),
+            ));
+        }
         if let Some(sets) = &a.sets {
             if sets.len() != a.values.len() {
                 return Err(err(
@@ -860,7 +869,11 @@ impl Study {
                 self.axes
                     .iter()
                     .zip(&p.index)
-                    .map(|(a, &i)| a.values[i].to_string()),
+                    // Strings bare (the CSV quotes what needs quoting), numbers in full.
+                    .map(|(a, &i)| match &a.values[i] {
+                        toml::Value::String(s) => s.clone(),
+                        v => v.to_string(),
+                    }),
             );
             row.push(r.status.text(self.cfg.max_steps));
             row.push(r.steps.to_string());
