@@ -531,3 +531,39 @@ fn a_run_launched_as_one_of_several_mpi_ranks_is_refused() {
         .unwrap();
     assert_eq!(o.status.code(), Some(0));
 }
+
+/// Runs that will likely be unstable or noise are warned about at the start (they still run:
+/// a user may mean it): a fixed step above the initial state's CFL/force limit, and kernels
+/// holding almost no neighbours. The shipped scenes get no warning. A malformed `--set` value
+/// and another problem's section are refused, naming the key.
+#[test]
+fn dubious_runs_are_warned_about_and_malformed_overrides_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = |d: &str| tmp.path().join(d).display().to_string();
+    let run = |sets: &[&str], dir: &str| {
+        let mut a = vec!["run", "configs/dustyshock.toml", "-q", "--out"];
+        let o = out(dir);
+        a.push(&o);
+        for s in sets {
+            a.extend(["--set", s]);
+        }
+        let r = dustsph(&a);
+        (r.status.code(), String::from_utf8_lossy(&r.stderr).to_string())
+    };
+    let short = "time.t_end=0.002";
+    let (code, err) = run(&[short], "plain");
+    assert_eq!(code, Some(0), "{err}");
+    assert!(!err.contains("warning"), "{err}");
+    let (code, err) = run(&[short, "time.cfl=", "time.dt=0.05"], "big_dt");
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("warning: time.dt = 0.05 is"), "{err}");
+    let (code, err) = run(&[short, "sph.hfact=0.1"], "few");
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("neighbours each within 2h"), "{err}");
+    for (set, key) in [("sph.n=[32", "sph.n"), ("dustybox.length=1", "dustybox")] {
+        let (code, err) = run(&[set], "bad");
+        assert_eq!(code, Some(2), "{set}: {err}");
+        assert!(err.contains(&format!("key `{key}`")), "{set}: {err}");
+        assert!(!tmp.path().join("bad").exists());
+    }
+}

@@ -372,14 +372,25 @@ impl Runner {
         // by the first step (the same ones: the engine's forces are a pure function of its state).
         if let Some(&t1) = output_times(loaded).get(1) {
             let drv = Driver::new(&loaded.scene.time, eng.phys().h);
-            let first = eng
-                .forces(&state)
-                .and_then(|f| drv.plan(&mut eng, &state, &f, t1));
-            if let Err(e) = first {
-                return Err(RunError::Input(format!(
-                    "{}: the first step cannot be taken: {e}",
-                    loaded.path.display()
-                )));
+            let forces = eng.forces(&state);
+            let first = match &forces {
+                Ok(f) => drv.plan(&mut eng, &state, f, t1).map(|_| f),
+                Err(e) => Err(StepError::Blowup(e.to_string())),
+            };
+            match first {
+                Err(e) => {
+                    return Err(RunError::Input(format!(
+                        "{}: the first step cannot be taken: {e}",
+                        loaded.path.display()
+                    )))
+                }
+                Ok(f) => {
+                    if crate::dist::launched().is_none_or(|(rank, _)| rank == 0) {
+                        for w in start_warnings(loaded, eng.phys(), &state, f) {
+                            eprintln!("dustsph: warning: {w}");
+                        }
+                    }
+                }
             }
         }
         let ranks = ranks(eng.phys(), &state)?;
@@ -1049,6 +1060,43 @@ fn verify_resume(
         }
     }
     Ok(())
+}
+
+/// What a physicist should hear before a run that will likely be noise or unstable: a fixed
+/// step above the CFL/force limit of the initial state, and kernels holding too few
+/// neighbours to be SPH sums (method.md §2).
+fn start_warnings(
+    loaded: &LoadedScene,
+    phys: &Physics,
+    state: &State,
+    f: &crate::engine::Forces,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    if let Some(dt) = loaded.scene.time.dt {
+        let (dt_cfl, dt_force) = crate::engine::dt_limits(phys.h, f);
+        let limit = dt_cfl.min(dt_force);
+        if dt > limit {
+            out.push(format!(
+                "time.dt = {dt} is {:.2}× the step limit min(h/v_sig, √(h/|A|)) = {limit:.3e} of \
+                 the initial state: explicit SPH is stable only below ≈0.3–0.5 of it (lower \
+                 time.dt, or use time.cfl)",
+                dt / limit
+            ));
+        }
+    }
+    // Fewer neighbours than a kernel of half the usual width would hold (hfact ≈ 0.6).
+    let least = [2.0, 5.0, 12.0][(phys.domain.dim as usize).clamp(1, 3) - 1];
+    if let Ok(nb) = crate::bench::mean_gas_neighbours(phys, state) {
+        if !state.gas.ph.x.is_empty() && nb < least {
+            out.push(format!(
+                "the gas particles have {nb:.1} neighbours each within 2h on average (fewer than \
+                 {least} in {}D): the SPH sums are noise at this resolution; raise sph.hfact (or \
+                 sph.h)",
+                phys.domain.dim
+            ));
+        }
+    }
+    out
 }
 
 /// Progress in units of 1e-4 of t_end.

@@ -150,6 +150,32 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         apply_override(&mut table, ov).map_err(|(key, msg)| err(key, msg))?;
     }
     check_tables(&table).map_err(|(key, msg)| err(Some(key), msg))?;
+    // Another problem's section (a stray `--set dustybox.length=1` on a wave): said before the
+    // section's own missing keys would be.
+    if let Some(problem) = table
+        .get("scene")
+        .and_then(|t| t.get("problem"))
+        .and_then(|p| p.as_str())
+    {
+        let sections = [
+            "dustybox",
+            "dustywave",
+            "dustyshock",
+            "dustyball",
+            "dustysettle",
+        ];
+        if sections.contains(&problem) {
+            if let Some(other) = sections
+                .iter()
+                .find(|&&s| s != problem && table.contains_key(s))
+            {
+                return Err(err(
+                    Some(other.to_string()),
+                    format!("section [{other}] does not belong to problem `{problem}`"),
+                ));
+            }
+        }
+    }
     // Keys with defaults cannot tell "not given" after deserialising: note which were given.
     let given = |section: &str, key: &str| {
         table

@@ -22,6 +22,18 @@ pub fn apply_override(table: &mut Table, ov: &str) -> Result<(), (Option<String>
     } else {
         Some(match format!("v = {raw}").parse::<Table>() {
             Ok(mut t) => t.remove("v").unwrap_or(Value::String(raw.to_string())),
+            // A bare word is a string (`--set gas.eos=adiabatic`); what starts like a number,
+            // an array, a table or a quoted string but does not parse is a typo, not a string.
+            Err(e)
+                if raw.starts_with(['[', '{', '"', '\'', '+', '-', '.'])
+                    || raw.starts_with(|c: char| c.is_ascii_digit()) =>
+            {
+                let why = e.message().trim().replace('\n', "; ");
+                return Err((
+                    Some(key.to_string()),
+                    format!("--set: `{raw}` is not a valid TOML value ({})", why.trim()),
+                ));
+            }
             Err(_) => Value::String(raw.to_string()),
         })
     };
