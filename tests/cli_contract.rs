@@ -548,7 +548,10 @@ fn dubious_runs_are_warned_about_and_malformed_overrides_refused() {
             a.extend(["--set", s]);
         }
         let r = dustsph(&a);
-        (r.status.code(), String::from_utf8_lossy(&r.stderr).to_string())
+        (
+            r.status.code(),
+            String::from_utf8_lossy(&r.stderr).to_string(),
+        )
     };
     let short = "time.t_end=0.002";
     let (code, err) = run(&[short], "plain");

@@ -224,6 +224,17 @@ pub enum LawKind {
     Epstein,
 }
 
+impl LawKind {
+    /// The name a scene file uses (`dust.law`).
+    pub fn name(self) -> &'static str {
+        match self {
+            LawKind::ConstantT => "constant_t",
+            LawKind::ConstantK => "constant_k",
+            LawKind::Epstein => "epstein",
+        }
+    }
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DustCfg {
@@ -565,6 +576,16 @@ pub enum Lattice {
     Cubic,
 }
 
+impl Lattice {
+    /// The name a scene file uses (`lattice`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Lattice::Closepacked => "closepacked",
+            Lattice::Cubic => "cubic",
+        }
+    }
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WaveCfg {
@@ -879,7 +900,7 @@ impl SceneFile {
                 if v.is_some() {
                     return Err((
                         key(name),
-                        format!("not used by law `{:?}` (expects `{want}`)", d.law),
+                        format!("not used by law `{}` (expects `{want}`)", d.law.name()),
                     ));
                 }
             }
@@ -1090,8 +1111,8 @@ impl SceneFile {
                     return Err((
                         "dustywave.layers".into(),
                         format!(
-                            "must be a positive multiple of {need} for a periodic {:?} lattice in {}D (got {})",
-                            w.lattice, self.scene.dim, w.layers
+                            "must be a positive multiple of {need} for a periodic {} lattice in {}D (got {})",
+                            w.lattice.name(), self.scene.dim, w.layers
                         ),
                     ));
                 }

@@ -18,7 +18,12 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BallCfg) -> Result<Setup, S
         std::f64::consts::PI / 6.0,
     ][dim as usize];
     let per_phase = fill * (2.0 * nmax_f + 1.0).powi(dim as i32);
-    super::check_size(per_phase, 1 + scene.n_fractions(), "sph.n")?;
+    super::check_size(
+        per_phase,
+        1 + scene.n_fractions(),
+        "sph.n",
+        &["dustyball.radius"],
+    )?;
     let nmax = nmax_f as i64;
     let r2 = b.radius * b.radius;
     let span = |used: bool| if used { -nmax..=nmax } else { 0..=0 };

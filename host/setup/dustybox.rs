@@ -6,7 +6,12 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
     let dim = scene.dim();
     let rho = scene.gas.rho.expect("validated");
     let n_f = (scene.sph.n as f64 * b.length).round().max(2.0);
-    super::check_size(n_f.powi(dim as i32), 1 + scene.n_fractions(), "sph.n")?;
+    super::check_size(
+        n_f.powi(dim as i32),
+        1 + scene.n_fractions(),
+        "sph.n",
+        &["dustybox.length"],
+    )?;
     let n_axis = n_f as usize;
     let dx = b.length / n_axis as f64;
     let (x, len) = match (b.lattice, dim) {

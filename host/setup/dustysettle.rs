@@ -54,7 +54,12 @@ pub(super) fn build(scene: &Scene, c: &SettleCfg) -> Result<Setup, SetupError> {
             msg: "the column is too tall for its scale height".into(),
         });
     }
-    super::check_size((m_hi - m_lo) / m + 1.0, 1 + scene.n_fractions(), "sph.n")?;
+    super::check_size(
+        (m_hi - m_lo) / m + 1.0,
+        1 + scene.n_fractions(),
+        "sph.n",
+        &["dustysettle.height"],
+    )?;
     let i_lo = (m_lo / m).floor() as i64;
     let i_hi = (m_hi / m).ceil() as i64;
     let x: Vec<[f64; 3]> = (i_lo..i_hi)

@@ -25,7 +25,12 @@ pub(super) fn build(scene: &Scene, s: &crate::scene::ShockCfg) -> Result<Setup, 
     }
     // Both sides and the walls, at the finer spacing: an upper bound.
     let per_phase = (len + 2.0 * wall) / dx_l.min(dx_r);
-    super::check_size(per_phase, 1 + scene.n_fractions(), "sph.n")?;
+    super::check_size(
+        per_phase,
+        1 + scene.n_fractions(),
+        "sph.n",
+        &["dustyshock.length"],
+    )?;
     let m = s.left.rho * dx_l;
     let mut x = Vec::new();
     let mut rho = Vec::new();

@@ -162,7 +162,12 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let dim = scene.dim();
     let n_f = (scene.sph.n as f64 * w.length).round().max(2.0);
     let rows = (w.layers as f64).powi(dim as i32 - 1);
-    super::check_size(n_f * rows, 1 + scene.n_fractions(), "sph.n")?;
+    super::check_size(
+        n_f * rows,
+        1 + scene.n_fractions(),
+        "sph.n",
+        &["dustywave.length", "dustywave.layers"],
+    )?;
     let n = n_f as usize;
     let dx = w.length / n as f64;
     let (x0, len) = lattice(dim, w.lattice, n, w.length, w.layers);

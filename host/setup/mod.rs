@@ -61,16 +61,27 @@ pub(crate) fn available_memory() -> Option<f64> {
 }
 
 /// Before any allocation: refuse a lattice of `per_phase` particles in each of `phases` phases
-/// that the particle indices (u32) or this machine's memory cannot hold, naming `key` and the
-/// estimate (an absurd `sph.n` must not abort the process).
-pub(crate) fn check_size(per_phase: f64, phases: usize, key: &str) -> Result<(), SetupError> {
+/// that the particle indices (u32) or this machine's memory cannot hold, naming `key` (and the
+/// other keys `also` that set the count) and the estimate (an absurd `sph.n` must not abort the
+/// process).
+pub(crate) fn check_size(
+    per_phase: f64,
+    phases: usize,
+    key: &str,
+    also: &[&str],
+) -> Result<(), SetupError> {
+    let or = if also.is_empty() {
+        String::new()
+    } else {
+        format!(" (or {})", also.join(", "))
+    };
     let total = per_phase * phases as f64;
     let need = total * BYTES_PER_PARTICLE;
     let fail = |why: String| {
         Err(SetupError {
             key: key.into(),
             msg: format!(
-                "about {total:.3e} particles ({per_phase:.3e} per phase × {phases}) {why}; lower {key}"
+                "about {total:.3e} particles ({per_phase:.3e} per phase × {phases}) {why}; lower {key}{or}"
             ),
         })
     };
