@@ -605,6 +605,27 @@ fn stiffness(a: StiffnessArgs) -> ExitCode {
             eprintln!("error: {} exists; give --force to replace it", o.display());
             return ExitCode::from(2);
         }
+        // Where the report goes must be writable before the matrix runs (minutes with --full).
+        let dir = match o.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let probe = dir.join(format!(".dustsph-write-check-{}.tmp", std::process::id()));
+        if o.is_dir() {
+            eprintln!(
+                "error: {} is a directory; --out names the report file",
+                o.display()
+            );
+            return ExitCode::from(2);
+        }
+        if let Err(e) = std::fs::write(&probe, b"") {
+            eprintln!(
+                "error: {}: cannot write the report there ({e})",
+                o.display()
+            );
+            return ExitCode::from(2);
+        }
+        let _ = std::fs::remove_file(&probe);
     }
     let reports = dustsph::stiffness::run(full, |r| {
         eprintln!(
