@@ -2,6 +2,16 @@
 //! and Ctrl-C leaves a checkpoint that `dustsph resume` completes.
 mod common;
 use common::config;
+
+/// One test of this file at a time. HDF5 opens its files without close-on-exec and locks them
+/// (flock): a `dustsph` child spawned by one test while another test holds a checkpoint open
+/// inherits that descriptor and its lock for its whole run, and the other test's next
+/// read-write open then fails with EAGAIN (seen once in CI).
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
 use dustsph::particles::{Phase, State};
 use dustsph::run::{RunOptions, Runner};
 use std::process::Command;
@@ -70,18 +80,21 @@ fn resume_is_bit_exact(scene: &str, sets: &[&str], n: u64) {
 
 #[test]
 fn resumed_ball_is_bit_identical() {
+    let _serial = serial();
     // Adiabatic gas, Epstein drag from cell means, an expanding unbounded grid.
     resume_is_bit_exact("dusty_ball", &["scene.dim=2", "sph.n=20", "sph.h=0.1"], 15);
 }
 
 #[test]
 fn resumed_variable_h_wave_is_bit_identical() {
+    let _serial = serial();
     // 3D close-packed slab, variable h (h and Ω travel in the checkpoint), constant-K drag.
     resume_is_bit_exact("dustywave_phantom", &["sph.n=16", "dustywave.layers=6"], 10);
 }
 
 #[test]
 fn resumed_kernel_coupling_runs_are_bit_identical() {
+    let _serial = serial();
     // The kernel coupling with external gravity, walls and IAD (its normalisers are rebuilt
     // from the positions on resume), and with offset dust, the leapfrog, variable h and the
     // variable-h dust densities of the Phantom wave.
@@ -100,12 +113,14 @@ fn resumed_kernel_coupling_runs_are_bit_identical() {
 
 #[test]
 fn resumed_shock_tube_is_bit_identical() {
+    let _serial = serial();
     // Viscosity, drag heating, fixed walls, CFL time step.
     resume_is_bit_exact("dustyshock", &["sph.n=400"], 30);
 }
 
 #[test]
 fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
+    let _serial = serial();
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
     let out_s = out.display().to_string();
@@ -217,6 +232,7 @@ fn resume_refused(dir: &std::path::Path, why: &str) {
 /// Issue 13: resume continues only the run a whole checkpoint belongs to.
 #[test]
 fn resume_refuses_a_foreign_altered_or_inconsistent_checkpoint() {
+    let _serial = serial();
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
     checkpointed("dustywave", &["time.output_dt=0.05"], &a, 30);
@@ -258,6 +274,7 @@ fn resume_refuses_a_foreign_altered_or_inconsistent_checkpoint() {
 /// read back exactly).
 #[test]
 fn resume_refuses_a_finished_run_or_a_replaced_snapshot_and_resumes_the_summary_exactly() {
+    let _serial = serial();
     let tmp = tempfile::tempdir().unwrap();
     let bin = env!("CARGO_BIN_EXE_dustsph");
     // The 1D wave, n particles per wavelength, outputs every 0.1 to t_end.
