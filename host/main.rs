@@ -259,8 +259,11 @@ fn print_field(f: &dustsph::analysis::FieldError) {
     }
 }
 
+/// Start the run (`start`: set-up and the first snapshot) and step it to the end. Ctrl-C is
+/// caught from before the start: pressed during the set-up, the run stops at its first step
+/// with a checkpoint (exit 130), as later.
 fn drive(
-    r: Result<Runner, RunError>,
+    start: impl FnOnce() -> Result<Runner, RunError>,
     checkpoint_every: Option<u64>,
     stop_after: Option<u64>,
 ) -> ExitCode {
@@ -271,16 +274,22 @@ fn drive(
             _ => 1,
         })
     };
-    let mut r = match r {
+    // Ctrl-C asks the loop to stop after the current step and write a checkpoint; a second one
+    // stops at once (files are written to a temporary name and renamed, so none is left torn).
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    if let Err(e) = ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::Relaxed) {
+            eprintln!("dustsph: second interrupt: stopping now, without a checkpoint");
+            std::process::exit(130);
+        }
+    }) {
+        eprintln!("warning: Ctrl-C will not checkpoint ({e})");
+    }
+    let mut r = match start() {
         Ok(r) => r,
         Err(e) => return fail(e),
     };
-    // Ctrl-C asks the loop to stop after the current step and write a checkpoint.
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = stop.clone();
-    if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
-        eprintln!("warning: Ctrl-C will not checkpoint ({e})");
-    }
     match r.advance(stop_after, checkpoint_every, Some(&stop)) {
         Ok(Stop::Finished) => {}
         Ok(Stop::Interrupted) if !r.is_root() => return ExitCode::from(130),
@@ -371,10 +380,14 @@ fn run(a: RunArgs) -> ExitCode {
     // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
     #[cfg(feature = "mpi")]
     if let Some(world) = ranks_world() {
-        let r = world.and_then(|w| Runner::start_over_ranks(&loaded, &opts, w));
-        return drive(r, checkpoint_every, stop_after);
+        let start = || world.and_then(|w| Runner::start_over_ranks(&loaded, &opts, w));
+        return drive(start, checkpoint_every, stop_after);
     }
-    drive(Runner::start(&loaded, &opts), checkpoint_every, stop_after)
+    drive(
+        || Runner::start(&loaded, &opts),
+        checkpoint_every,
+        stop_after,
+    )
 }
 
 fn bench(a: BenchArgs) -> ExitCode {
@@ -677,10 +690,14 @@ fn resume(a: ResumeArgs) -> ExitCode {
     // Started as one of several MPI ranks: the rest of the run is split over them.
     #[cfg(feature = "mpi")]
     if let Some(world) = ranks_world() {
-        let r = world.and_then(|w| Runner::resume_over_ranks(&dir, !quiet, device, w));
-        return drive(r, checkpoint_every, None);
+        let start = || world.and_then(|w| Runner::resume_over_ranks(&dir, !quiet, device, w));
+        return drive(start, checkpoint_every, None);
     }
-    drive(Runner::resume(&dir, !quiet, device), checkpoint_every, None)
+    drive(
+        || Runner::resume(&dir, !quiet, device),
+        checkpoint_every,
+        None,
+    )
 }
 
 fn parity(a: ParityArgs) -> ExitCode {
