@@ -515,6 +515,18 @@ fn profile(a: ProfileArgs) -> ExitCode {
         eprintln!("error: --bins must be between 1 and {MAX_BINS} (got {bins})");
         return ExitCode::from(2);
     }
+    // The usual mistakes, said plainly (not as HDF5's errno text), as bad input.
+    if snapshot.is_dir() {
+        eprintln!(
+            "error: {} is a directory; give one of its snapshot_NNNN.h5 files",
+            snapshot.display()
+        );
+        return ExitCode::from(2);
+    }
+    if !snapshot.is_file() {
+        eprintln!("error: {}: no such file", snapshot.display());
+        return ExitCode::from(2);
+    }
     match dustsph::post::post_process(&snapshot, bins) {
         Ok(r) => {
             for f in &r.files {
@@ -702,6 +714,11 @@ fn resume(a: ResumeArgs) -> ExitCode {
 
 fn parity(a: ParityArgs) -> ExitCode {
     let ParityArgs { device, precision } = a;
+    // A device that is not there is bad input (exit 2), said once, before any case runs.
+    if let Err(e) = dustsph::engine::backend::select(device) {
+        eprintln!("error: {e}");
+        return ExitCode::from(2);
+    }
     let mut all_ok = true;
     for (label, file, sets, steps) in dustsph::parity::CASES {
         let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();

@@ -570,3 +570,25 @@ fn dubious_runs_are_warned_about_and_malformed_overrides_refused() {
         assert!(!tmp.path().join("bad").exists());
     }
 }
+
+/// `profile` given a directory or a missing file, and `parity` asked for a device that is not
+/// there, are bad input: exit 2 with a plain message.
+#[test]
+fn profile_and_parity_refuse_what_is_not_there_with_exit_2() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().display().to_string();
+    let o = dustsph(&["profile", &dir]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("is a directory"));
+    let missing = tmp.path().join("snapshot_0001.h5").display().to_string();
+    let o = dustsph(&["profile", &missing]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no such file"));
+    let gpu = dustsph(&["gpu"]);
+    if String::from_utf8_lossy(&gpu.stdout).contains("device: none") {
+        let o = dustsph(&["parity", "--device", "cuda"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert_eq!(err.matches("error:").count(), 1, "{err}");
+    }
+}
