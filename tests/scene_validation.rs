@@ -51,6 +51,10 @@ fn impossible_values_name_their_key_and_file() {
         ("dustybox", "time.t_end=0", "time.t_end"),
         ("dustybox", "scene.dim=4", "scene.dim"),
         ("dustyshock", "scene.dim=3", "scene.dim"),
+        // Given but unused: no viscosity, or a lattice key on a 1D line.
+        ("dustywave", "sph.beta=3", "sph.beta"),
+        ("dustywave", "dustywave.layers=6", "dustywave.layers"),
+        ("dustybox", "dustybox.lattice=\"cubic\"", "dustybox.lattice"),
         (
             "dustywave_phantom",
             "dustywave.layers=8",

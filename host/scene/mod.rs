@@ -136,6 +136,24 @@ pub fn load_shipped(name: &str, overrides: &[String]) -> Result<LoadedScene, Sce
     })
 }
 
+/// Keys with a default that some scenes do not use, and why a scene does not (None: used).
+type Unused = fn(&types::SceneFile) -> Option<&'static str>;
+const UNUSED_UNLESS: [(&str, Unused); 5] = [
+    ("sph.alpha", unused_without_viscosity),
+    ("sph.beta", unused_without_viscosity),
+    ("dustywave.lattice", unused_in_1d),
+    ("dustywave.layers", unused_in_1d),
+    ("dustybox.lattice", unused_in_1d),
+];
+
+fn unused_without_viscosity(f: &types::SceneFile) -> Option<&'static str> {
+    (!f.sph.viscosity).then_some("used only with artificial viscosity (sph.viscosity = true)")
+}
+
+fn unused_in_1d(f: &types::SceneFile) -> Option<&'static str> {
+    (f.scene.dim == 1).then_some("2D/3D only: a 1D run is a uniform line of particles")
+}
+
 /// Parse scene text (with `--set` overrides) and validate it; `file` is used in messages.
 pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
     let err = |key: Option<String>, msg: String| SceneError {
@@ -176,20 +194,19 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
             }
         }
     }
-    // Keys with defaults cannot tell "not given" after deserialising: note which were given.
-    let given = |section: &str, key: &str| {
-        table
-            .get(section)
-            .and_then(|t| t.as_table())
-            .is_some_and(|t| t.contains_key(key))
-    };
-    let given_av = ["alpha", "beta"].map(|k| given("sph", k));
-    let given_lattice = [
-        ("dustywave", "lattice"),
-        ("dustywave", "layers"),
-        ("dustybox", "lattice"),
-    ]
-    .map(|(s, k)| given(s, k));
+    // Keys with defaults cannot tell "not given" after deserialising: note which were given
+    // of those that some scenes do not use (checked after validation, below).
+    let given: Vec<&str> = UNUSED_UNLESS
+        .iter()
+        .map(|&(k, _)| k)
+        .filter(|k| {
+            let (section, key) = k.split_once('.').expect("section.key");
+            table
+                .get(section)
+                .and_then(|t| t.as_table())
+                .is_some_and(|t| t.contains_key(key))
+        })
+        .collect();
     let value = toml::Value::Table(table);
     let file: SceneFile = serde_path_to_error::deserialize(value).map_err(|e| {
         // serde writes sequence indices as `a[0].b`; scene keys are `a.0.b` everywhere.
@@ -209,34 +226,12 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
     })?;
     file.validate().map_err(|(key, msg)| err(Some(key), msg))?;
     // A key given but not used would silently not do what its author meant.
-    if !file.sph.viscosity {
-        if let Some(k) = ["sph.alpha", "sph.beta"]
-            .iter()
-            .zip(given_av)
-            .find_map(|(k, g)| g.then_some(k))
-        {
+    for k in given {
+        let (_, why) = UNUSED_UNLESS.iter().find(|(u, _)| *u == k).expect("listed");
+        if let Some(why) = why(&file) {
             return Err(err(
                 Some(k.to_string()),
-                format!(
-                    "used only with artificial viscosity: set sph.viscosity = true, or remove \
-                     it (--set {k}=)"
-                ),
-            ));
-        }
-    }
-    if file.scene.dim == 1 {
-        let keys = ["dustywave.lattice", "dustywave.layers", "dustybox.lattice"];
-        if let Some(k) = keys
-            .iter()
-            .zip(given_lattice)
-            .find_map(|(k, g)| g.then_some(k))
-        {
-            return Err(err(
-                Some(k.to_string()),
-                format!(
-                    "2D/3D only: a 1D run is a uniform line of particles (remove it, e.g. \
-                     --set {k}=)"
-                ),
+                format!("{why} (remove it: --set {k}=)"),
             ));
         }
     }
