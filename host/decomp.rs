@@ -137,6 +137,8 @@ pub struct Partition {
     pub halo: Vec<u64>,
     /// Ranks each rank receives halo from.
     pub peers: Vec<u32>,
+    /// How many cells around its own a particle's halo reaches (1: the 26 neighbours).
+    pub ring: u32,
 }
 
 const NOBODY: u32 = u32::MAX;
@@ -146,6 +148,13 @@ impl Partition {
     /// goes to the rank whose share k·N/R … (k+1)·N/R holds its first particle), then count
     /// every rank's halo.
     pub fn of(cells: &Cells, ranks: u32) -> Partition {
+        Partition::with_ring(cells, ranks, 1)
+    }
+
+    /// As [`Partition::of`], with a halo `ring` cells deep: cells finer than the halo's reach
+    /// cut the curve finer (a reach of several supports in cells one reach wide leaves a small
+    /// domain only a few cells to share out).
+    pub fn with_ring(cells: &Cells, ranks: u32, ring: u32) -> Partition {
         let r = ranks.max(1) as u64;
         let b = &cells.cbox;
         let mut owner = vec![NOBODY; cells.count.len()];
@@ -174,6 +183,7 @@ impl Partition {
             owned,
             halo: Vec::new(),
             peers: Vec::new(),
+            ring: ring.max(1),
         };
         let mut to: Vec<u32> = Vec::with_capacity(27);
         for &(_, c) in &cells.order {
@@ -205,34 +215,42 @@ impl Partition {
         }
     }
 
-    /// The ranks other than the cell's owner that own one of the 26 cells around cell c (across
-    /// the period on periodic axes): the ranks a particle in c is halo of, written to `to`.
+    /// The ranks other than the cell's owner that own one of the cells within `ring` cells of
+    /// cell c (the 26 around it for ring 1; across the period on periodic axes): the ranks a
+    /// particle in c is halo of, written to `to`.
     pub fn halo_ranks(&self, c: [u32; 3], to: &mut Vec<u32>) {
         let b = &self.cbox;
         to.clear();
         let own = self.owner[b.index(c)];
-        for d in 0..27i64 {
-            let off = [d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1];
-            let mut q = [0u32; 3];
-            let mut inside = true;
-            for k in 0..3 {
-                let v = c[k] as i64 + off[k];
-                let n = b.n[k] as i64;
-                q[k] = if (0..n).contains(&v) {
-                    v as u32
-                } else if b.periodic[k] {
-                    v.rem_euclid(n) as u32
-                } else {
-                    inside = false;
-                    0
-                };
-            }
-            if !inside {
-                continue;
-            }
-            let o = self.owner[b.index(q)];
-            if o != NOBODY && o != own && !to.contains(&o) {
-                to.push(o);
+        let ring = self.ring as i64;
+        // Each axis's cells in reach, once each (a short period wraps onto itself).
+        let along = |k: usize| -> Vec<u32> {
+            let n = b.n[k] as i64;
+            let mut v: Vec<u32> = (-ring..=ring)
+                .filter_map(|o| {
+                    let i = c[k] as i64 + o;
+                    if (0..n).contains(&i) {
+                        Some(i as u32)
+                    } else if b.periodic[k] {
+                        Some(i.rem_euclid(n) as u32)
+                    } else {
+                        None
+                    }
+                })
+                .collect();
+            v.sort_unstable();
+            v.dedup();
+            v
+        };
+        let (xs, ys, zs) = (along(0), along(1), along(2));
+        for &z in &zs {
+            for &y in &ys {
+                for &x in &xs {
+                    let o = self.owner[b.index([x, y, z])];
+                    if o != NOBODY && o != own && !to.contains(&o) {
+                        to.push(o);
+                    }
+                }
             }
         }
     }
@@ -306,5 +324,19 @@ mod tests {
             "{:?}",
             p.halo
         );
+    }
+
+    /// A halo two cells deep: the halves receive two face layers each (four when periodic,
+    /// two across the cut and two across the period), and a ring wider than a short period
+    /// counts each cell once.
+    #[test]
+    fn a_ring_of_two_cells_sends_two_face_layers() {
+        let p = Partition::with_ring(&cube(false), 2, 2);
+        assert_eq!(p.halo, vec![2 * 8 * 256, 2 * 8 * 256]);
+        let p = Partition::with_ring(&cube(true), 2, 2);
+        assert_eq!(p.halo, vec![4 * 8 * 256, 4 * 8 * 256]);
+        // 16 cells per period, ring 20: every cell of the other half, once.
+        let p = Partition::with_ring(&cube(true), 2, 20);
+        assert_eq!(p.halo, vec![8 * 2048, 8 * 2048]);
     }
 }

@@ -59,15 +59,16 @@ struct MpiCheckArgs {
     /// Override a scene key (repeatable)
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
-    /// Halo depth in kernel supports (2h): the cells of the cut are this wide
-    #[arg(long, default_value_t = 1.0)]
-    depth: f64,
+    /// Halo depth in kernel supports (2h): 1 for the exchange check; for `--steps`, what a
+    /// run over ranks uses (`dist::ranks::depth_for`: 2 for the first-order step, 4 for the
+    /// leapfrog, more for IDIC cells wider than a support)
+    #[arg(long)]
+    depth: Option<f64>,
     /// Make this rank report a failure (checks that every rank then stops)
     #[arg(long, hide = true)]
     fail_rank: Option<u32>,
     /// Then step the scene N times over the ranks (a halo `--depth` supports deep, recomputed
-    /// on every rank; 3 for the first-order step, 4 for the leapfrog with variable h) and
-    /// compare every particle with one process on rank 0 (exit 1 above 1e-12 of a field's
+    /// on every rank) and compare every particle with one process on rank 0 (exit 1 above 1e-12 of a field's
     /// scale); not the kernel coupling
     #[arg(long, default_value_t = 0)]
     steps: u64,
@@ -867,7 +868,7 @@ fn mpi_check(_: MpiCheckArgs) -> ExitCode {
 #[cfg(feature = "mpi")]
 fn mpi_check(a: MpiCheckArgs) -> ExitCode {
     use dustsph::commands::mpi_check;
-    if !(a.depth.is_finite() && a.depth >= 1.0) {
+    if a.depth.is_some_and(|d| !(d.is_finite() && d >= 1.0)) {
         eprintln!("error: --depth must be a number ≥ 1 (kernel supports)");
         return ExitCode::from(2);
     }
@@ -885,7 +886,8 @@ fn mpi_check(a: MpiCheckArgs) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    match mpi_check::run(&world, &loaded.scene, a.depth, a.fail_rank) {
+    let check_depth = a.depth.unwrap_or(1.0);
+    match mpi_check::run(&world, &loaded.scene, check_depth, a.fail_rank) {
         Err(e) => {
             eprintln!("error: rank {}: {e}", world.rank());
             ExitCode::from(1)
@@ -896,7 +898,7 @@ fn mpi_check(a: MpiCheckArgs) -> ExitCode {
                     "{}: {} ranks, halo depth {} kernel support(s)",
                     loaded.scene.scene.name,
                     reports.len(),
-                    a.depth
+                    check_depth
                 );
                 println!("| rank | owned | halo | halo/owned | peers | MB sent | migrate ms | halo ms | gather ms | check |");
                 println!("|---|---|---|---|---|---|---|---|---|---|");

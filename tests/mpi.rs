@@ -85,18 +85,21 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
 }
 
 /// The decomposition with physics: stepping over 1–4 ranks (each rank its owned particles with
-/// a halo four supports deep, the step's chain of neighbour passes recomputed on it, and a
-/// fixed shell one support beyond at its owners' values; the step size from the maxima over
+/// the halo a run uses, `depth_for`: its step's chain of neighbour passes recomputed on it, and
+/// a fixed shell one support beyond at its owners' values; the step size from the maxima over
 /// all ranks) matches one process to 1e-12 of each field's scale (velocities: at least the
-/// sound speed) for every particle matched by id — on the 3D box, the 1D wave, the Phantom slab
-/// (leapfrog, variable h, IAD, CFL), the shock tube (walls, adiabatic, heating) and the open 3D
-/// ball. Too thin a halo is caught: three supports for the leapfrog's longer chain, one for the
-/// first-order wave.
+/// sound speed) for every particle matched by id — on the box, the 1D wave (also with IDIC
+/// cells of 4h, and with variable h, whose output dust density must not depend on its warm
+/// start), the Phantom slab (leapfrog, variable h, IAD, CFL), the shock tube (walls, adiabatic,
+/// heating) and the open 3D ball. Too thin a halo is caught: three supports for the leapfrog's
+/// longer chain, one for the first-order wave, two for the wave's 4h cells.
 #[test]
 fn stepping_over_ranks_with_a_deep_halo_matches_one_process() {
-    let cases: [&[&str]; 5] = [
+    let cases: [&[&str]; 7] = [
         &["configs/dustybox.toml"],
         &["configs/dustywave.toml"],
+        &["configs/dustywave.toml", "--set", "idic.cell=4"],
+        &["configs/dustywave.toml", "--set", "sph.variable_h=true"],
         &["configs/dustywave_phantom.toml", "--set", "sph.n=32"],
         &["configs/dustyshock.toml"],
         &["configs/dusty_ball.toml", "--set", "sph.n=12"],
@@ -104,7 +107,7 @@ fn stepping_over_ranks_with_a_deep_halo_matches_one_process() {
     for ranks in 1..=4 {
         for args in cases {
             let mut a = args.to_vec();
-            a.extend(["--depth", "4", "--steps", "20"]);
+            a.extend(["--steps", "20"]);
             let (code, text) = mpi_check(ranks, &a);
             assert_eq!(code, Some(0), "-n {ranks} {a:?}:\n{text}");
             assert!(text.contains("against one process"), "{text}");
@@ -116,6 +119,8 @@ fn stepping_over_ranks_with_a_deep_halo_matches_one_process() {
             &["configs/dustywave_phantom.toml", "--set", "sph.n=32"][..],
         ),
         ("1", &["configs/dustywave.toml"][..]),
+        // IDIC cells of 4h: a particle's drag reads cell-mates a support further away.
+        ("2", &["configs/dustywave.toml", "--set", "idic.cell=4"][..]),
     ] {
         let mut a = args.to_vec();
         a.extend(["--depth", depth, "--steps", "20"]);

@@ -4,9 +4,9 @@
 //! Every rank builds the scene's particles (the set-up is deterministic) and starts from a
 //! scrambled share (particle k on rank k mod R). Then, as a run over ranks would each step:
 //! global bounds and per-cell counts by all-reduce, the same Morton cut on every rank
-//! ([`Partition`], cells at least `depth` kernel supports wide), migration of each particle to
-//! the rank owning its cell, and the halo exchange (copies of the particles in cells that touch
-//! another rank's cells). Checks: every particle is owned by exactly one rank, the one owning
+//! ([`Partition`], cells half `depth` kernel supports wide), migration of each particle to
+//! the rank owning its cell, and the halo exchange (copies of the particles in the cells within
+//! reach of another rank's cells). Checks: every particle is owned by exactly one rank, the one owning
 //! its cell; owned and halo counts equal the partition's; and no particle within `depth`
 //! supports of an owned particle (minimum image on periodic axes) is missing from owned ∪ halo.
 //! A rank that fails reports why and every rank exits 1 (an all-reduce of the failure flag:
@@ -249,11 +249,11 @@ pub struct StepReport {
 }
 
 /// Step the scene `steps` times over the ranks ([`RankStepper`], a halo `depth` supports
-/// deep) and, on rank 0, compare every particle with the same steps in one process.
+/// deep, by default a run's [`crate::dist::ranks::depth_for`]) and, on rank 0, compare every particle with the same steps in one process.
 pub fn step_over_ranks(
     world: World,
     scene: &crate::scene::Scene,
-    depth: f64,
+    depth: Option<f64>,
     steps: u64,
 ) -> Result<Option<StepReport>, String> {
     use crate::engine::backend::{Backend, DeviceChoice};
@@ -265,7 +265,7 @@ pub fn step_over_ranks(
         world,
         phys.clone(),
         &su.state,
-        depth,
+        depth.unwrap_or_else(|| crate::dist::ranks::depth_for(&phys)),
         DeviceChoice::Cpu,
         false,
     )?;
@@ -276,6 +276,26 @@ pub fn step_over_ranks(
     let Some(mut dist) = ranks.gather(t, steps)? else {
         return Ok(None);
     };
+    // The dust densities as an output over ranks has them: computed by rank 0 on the gathered
+    // state (the ranks leave them as a step does); the ranks' own gas densities are kept.
+    {
+        let mut out = dist.clone();
+        let mut eng =
+            Backend::new(DeviceChoice::Cpu, phys.clone(), &mut out).map_err(|e| e.to_string())?;
+        eng.dust_density_as_after_step();
+        eng.refresh_dust_density(&mut out)
+            .map_err(|e| e.to_string())?;
+        let fresh: std::collections::HashMap<(u64, u64), u64> = records(&out)
+            .iter()
+            .filter(|r| r[1] > 0)
+            .map(|r| ((r[1], r[0]), r[9]))
+            .collect();
+        for (k, d) in dist.dust.iter_mut().enumerate() {
+            for (i, rho) in d.rho.iter_mut().enumerate() {
+                *rho = f64::from_bits(fresh[&(k as u64 + 1, d.id[i])]);
+            }
+        }
+    }
     let mut one = su.state;
     {
         let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut one).map_err(|e| e.to_string())?;

@@ -56,7 +56,7 @@ fn over_ranks(
             world,
             phys.clone(),
             state,
-            crate::dist::ranks::RUN_DEPTH,
+            crate::dist::ranks::depth_for(phys),
             device,
             verbose,
         )
@@ -653,6 +653,9 @@ impl Runner {
             let phys = self.eng.phys().clone();
             self.eng = Backend::new(DeviceChoice::Cpu, phys, &mut self.state)
                 .map_err(|e| RunError::Step(e.to_string()))?;
+            // The ranks leave the dust densities as a step does (one process refreshes them
+            // for its outputs): a variable-h engine would otherwise keep the gathered ones.
+            self.eng.dust_density_as_after_step();
             self.eng_stale = false;
         }
         Ok(())

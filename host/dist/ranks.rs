@@ -2,18 +2,32 @@
 //! with a deep halo"): each step the particles are cut along the Morton curve and migrated;
 //! every rank builds an engine on its owned particles plus a halo `depth` kernel supports deep
 //! (the whole state from the owners, the step's chain of neighbour passes recomputed here) and
-//! a shell one support beyond held fixed at the owners' values; the step size comes from the
-//! maxima over all ranks; each rank keeps its owned particles' results.
+//! a shell one support beyond held fixed at the owners' values (particles further out are left
+//! out); the step size comes from the maxima over all ranks; each rank keeps its owned
+//! particles' results.
 use super::comm::World;
 use crate::decomp::{CellBox, Cells, Partition};
 use crate::engine::backend::{Backend, DeviceChoice};
 use crate::engine::driver::{Driver, Plan, Taken};
+use crate::engine::gpu::Layer;
 use crate::engine::{Forces, Physics};
 use crate::particles::State;
 
-/// Halo depth in kernel supports that `dustsph run` uses over ranks: the leapfrog with
-/// variable h and IAD needs 4 (measured: 3 fails), the first-order step 3.
-pub const RUN_DEPTH: f64 = 4.0;
+/// Halo depth in kernel supports that a run over ranks needs for its step's chain of
+/// neighbour passes to be exact on the owned particles (docs/scaling.md): the first-order step
+/// 1 + max(1, c), the leapfrog 3 + max(1, c), where c is an IDIC cell's diagonal in supports
+/// (a particle's drag reads its cell-mates' forces). Measured on 3 ranks: the 1D wave (cell
+/// 0.5 h) exact at 2 and not at 1; with cells of 4 h exact at 3 and not at 2; the Phantom
+/// slab (leapfrog, variable h, IAD) exact at 4 and not at 3.
+pub fn depth_for(phys: &Physics) -> f64 {
+    let cell = phys.cell_size * (phys.dim as f64).sqrt() / phys.support();
+    let chain = if phys.integrator == crate::scene::Integrator::Kdk {
+        3.0
+    } else {
+        1.0
+    };
+    chain + cell.max(1.0)
+}
 
 /// A particle's whole state for the stepping check, as bits: id, phase, x, v, m, ρ, e, fixed,
 /// flags (1: h and Ω, 2: the leapfrog's closing forces), h, Ω, the closing forces (5), and the
@@ -164,8 +178,15 @@ pub fn supported(phys: &Physics) -> Result<(), String> {
     Ok(())
 }
 
+/// Decomposition cells per halo reach: cells half the reach wide (the halo then spans the
+/// cells within three of a rank's own), so that a reach of several supports still leaves a
+/// small domain enough cells to cut evenly.
+pub const CELLS_PER_REACH: f64 = 2.0;
+
 /// The Morton cut of this step, the same on every rank (collective): global bounds (the period
-/// on periodic axes) and per-cell counts of every rank's positions `xs`, cells `reach` wide.
+/// on periodic axes) and per-cell counts of every rank's positions `xs`, in cells
+/// `reach / CELLS_PER_REACH` wide, with a halo ring of cells that holds every particle within
+/// `reach` of a rank's own.
 pub fn cut(world: &World, xs: &[[f64; 3]], domain: &crate::grid::Domain, reach: f64) -> Partition {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
@@ -183,14 +204,21 @@ pub fn cut(world: &World, xs: &[[f64; 3]], domain: &crate::grid::Domain, reach: 
             (lo[k], hi[k], periodic[k]) = (p0, p0 + len, true);
         }
     }
-    let cbox = CellBox::new(lo, hi, reach, periodic);
+    let cbox = CellBox::new(lo, hi, reach / CELLS_PER_REACH, periodic);
+    // A particle within `reach` of one in cell i lies in cells i − ring … i + ring (one more
+    // than reach/size, whatever the rounding of a position to its cell).
+    let ring = (0..3)
+        .filter(|&k| cbox.n[k] > 1)
+        .map(|k| (reach / cbox.size[k]).floor() as u32 + 1)
+        .max()
+        .unwrap_or(1);
     let mut counts = vec![0u64; cbox.len()];
     for &x in xs {
         counts[cbox.index(cbox.cell_of(x))] += 1;
     }
     world.sum_u64(&mut counts);
     let cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
-    Partition::of(&cells, world.size())
+    Partition::with_ring(&cells, world.size(), ring)
 }
 
 /// Every record to the rank owning its cell (collective): what this rank now owns, and the
@@ -224,10 +252,16 @@ pub fn halo_copies<T: bytemuck::Pod>(
     pos: impl Fn(&T) -> [f64; 3],
 ) -> Result<(Vec<T>, usize), String> {
     let mut sends: Vec<Vec<T>> = vec![Vec::new(); world.size() as usize];
-    let mut to = Vec::new();
+    // The ranks a cell's particles go to, found once per cell.
+    let mut by_cell: std::collections::HashMap<usize, Vec<u32>> = Default::default();
     for r in owned {
-        part.halo_ranks(part.cbox.cell_of(pos(r)), &mut to);
-        for &q in &to {
+        let c = part.cbox.cell_of(pos(r));
+        let to = by_cell.entry(part.cbox.index(c)).or_insert_with(|| {
+            let mut to = Vec::new();
+            part.halo_ranks(c, &mut to);
+            to
+        });
+        for &q in to.iter() {
             sends[q as usize].push(*r);
         }
     }
@@ -249,6 +283,9 @@ pub struct RankStepper {
     dev: RankDevice,
     /// Every rank's device, for the summary (gathered at the start).
     devices: Vec<String>,
+    /// Whether the owned particles' densities are those of their layer (after a step here);
+    /// the first step computes them, as one process does at its start or resume.
+    layer_given: bool,
 }
 
 /// The launcher a rank steps on, kept across its steps (a GPU's kernels are loaded once).
@@ -263,10 +300,11 @@ impl RankDevice {
         &self,
         phys: Physics,
         state: &mut State,
+        layer: Layer,
     ) -> Result<Backend, crate::engine::StepError> {
         match self {
-            RankDevice::Cpu => Backend::new(DeviceChoice::Cpu, phys, state),
-            RankDevice::Cuda(d) => Backend::on_cuda(d.clone(), phys, state),
+            RankDevice::Cpu => Backend::on_cpu_at(phys, state, layer),
+            RankDevice::Cuda(d) => Backend::on_cuda_at(d.clone(), phys, state, layer),
         }
     }
 }
@@ -367,6 +405,7 @@ impl RankStepper {
             depth,
             dev,
             devices,
+            layer_given: false,
         })
     }
 
@@ -395,10 +434,11 @@ impl RankStepper {
                 .collect();
             format!("stepping {}", each.join("; "))
         };
+        let depth = format!("{:.2}", self.depth);
         format!(
             "{} MPI ranks (halo {} supports), {on}",
             self.world.size(),
-            self.depth
+            depth.trim_end_matches('0').trim_end_matches('.')
         )
     }
 
@@ -414,8 +454,17 @@ impl RankStepper {
         let world = &self.world;
         let me = world.rank();
         let domain = self.phys.domain;
-        let inner = self.depth * self.phys.support();
-        let reach = (self.depth + 1.0) * self.phys.support();
+        // The support: of the largest h over all ranks where h varies (the reference h at
+        // least), so that the halo holds every neighbour of its stepped particles.
+        let mut h_max = [self
+            .owned
+            .iter()
+            .filter(|r| r[12] & 1 != 0)
+            .fold(self.phys.h, |a, r| a.max(f64::from_bits(r[13])))];
+        world.max_f64(&mut h_max);
+        let support = crate::engine::SUPPORT * h_max[0];
+        let inner = self.depth * support;
+        let reach = inner + support;
         let xs: Vec<[f64; 3]> = self.owned.iter().map(full_pos).collect();
         let part = cut(world, &xs, &domain, reach);
         let (owned, _) = migrate(world, &part, &self.owned, full_pos)?;
@@ -423,7 +472,7 @@ impl RankStepper {
         let mine: std::collections::HashSet<(u64, u64)> =
             owned.iter().map(|r| (r[0], r[1])).collect();
         let mut local_recs = owned.clone();
-        local_recs.extend(shell(&owned, &halo, inner, &domain));
+        local_recs.extend(shell(&owned, &halo, inner, reach, &domain));
         let mut local = state_of(&local_recs, &self.template);
         local.t = t;
         local.step = step;
@@ -432,7 +481,12 @@ impl RankStepper {
         let mut eng = None;
         let mut forces = None;
         if !local_recs.is_empty() {
-            match self.dev.engine(self.phys.clone(), &mut local) {
+            let layer = if self.layer_given {
+                Layer::Given
+            } else {
+                Layer::Compute
+            };
+            match self.dev.engine(self.phys.clone(), &mut local, layer) {
                 Ok(mut e) => {
                     match e.forces(&local) {
                         Ok(f) => forces = Some(f),
@@ -463,9 +517,8 @@ impl RankStepper {
             let r = (|| -> Result<Plan, crate::engine::StepError> {
                 let p = drv.plan(e, &local, &global, t_target)?;
                 drv.take(e, &mut local, &Taken { plan: p, forces: f })?;
-                // Densities as an output has them (the dust's is refreshed only for output
-                // unless its drag law needs it each step).
-                e.refresh_dust_density(&mut local)?;
+                // The dust densities stay as a step leaves them (fresh only where the drag
+                // needs them each step): rank 0 computes them for an output.
                 e.sync(&mut local)?;
                 Ok(p)
             })();
@@ -497,6 +550,7 @@ impl RankStepper {
             t_target,
         });
         self.owned = next;
+        self.layer_given = true;
         Ok((plan, tt[0], most[0]))
     }
 
@@ -530,10 +584,17 @@ fn failure(_world: &World, step: u64, me: u32, err: &str) -> String {
 }
 
 /// The halo as the step needs it: particles within `inner` of an owned particle are stepped
-/// (their passes recomputed here); the rest are held fixed at their owners' values (their
-/// density and pressure are exact at the start of the step, so the stepped halo's forces are
-/// too, and no particle with an incomplete neighbourhood enters the step's maxima).
-fn shell(owned: &[Full], halo: &[Full], inner: f64, domain: &crate::grid::Domain) -> Vec<Full> {
+/// (their passes recomputed here); those up to `outer` (one support further) are held fixed at
+/// their owners' values (their density and pressure are exact at the start of the step, so the
+/// stepped halo's forces are too, and no particle with an incomplete neighbourhood enters the
+/// step's maxima); the rest, which no stepped particle reaches, are left out.
+fn shell(
+    owned: &[Full],
+    halo: &[Full],
+    inner: f64,
+    outer: f64,
+    domain: &crate::grid::Domain,
+) -> Vec<Full> {
     use std::collections::HashMap;
     // Cells of about half the test radius (on a periodic axis a whole number per period, the
     // indices wrapping): a halo particle scans only the cells across the edge of its sphere.
@@ -574,14 +635,14 @@ fn shell(owned: &[Full], halo: &[Full], inner: f64, domain: &crate::grid::Domain
         }
         s
     };
-    let r2 = inner * inner;
-    // Along axis k, the cells within `inner` of coordinate v: (index, lower bound of the
+    // Along axis k, the cells within `radius` of coordinate v: (index, lower bound of the
     // distance, less a rounding margin); every cell of a period the reach spans whole.
-    let cells_along = |k: usize, v: f64, out: &mut Vec<(i64, f64)>| {
+    let cells_along = |k: usize, v: f64, radius: f64, out: &mut Vec<(i64, f64)>| {
         out.clear();
+        let r2 = radius * radius;
         let (lo, size, n) = axes[k];
         let c = index(k, v);
-        let reach = (inner / size).ceil() as i64;
+        let reach = (radius / size).ceil() as i64;
         if let Some(n) = n {
             if 2 * reach + 1 >= n {
                 out.extend((0..n).map(|i| (i, 0.0)));
@@ -604,28 +665,35 @@ fn shell(owned: &[Full], halo: &[Full], inner: f64, domain: &crate::grid::Domain
         }
     };
     let (mut cx, mut cy, mut cz) = (Vec::new(), Vec::new(), Vec::new());
+    // Whether an owned particle lies within `radius` of x.
+    let mut within = |x: [f64; 3], radius: f64| -> bool {
+        let r2 = radius * radius;
+        cells_along(0, x[0], radius, &mut cx);
+        cells_along(1, x[1], radius, &mut cy);
+        cells_along(2, x[2], radius, &mut cz);
+        cz.iter().any(|&(iz, gz)| {
+            cy.iter().any(|&(iy, gy)| {
+                gz + gy <= r2
+                    && cx.iter().any(|&(ix, gx)| {
+                        gz + gy + gx <= r2
+                            && grid
+                                .get(&[ix, iy, iz])
+                                .is_some_and(|v| v.iter().any(|&o| sep2(o, x) <= r2))
+                    })
+            })
+        })
+    };
     halo.iter()
-        .map(|h| {
+        .filter_map(|h| {
             let x = full_pos(h);
-            cells_along(0, x[0], &mut cx);
-            cells_along(1, x[1], &mut cy);
-            cells_along(2, x[2], &mut cz);
-            let near = cz.iter().any(|&(iz, gz)| {
-                cy.iter().any(|&(iy, gy)| {
-                    gz + gy <= r2
-                        && cx.iter().any(|&(ix, gx)| {
-                            gz + gy + gx <= r2
-                                && grid
-                                    .get(&[ix, iy, iz])
-                                    .is_some_and(|v| v.iter().any(|&o| sep2(o, x) <= r2))
-                        })
-                })
-            });
-            let mut r = *h;
-            if !near {
-                r[11] = 1;
+            if within(x, inner) {
+                return Some(*h);
             }
-            r
+            within(x, outer).then(|| {
+                let mut r = *h;
+                r[11] = 1;
+                r
+            })
         })
         .collect()
 }

@@ -1,6 +1,6 @@
 //! The backend a run steps on: the one step pipeline (host/engine/gpu) on a launcher — the
 //! CPU's rayon pool, or a CUDA device. Chosen by `--device auto|cpu|cuda`.
-use super::gpu::{self, Cuda, GpuEngine, Launcher, Rayon};
+use super::gpu::{self, Cuda, GpuEngine, Launcher, Layer, Rayon};
 use super::timers::Timers;
 use super::{Forces, Physics, Pipeline, StepError};
 use crate::particles::State;
@@ -166,22 +166,38 @@ impl Backend {
                 Self::refuse_on_cuda(&phys)?;
                 Self::on_cuda(Cuda::new(0, gpu::PTX)?, phys, state)?
             }
-            _ if phys.precision == Precision::F32 => {
-                Backend::CpuF32(Box::new(GpuEngine::new(phys, state, Rayon)?))
-            }
-            _ => Backend::Cpu(Box::new(GpuEngine::new(phys, state, Rayon)?)),
+            _ => Self::on_cpu_at(phys, state, Layer::Compute)?,
         })
     }
 
     /// The engine on an opened CUDA device (a rank's own GPU keeps one across its steps).
     pub fn on_cuda(dev: Cuda, phys: Physics, state: &mut State) -> Result<Backend, StepError> {
+        Self::on_cuda_at(dev, phys, state, Layer::Compute)
+    }
+
+    /// As [`Backend::on_cuda`], taking the state's layer as given ([`Layer`]).
+    pub fn on_cuda_at(
+        dev: Cuda,
+        phys: Physics,
+        state: &mut State,
+        layer: Layer,
+    ) -> Result<Backend, StepError> {
         Self::refuse_on_cuda(&phys)?;
         let f32 = phys.precision == Precision::F32;
         check_device_memory(&dev, state, f32)?;
         Ok(if f32 {
-            Backend::CudaF32(Box::new(GpuEngine::new(phys, state, dev)?))
+            Backend::CudaF32(Box::new(GpuEngine::with_layer(phys, state, dev, layer)?))
         } else {
-            Backend::Cuda(Box::new(GpuEngine::new(phys, state, dev)?))
+            Backend::Cuda(Box::new(GpuEngine::with_layer(phys, state, dev, layer)?))
+        })
+    }
+
+    /// The CPU engine (rayon) taking the state's layer as given or not ([`Layer`]).
+    pub fn on_cpu_at(phys: Physics, state: &mut State, layer: Layer) -> Result<Backend, StepError> {
+        Ok(if phys.precision == Precision::F32 {
+            Backend::CpuF32(Box::new(GpuEngine::with_layer(phys, state, Rayon, layer)?))
+        } else {
+            Backend::Cpu(Box::new(GpuEngine::with_layer(phys, state, Rayon, layer)?))
         })
     }
 
@@ -282,6 +298,11 @@ impl Backend {
     /// Bring the host state up to date with the engine.
     pub fn sync(&mut self, state: &mut State) -> Result<(), StepError> {
         each!(self, e => Ok(e.sync(state)?))
+    }
+
+    /// See [`GpuEngine::dust_density_as_after_step`].
+    pub fn dust_density_as_after_step(&mut self) {
+        each!(self, e => e.dust_density_as_after_step())
     }
 
     /// Dust densities (for output) and the host state brought up to date.

@@ -664,6 +664,21 @@ struct DevSmoothing<L: Launcher, R: Float> {
 
 /// Phantom's tolerance of the h solve (as the CPU path).
 const H_TOL: f64 = 1e-4;
+/// The dust's h solve when its density is computed only for an output: converged to
+/// round-off (a correction below 1e-8 leaves an error of order 1e-16 after Newton's quadratic
+/// step), so that it does not depend on its warm start, i.e. on when the previous output was
+/// written (at `H_TOL` the dust density moved with the output cadence by ≈3e-10; a run over MPI
+/// ranks, which refreshes it every step, then differed from one process by as much).
+const H_TOL_OUTPUT: f64 = 1e-8;
+
+/// Whether an engine computes its first layer's densities or takes the state's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layer {
+    /// From the positions (a run's start, a resume).
+    Compute,
+    /// The state's own: it was stepped by this code and its densities are exact.
+    Given,
+}
 
 impl From<GpuError> for StepError {
     fn from(e: GpuError) -> Self {
@@ -678,6 +693,19 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         phys: Physics,
         state: &mut State,
         launcher: L,
+    ) -> Result<GpuEngine<L, R>, StepError> {
+        Self::with_layer(phys, state, launcher, Layer::Compute)
+    }
+
+    /// As [`GpuEngine::new`]; with [`Layer::Given`] the state's densities, pressures and sound
+    /// speeds are its layer's (a step over MPI ranks rebuilds its engine on particles that
+    /// their owners stepped): the gas's summation density is not redone, and the dust's only
+    /// where its drag needs it each step (and then it is the state's too).
+    pub fn with_layer(
+        phys: Physics,
+        state: &mut State,
+        launcher: L,
+        layer: Layer,
     ) -> Result<GpuEngine<L, R>, StepError> {
         let pipe = Pipeline::from_physics(&phys);
         let nf = state.dust.len();
@@ -863,18 +891,28 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             }),
         };
         eng.regrid()?;
-        eng.gas_density_eos(None)?;
+        let given = layer == Layer::Given;
+        if given && !eng.pipe.variable_h {
+            // Summation or continuity density: ρ is the state's; only p and c_s from it.
+            eng.eos()?;
+        } else {
+            eng.gas_density_eos(None)?;
+        }
         // A resumed variable-h run keeps its dust densities too: the next solve starts from
         // them (as the uninterrupted run's does), so the resume stays bit-identical.
         let g = &state.gas;
-        eng.dust_density_fresh = eng.pipe.variable_h
-            && g.h.is_some()
-            && g.omega.is_some()
-            && state
-                .dust
-                .iter()
-                .all(|d| d.rho.len() == d.len() && d.rho.iter().all(|r| *r > 0.0 && r.is_finite()));
-        eng.dust_density()?;
+        let dust_rho_valid = state
+            .dust
+            .iter()
+            .all(|d| d.rho.len() == d.len() && d.rho.iter().all(|r| *r > 0.0 && r.is_finite()));
+        eng.dust_density_fresh = if given {
+            eng.pipe.dust_density_each_step && dust_rho_valid
+        } else {
+            eng.pipe.variable_h && g.h.is_some() && g.omega.is_some() && dust_rho_valid
+        };
+        if !given || eng.pipe.dust_density_each_step {
+            eng.dust_density()?;
+        }
         eng.sync(state)?;
         eng.check(state)?;
         Ok(eng)
@@ -1134,8 +1172,13 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     /// start) or of every dust fraction (from the h of its last density): h, ρ (and Ω) by Newton–Raphson.
     /// A particle whose h runs into the search radius widens the grid's reach (same cells and
     /// order) and the solve is repeated, as on the CPU.
-    fn solve_h(&mut self, gas: bool, step: u64) -> Result<(), StepError> {
+    fn solve_h(&mut self, gas: bool, step: u64, tol: f64) -> Result<(), StepError> {
         let hfact = self.phys.variable_h.expect("variable h");
+        let eps = if std::mem::size_of::<R>() == 4 {
+            f32::EPSILON as f64
+        } else {
+            f64::EPSILON
+        };
         for _attempt in 0..40 {
             let d = &self.d;
             d.put(&mut self.bad, &[u32::MAX])?;
@@ -1159,7 +1202,8 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 bad: d.ptr(&self.bad),
                 hfact: R::from_f64(hfact),
                 h_max: R::from_f64(self.grid.geom.support / SUPPORT),
-                tol: R::from_f64(H_TOL),
+                // Not below a few roundings of R (f32: 1.2e-7), which a correction never beats.
+                tol: R::from_f64(tol.max(16.0 * eps)),
                 p: self.params(0.0)?.dev,
             };
             d.run("dustsph_solve_h", ph.n, &a, th::solve_h)?;
@@ -1224,7 +1268,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         if self.pipe.variable_h {
             let resumed = tau.is_none() && self.sm.gas_h.is_some();
             if !resumed {
-                self.solve_h(true, self.step)?;
+                self.solve_h(true, self.step, H_TOL)?;
             }
         } else if !self.pipe.continuity_density {
             self.density(&self.gas)?;
@@ -1276,7 +1320,12 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     fn dust_density(&mut self) -> Result<(), StepError> {
         if !self.dust_density_fresh {
             if self.pipe.variable_h && self.dust.n > 0 {
-                self.solve_h(false, self.step)?;
+                let tol = if self.pipe.dust_density_each_step {
+                    H_TOL
+                } else {
+                    H_TOL_OUTPUT
+                };
+                self.solve_h(false, self.step, tol)?;
             } else {
                 self.density(&self.dust)?;
             }
@@ -1851,6 +1900,13 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         }
         let mut dust: Vec<&mut Phase> = state.dust.iter_mut().collect();
         self.dust.download(d, &mut dust)
+    }
+
+    /// The dust densities as after a step: fresh only where the drag needs them each step. An
+    /// engine built on a gathered state (rank 0's for an output over ranks) whose dust
+    /// densities the ranks did not refresh then computes them before it writes them.
+    pub fn dust_density_as_after_step(&mut self) {
+        self.dust_density_fresh &= self.pipe.dust_density_each_step;
     }
 
     /// Dust densities for output (kept fresh every step only when the drag law needs them).
