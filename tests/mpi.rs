@@ -88,15 +88,18 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
 /// the halo a run uses, `depth_for`: its step's chain of neighbour passes recomputed on it, and
 /// a fixed shell one support beyond at its owners' values; the step size from the maxima over
 /// all ranks) matches one process to 1e-12 of each field's scale (velocities: at least the
-/// sound speed) for every particle matched by id — on the box, the 1D wave (also with IDIC
+/// sound speed) for every particle matched by id — on the box, the settling column (kernel
+/// coupling, IAD, gravity), the 1D wave (also with IDIC
 /// cells of 4h, and with variable h, whose output dust density must not depend on its warm
 /// start), the Phantom slab (leapfrog, variable h, IAD, CFL), the shock tube (walls, adiabatic,
 /// heating) and the open 3D ball. Too thin a halo is caught: three supports for the leapfrog's
-/// longer chain, one for the first-order wave, two for the wave's 4h cells.
+/// longer chain, one for the first-order wave, two for the wave's 4h cells, three for the
+/// settling column's kernel coupling.
 #[test]
 fn stepping_over_ranks_with_a_deep_halo_matches_one_process() {
-    let cases: [&[&str]; 7] = [
+    let cases: [&[&str]; 8] = [
         &["configs/dustybox.toml"],
+        &["configs/dustysettle.toml"],
         &["configs/dustywave.toml"],
         &["configs/dustywave.toml", "--set", "idic.cell=4"],
         &["configs/dustywave.toml", "--set", "sph.variable_h=true"],
@@ -121,6 +124,8 @@ fn stepping_over_ranks_with_a_deep_halo_matches_one_process() {
         ("1", &["configs/dustywave.toml"][..]),
         // IDIC cells of 4h: a particle's drag reads cell-mates a support further away.
         ("2", &["configs/dustywave.toml", "--set", "idic.cell=4"][..]),
+        // The kernel coupling's deposit and return, with IAD.
+        ("3", &["configs/dustysettle.toml"][..]),
     ] {
         let mut a = args.to_vec();
         a.extend(["--depth", depth, "--steps", "20"]);
@@ -177,13 +182,14 @@ fn assert_same(reference: &ById, got: &ById, vscale: f64, what: &str) {
 }
 
 /// `mpirun -n 2/3/4 dustsph run` on the box, the 1D wave, the Phantom slab (leapfrog, variable
-/// h, IAD), the shock tube and the small ball ends where one process ends: every particle of
+/// h, IAD), the shock tube, the settling column (kernel coupling) and the small ball ends where
+/// one process ends: every particle of
 /// the last snapshot (rank 0 writes it, matched by ParticleIDs) within 1e-12 of the field's
 /// scale, and one summary.
 #[test]
 fn a_run_over_ranks_ends_where_one_process_ends() {
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [&[&str]; 5] = [
+    let cases: [&[&str]; 6] = [
         &["configs/dustybox.toml", "--set", "time.t_end=0.2"],
         &["configs/dustywave.toml", "--set", "time.t_end=0.3"],
         &[
@@ -194,6 +200,7 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             "time.t_end=0.05",
         ],
         &["configs/dustyshock.toml", "--set", "time.t_end=0.02"],
+        &["configs/dustysettle.toml", "--set", "time.t_end=0.02"],
         &[
             "configs/dusty_ball.toml",
             "--set",
