@@ -468,7 +468,32 @@ impl Runner {
         };
         r.record_ball_step();
         r.write_output()?;
+        r.shed_whole_state()?;
         Ok(r)
+    }
+
+    /// Over ranks, only rank 0 keeps the whole state (for its outputs); every other rank steps
+    /// its share alone and drops the set-up's whole state and the engine built on it, which
+    /// it would otherwise hold, unused, for the whole run.
+    fn shed_whole_state(&mut self) -> Result<(), RunError> {
+        if self.ranks.is_none() || self.is_root() {
+            return Ok(());
+        }
+        let s = &self.state;
+        let mut empty = State {
+            t: s.t,
+            step: s.step,
+            gas: crate::particles::Gas {
+                e: s.gas.e.as_ref().map(|_| Vec::new()),
+                ..Default::default()
+            },
+            dust: vec![Default::default(); s.dust.len()],
+        };
+        let phys = self.eng.phys().clone();
+        self.eng = Backend::new(DeviceChoice::Cpu, phys, &mut empty)
+            .map_err(|e| RunError::Step(e.to_string()))?;
+        self.state = empty;
+        Ok(())
     }
 
     /// Continue a run from `DIR/checkpoint.h5`.
@@ -517,7 +542,7 @@ impl Runner {
         let (eng, state) = Self::engine(&loaded, Some(state), device, verbose)?;
         let ranks = ranks(eng.phys(), &state)?;
         let root = ranks.as_ref().is_none_or(|r| r.is_root());
-        Ok(Runner {
+        let mut r = Runner {
             times: output_times(&loaded),
             loaded,
             out: dir.to_path_buf(),
@@ -528,7 +553,9 @@ impl Runner {
             verbose: verbose && root,
             ranks,
             eng_stale: false,
-        })
+        };
+        r.shed_whole_state()?;
+        Ok(r)
     }
 
     /// The engine for a scene, on its initial state or on a given (checkpointed) one. Sorting
