@@ -46,9 +46,13 @@ pub mod comm {
 
     pub struct World {
         world: mpi::topology::SimpleCommunicator,
-        // Finalises MPI when dropped: declared last, dropped last.
-        _universe: mpi::environment::Universe,
+        // Finalises MPI when dropped (the initial world only): declared last, dropped last.
+        _universe: Option<mpi::environment::Universe>,
     }
+
+    // The communicator is used from the thread that made it (the engine's ghost refresh runs
+    // on the stepping thread, between its rayon passes).
+    unsafe impl Send for World {}
 
     impl World {
         /// Initialise MPI (once per process).
@@ -56,8 +60,23 @@ pub mod comm {
             let universe = mpi::initialize().ok_or("MPI was already initialised")?;
             Ok(World {
                 world: universe.world(),
-                _universe: universe,
+                _universe: Some(universe),
             })
+        }
+
+        /// A duplicate of this communicator (its own message space), e.g. for the ghost refresh
+        /// an engine calls inside its step.
+        pub fn dup(&self) -> World {
+            World {
+                world: self.world.duplicate(),
+                _universe: None,
+            }
+        }
+
+        /// Stop every rank of the job now (MPI_Abort), with `code`: for a failure inside a
+        /// step whose other ranks wait in an exchange it will not reach.
+        pub fn abort(&self, code: i32) -> ! {
+            self.world.abort(code)
         }
 
         pub fn rank(&self) -> u32 {

@@ -84,21 +84,36 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
     );
 }
 
-/// The decomposition with physics: stepping over 1–4 ranks (each rank its owned particles with
-/// the halo a run uses, `depth_for`: its step's chain of neighbour passes recomputed on it, and
-/// a fixed shell one support beyond at its owners' values; the step size from the maxima over
-/// all ranks) matches one process to 1e-12 of each field's scale (velocities: at least the
-/// sound speed) for every particle matched by id — on the box, the settling column (kernel
-/// coupling, IAD, gravity), the 1D wave (also with IDIC
-/// cells of 4h, and with variable h, whose output dust density must not depend on its warm
-/// start), the Phantom slab (leapfrog, variable h, IAD, CFL), the shock tube (walls, adiabatic,
-/// heating) and the open 3D ball. Too thin a halo is caught: three supports for the leapfrog's
-/// longer chain, one for the first-order wave, two for the wave's 4h cells, three for the
-/// settling column's kernel coupling.
+/// The decomposition with physics: stepping over 1–4 ranks with the halo a run uses matches one
+/// process to 1e-12 of each field's scale (velocities: at least the sound speed) for every
+/// particle matched by id. The thin halo (ghosts one reach deep, refreshed from their owners
+/// between the step's passes; the step retaken when particles outrun its margin): the box (also
+/// with dust at 30 sound speeds), the 1D wave (also with IDIC cells of 4h, and with variable h,
+/// whose output dust density must not depend on its warm start), the Phantom slab (leapfrog,
+/// variable h, IAD, CFL), the shock tube (walls, adiabatic, heating), the open 3D ball. The
+/// deep halo (the step's chain of passes recomputed on a halo `depth_for` supports deep, a
+/// fixed shell beyond): the settling column (kernel coupling, IAD, gravity), and the Phantom
+/// slab at depth 4. Too thin a deep halo is caught: three supports for the leapfrog's longer
+/// chain, one for the first-order wave, two for the wave's 4h cells, three for the settling
+/// column's kernel coupling.
 #[test]
-fn stepping_over_ranks_with_a_deep_halo_matches_one_process() {
-    let cases: [&[&str]; 8] = [
+fn stepping_over_ranks_matches_one_process() {
+    let cases: [&[&str]; 10] = [
         &["configs/dustybox.toml"],
+        // Dust at 30 sound speeds: the thin halo's margin is outrun and the step retaken.
+        &[
+            "configs/dustybox.toml",
+            "--set",
+            "dustybox.u_dust=[30.0,30.0,30.0,30.0]",
+        ],
+        // The deep halo, as the kernel coupling takes it, on the leapfrog.
+        &[
+            "configs/dustywave_phantom.toml",
+            "--set",
+            "sph.n=32",
+            "--depth",
+            "4",
+        ],
         &["configs/dustysettle.toml"],
         &["configs/dustywave.toml"],
         &["configs/dustywave.toml", "--set", "idic.cell=4"],
@@ -234,7 +249,14 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             let o = finish(cmd, &format!("mpirun -n {ranks} run {args:?}"));
             let err = String::from_utf8_lossy(&o.stderr);
             assert!(o.status.success(), "-n {ranks} {args:?}: {err}");
-            assert!(dir.join("summary.json").exists());
+            // The kernel coupling takes the deep halo; every other scene the thin one.
+            let summary = std::fs::read_to_string(dir.join("summary.json")).unwrap();
+            let form = if args[0].contains("settle") {
+                "supports deep"
+            } else {
+                "thin halo"
+            };
+            assert!(summary.contains(form), "{args:?}: {summary}");
             let (got, _, t) = last_snapshot(&dir);
             assert_eq!(t, t1, "-n {ranks} {args:?}");
             assert_same(&reference, &got, vscale, &format!("-n {ranks} {args:?}"));

@@ -269,6 +269,9 @@ pub fn step_over_ranks(
         DeviceChoice::Cpu,
         false,
     )?;
+    if depth.is_some() {
+        ranks.use_deep_halo();
+    }
     let mut t = su.state.t;
     for step in 0..steps {
         t = ranks.step(&drv, t, step, scene.time.t_end)?.1;

@@ -9,7 +9,7 @@ use super::comm::World;
 use crate::decomp::{CellBox, Cells, Partition};
 use crate::engine::backend::{Backend, DeviceChoice};
 use crate::engine::driver::{Driver, Plan, Taken};
-use crate::engine::gpu::Layer;
+use crate::engine::gpu::{GhostRows, GhostSync, Layer};
 use crate::engine::{Forces, Physics};
 use crate::particles::State;
 
@@ -161,6 +161,12 @@ pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::par
     }
 }
 
+/// Whether the thin halo steps this scene (the kernel coupling's dust → gas → dust chain of
+/// passes has no refresh between them yet: it takes the deep halo).
+pub fn thin_halo(phys: &Physics) -> bool {
+    phys.laws.is_empty() || phys.coupling != crate::scene::Coupling::Kernel
+}
+
 /// What a scene needs that stepping over ranks does not do yet, or nothing.
 pub fn supported(phys: &Physics) -> Result<(), String> {
     if phys.drag == crate::scene::DragMethod::Explicit {
@@ -246,10 +252,29 @@ pub fn halo_copies<T: bytemuck::Pod>(
     owned: &[T],
     pos: impl Fn(&T) -> [f64; 3],
 ) -> Result<(Vec<T>, usize), String> {
-    let mut sends: Vec<Vec<T>> = vec![Vec::new(); world.size() as usize];
+    let sends: Vec<Vec<T>> = halo_sends(world.size(), part, owned, pos)
+        .into_iter()
+        .map(|to| to.into_iter().map(|i| owned[i]).collect())
+        .collect();
+    let bytes = sends
+        .iter()
+        .map(|s| std::mem::size_of_val(s.as_slice()))
+        .sum();
+    Ok((world.exchange(&sends)?, bytes))
+}
+
+/// For each rank q, the indices of the owned records that go to q as halo (those in cells
+/// within the partition's ring of one of q's cells).
+pub fn halo_sends<T>(
+    ranks: u32,
+    part: &Partition,
+    owned: &[T],
+    pos: impl Fn(&T) -> [f64; 3],
+) -> Vec<Vec<usize>> {
+    let mut sends: Vec<Vec<usize>> = vec![Vec::new(); ranks as usize];
     // The ranks a cell's particles go to, found once per cell.
     let mut by_cell: std::collections::HashMap<usize, Vec<u32>> = Default::default();
-    for r in owned {
+    for (i, r) in owned.iter().enumerate() {
         let c = part.cbox.cell_of(pos(r));
         let to = by_cell.entry(part.cbox.index(c)).or_insert_with(|| {
             let mut to = Vec::new();
@@ -257,15 +282,78 @@ pub fn halo_copies<T: bytemuck::Pod>(
             to
         });
         for &q in to.iter() {
-            sends[q as usize].push(*r);
+            sends[q as usize].push(i);
         }
     }
-    let bytes = sends
-        .iter()
-        .map(|s| std::mem::size_of_val(s.as_slice()))
-        .sum();
-    Ok((world.exchange(&sends)?, bytes))
+    sends
 }
+
+/// The ghost refresh of a thin halo ([`GhostSync`]): each owned particle's row to the ranks
+/// holding it as a ghost, one exchange per phase table (collective).
+struct RankGhosts {
+    comm: World,
+    /// Per rank, the keys (phase, id) of the owned particles it received as halo (a rank that
+    /// left one out, being beyond its reach, ignores its row).
+    sends: Vec<Vec<(u64, u64)>>,
+}
+
+impl GhostSync for RankGhosts {
+    fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String> {
+        for (k, t) in tables.iter_mut().enumerate() {
+            let slot: std::collections::HashMap<(u64, u64), usize> = t
+                .keys
+                .iter()
+                .enumerate()
+                .map(|(i, &key)| (key, i))
+                .collect();
+            let mut out: Vec<Vec<u8>> = vec![Vec::new(); self.sends.len()];
+            for (q, keys) in self.sends.iter().enumerate() {
+                for key in keys.iter().filter(|key| (key.0 == 0) == (k == 0)) {
+                    let i = *slot
+                        .get(key)
+                        .ok_or_else(|| format!("particle {key:?} is not on its owner"))?;
+                    for w in [key.0, key.1, t.row as u64] {
+                        out[q].extend_from_slice(&w.to_le_bytes());
+                    }
+                    out[q].extend_from_slice(&t.data[i * t.row..(i + 1) * t.row]);
+                }
+            }
+            let got = self.comm.exchange(&out)?;
+            let rec = 24 + t.row;
+            let word = |r: &[u8], j: usize| {
+                u64::from_le_bytes(r[8 * j..8 * j + 8].try_into().expect("8 bytes"))
+            };
+            if got.len() % rec != 0 {
+                return Err("a rank sent ghost rows of another layout".into());
+            }
+            for r in got.chunks_exact(rec) {
+                if word(r, 2) != t.row as u64 {
+                    return Err("a rank sent ghost rows of another layout".into());
+                }
+                if let Some(&i) = slot.get(&(word(r, 0), word(r, 1))) {
+                    t.data[i * t.row..(i + 1) * t.row].copy_from_slice(&r[24..]);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How a try at a step ended.
+enum Tried {
+    Done((Plan, f64, f64)),
+    /// A rank holds no gas: this step takes the deep halo (the thin one's refresh needs an
+    /// engine, hence gas, on every rank).
+    NoGasOnARank,
+    /// Particles moved (or h grew) beyond the thin halo's margin: again, with `need` beyond
+    /// the support.
+    Moved {
+        need: f64,
+    },
+}
+
+/// The thin halo's least margin beyond the support, in supports.
+const MIN_MARGIN: f64 = 0.1;
 
 /// One rank's share of a scene stepped over the ranks.
 pub struct RankStepper {
@@ -281,6 +369,14 @@ pub struct RankStepper {
     /// Whether the owned particles' densities are those of their layer (after a step here);
     /// the first step computes them, as one process does at its start or resume.
     layer_given: bool,
+    /// The thin halo (one reach deep, refreshed between the step's passes) or the deep one.
+    thin: bool,
+    /// The thin halo's margin beyond the reach, for the step's motion (adapted each step).
+    margin: f64,
+    /// Steps taken again because the particles outran the margin.
+    pub retakes: u64,
+    /// The largest halo over any rank and step, as a multiple of the rank's own particles.
+    halo_ratio: f64,
 }
 
 /// The launcher a rank steps on, kept across its steps (a GPU's kernels are loaded once).
@@ -392,6 +488,7 @@ impl RankStepper {
             .into_iter()
             .map(|b| String::from_utf8_lossy(&b).into_owned())
             .collect();
+        let (thin, margin) = (thin_halo(&phys), 0.5 * phys.support());
         Ok(RankStepper {
             world,
             phys,
@@ -401,7 +498,16 @@ impl RankStepper {
             dev,
             devices,
             layer_given: false,
+            thin,
+            margin,
+            retakes: 0,
+            halo_ratio: 0.0,
         })
+    }
+
+    /// Step with the deep halo (`depth` supports) even where the thin one would do.
+    pub fn use_deep_halo(&mut self) {
+        self.thin = false;
     }
 
     /// Particles this rank owns.
@@ -430,15 +536,29 @@ impl RankStepper {
             format!("stepping {}", each.join("; "))
         };
         let depth = format!("{:.2}", self.depth);
-        format!(
-            "{} MPI ranks (halo {} supports), {on}",
-            self.world.size(),
-            depth.trim_end_matches('0').trim_end_matches('.')
-        )
+        let halo = if self.thin {
+            format!(
+                "a thin halo refreshed between the step's passes, at most {:.2} × a rank's own \
+                 particles",
+                self.halo_ratio
+            )
+        } else {
+            format!(
+                "a halo {} supports deep",
+                depth.trim_end_matches('0').trim_end_matches('.')
+            )
+        };
+        let retaken = match self.retakes {
+            0 => String::new(),
+            n => format!(", {n} steps retaken with a wider margin"),
+        };
+        format!("{} MPI ranks ({halo}{retaken}), {on}", self.world.size())
     }
 
     /// One step from time `t` (step count `step`) toward `t_target` on every rank: the plan
-    /// taken (the same on every rank: the one process's) and the new time.
+    /// taken (the same on every rank: the one process's) and the new time. With the thin halo
+    /// a step whose particles moved (or whose h grew) further than the halo's margin allows is
+    /// taken again with a wider margin.
     pub fn step(
         &mut self,
         drv: &Driver,
@@ -446,35 +566,76 @@ impl RankStepper {
         step: u64,
         t_target: f64,
     ) -> Result<(Plan, f64, f64), String> {
+        let mut thin = self.thin;
+        loop {
+            match self.try_step(drv, t, step, t_target, thin)? {
+                Tried::Done(r) => return Ok(r),
+                Tried::NoGasOnARank => thin = false,
+                Tried::Moved { need } => {
+                    self.margin = 1.5 * need;
+                    self.retakes += 1;
+                }
+            }
+        }
+    }
+
+    fn try_step(
+        &mut self,
+        drv: &Driver,
+        t: f64,
+        step: u64,
+        t_target: f64,
+        thin: bool,
+    ) -> Result<Tried, String> {
         let world = &self.world;
         let me = world.rank();
         let domain = self.phys.domain;
         // The support: of the largest h over all ranks where h varies (the reference h at
         // least), so that the halo holds every neighbour of its stepped particles.
-        let mut h_max = [self
-            .owned
-            .iter()
-            .filter(|r| r[12] & 1 != 0)
-            .fold(self.phys.h, |a, r| a.max(f64::from_bits(r[13])))];
+        let h_of = |r: &Full| {
+            if r[12] & 1 != 0 {
+                f64::from_bits(r[13])
+            } else {
+                0.0
+            }
+        };
+        let mut h_max = [self.owned.iter().fold(self.phys.h, |a, r| a.max(h_of(r)))];
         world.max_f64(&mut h_max);
         let support = crate::engine::SUPPORT * h_max[0];
-        let inner = self.depth * support;
-        let reach = inner + support;
+        // Thin: every neighbour and IDIC cell-mate of an owned particle, now and after the
+        // step's drift (the margin). Deep: the step's chain of passes, and a fixed shell.
+        let cell = self.phys.cell_size * (self.phys.dim as f64).sqrt();
+        let near = support.max(cell);
+        let (inner, reach) = if thin {
+            (near + self.margin, near + self.margin)
+        } else {
+            (self.depth * support, (self.depth + 1.0) * support)
+        };
         let xs: Vec<[f64; 3]> = self.owned.iter().map(full_pos).collect();
         let part = cut(world, &xs, &domain, reach);
         let (owned, _) = migrate(world, &part, &self.owned, full_pos)?;
-        let (halo, _) = halo_copies(world, &part, &owned, full_pos)?;
+        let to = halo_sends(world.size(), &part, &owned, full_pos);
+        let sends: Vec<Vec<Full>> = (to.iter())
+            .map(|ix| ix.iter().map(|&i| owned[i]).collect())
+            .collect();
+        let halo = world.exchange(&sends)?;
         let mine: std::collections::HashSet<(u64, u64)> =
             owned.iter().map(|r| (r[0], r[1])).collect();
         let mut local_recs = owned.clone();
-        local_recs.extend(shell(&owned, &halo, inner, reach, &domain));
+        let kept = shell(&owned, &halo, inner, reach, &domain);
+        let ghost_keys: std::collections::HashSet<(u64, u64)> =
+            kept.iter().map(|r| (r[1], r[0])).collect();
+        local_recs.extend(kept);
+        // The ghosts' refresh is collective inside the step: every rank steps an engine.
+        if thin && world.any(!local_recs.iter().any(|r| r[1] == 0)) {
+            return Ok(Tried::NoGasOnARank);
+        }
         let mut local = state_of(&local_recs, &self.template);
         local.t = t;
         local.step = step;
         // Forces on every rank, the step size from the maxima over all ranks, the advance.
         let mut err = String::new();
         let mut eng = None;
-        let mut forces = None;
         if !local_recs.is_empty() {
             let layer = if self.layer_given {
                 Layer::Given
@@ -482,13 +643,38 @@ impl RankStepper {
                 Layer::Compute
             };
             match self.dev.engine(self.phys.clone(), &mut local, layer) {
-                Ok(mut e) => {
-                    match e.forces(&local) {
-                        Ok(f) => forces = Some(f),
-                        Err(x) => err = x.to_string(),
-                    }
-                    eng = Some(e);
+                Ok(e) => eng = Some(e),
+                Err(x) => err = x.to_string(),
+            }
+        }
+        if world.any(!err.is_empty()) {
+            return Err(failure(world, step, me, &err));
+        }
+        // With a thin halo a failure inside the step leaves the other ranks waiting in a
+        // refresh it will not reach: it stops the job (its message first).
+        let stop = |x: &dyn std::fmt::Display| -> ! {
+            eprintln!("error: {}", failure(world, step, me, &x.to_string()));
+            world.abort(1)
+        };
+        if thin {
+            let keys: Vec<Vec<(u64, u64)>> = (to.iter())
+                .map(|ix| ix.iter().map(|&i| (owned[i][1], owned[i][0])).collect())
+                .collect();
+            let sync = Box::new(RankGhosts {
+                comm: world.dup(),
+                sends: keys,
+            });
+            if let Some(e) = &mut eng {
+                if let Err(x) = e.set_ghosts(sync, ghost_keys) {
+                    stop(&x);
                 }
+            }
+        }
+        let mut forces = None;
+        if let Some(e) = &mut eng {
+            match e.forces(&local) {
+                Ok(f) => forces = Some(f),
+                Err(x) if thin => stop(&x),
                 Err(x) => err = x.to_string(),
             }
         }
@@ -519,6 +705,7 @@ impl RankStepper {
             })();
             match r {
                 Ok(p) => plan = Some(p),
+                Err(x) if thin => stop(&x),
                 Err(x) => err = x.to_string(),
             }
             next = records(&local)
@@ -528,6 +715,38 @@ impl RankStepper {
         }
         if world.any(!err.is_empty()) {
             return Err(failure(world, step, me, &err));
+        }
+        if thin {
+            // Did every neighbour and cell-mate of an owned particle at the new layer lie in
+            // the halo? Two particles close in by at most twice the largest displacement.
+            let old: std::collections::HashMap<(u64, u64), [f64; 3]> =
+                owned.iter().map(|r| ((r[1], r[0]), full_pos(r))).collect();
+            let mut worst = [
+                0.0f64,
+                0.0,
+                (local_recs.len() - owned.len()) as f64 / owned.len().max(1) as f64,
+            ];
+            for r in &next {
+                let (a, b) = (old[&(r[1], r[0])], full_pos(r));
+                let mut d2 = 0.0;
+                for k in 0..3 {
+                    let mut d = b[k] - a[k];
+                    if let Some((_, len)) = domain.periodic[k] {
+                        d -= len * (d / len).round();
+                    }
+                    d2 += d * d;
+                }
+                worst[0] = worst[0].max(d2.sqrt());
+                worst[1] = worst[1].max(h_of(r));
+            }
+            world.max_f64(&mut worst);
+            self.halo_ratio = self.halo_ratio.max(worst[2]);
+            let need = (crate::engine::SUPPORT * worst[1]).max(near) + 2.0 * worst[0];
+            if need > reach {
+                return Ok(Tried::Moved { need: need - near });
+            }
+            // The next step's margin: room for this step's motion, and more.
+            self.margin = (3.0 * worst[0]).max(MIN_MARGIN * support);
         }
         // Every rank took the same step (a rank without particles learns it from the others).
         let mut tt = [if plan.is_some() {
@@ -546,7 +765,7 @@ impl RankStepper {
         });
         self.owned = next;
         self.layer_given = true;
-        Ok((plan, tt[0], most[0]))
+        Ok(Tried::Done((plan, tt[0], most[0])))
     }
 
     /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),

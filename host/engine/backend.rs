@@ -300,6 +300,15 @@ impl Backend {
         each!(self, e => Ok(e.sync(state)?))
     }
 
+    /// See [`GpuEngine::set_ghosts`].
+    pub fn set_ghosts(
+        &mut self,
+        sync: Box<dyn gpu::GhostSync>,
+        keys: std::collections::HashSet<(u64, u64)>,
+    ) -> Result<(), StepError> {
+        each!(self, e => e.set_ghosts(sync, keys))
+    }
+
     /// See [`GpuEngine::dust_density_as_after_step`].
     pub fn dust_density_as_after_step(&mut self) {
         each!(self, e => e.dust_density_as_after_step())

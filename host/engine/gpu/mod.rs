@@ -634,6 +634,8 @@ pub struct GpuEngine<L: Launcher, R: Float> {
     /// The leapfrog (`time.integrator = "kdk"`).
     kdk: DevKdk<L, R>,
     params: std::cell::RefCell<ParamSlots<L, R>>,
+    /// Over MPI ranks with a thin halo: the ghost particles and their refresh.
+    ghosts: Option<Ghosts<L>>,
 }
 
 /// The leapfrog's state: the closing forces' maxima (the forces stay in `acc`, `dedt`, `vsig`)
@@ -670,6 +672,33 @@ const H_TOL: f64 = 1e-4;
 /// written (at `H_TOL` the dust density moved with the output cadence by ≈3e-10; a run over MPI
 /// ranks, which refreshes it every step, then differed from one process by as much).
 const H_TOL_OUTPUT: f64 = 1e-8;
+
+/// Ghost particles: copies of particles another MPI rank owns, within one interaction reach of
+/// this rank's own (docs/scaling.md, "A thin halo"). Between the step's neighbour passes the
+/// engine hands every particle's per-particle values to [`GhostSync::refresh`], which writes
+/// the owners' values into the ghosts' rows; the ghosts keep their density, h and forces out
+/// of those passes (their neighbourhoods are cut off at the halo's edge) and out of the step's
+/// maxima.
+pub trait GhostSync: Send {
+    /// Overwrite the ghosts' rows (gas first, then the dust) with their owners' (collective).
+    fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String>;
+}
+
+/// One phase's particles as rows of bytes: `keys[i]` = (phase: 0 gas, 1 + k dust fraction k,
+/// particle id); row i is `data[i * row .. (i + 1) * row]`, every per-particle buffer's value.
+pub struct GhostRows {
+    pub keys: Vec<(u64, u64)>,
+    pub row: usize,
+    pub data: Vec<u8>,
+}
+
+/// The ghosts of an engine: the refresh, the ghosts' keys, and per phase a mask (fixed or ghost)
+/// that the density, h and force passes take in place of `fixed`.
+struct Ghosts<L: Launcher> {
+    sync: Box<dyn GhostSync>,
+    keys: std::collections::HashSet<(u64, u64)>,
+    mask: [Option<Buf<L, u8>>; 2],
+}
 
 /// Whether an engine computes its first layer's densities or takes the state's.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -889,6 +918,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 recent: Vec::new(),
                 uploads: 0,
             }),
+            ghosts: None,
         };
         eng.regrid()?;
         let given = layer == Layer::Given;
@@ -1090,7 +1120,8 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             self.d.put(&mut self.cells.ukey, &u)?;
             self.cells.sparse = Some(u.len() as u32);
         }
-        Ok(self.reset_list()?)
+        self.reset_list()?;
+        Ok(self.ghost_masks()?)
     }
 
     /// A fresh neighbour list for the gas's current layer (when lists are on): emptied, to be
@@ -1138,12 +1169,207 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         Ok(())
     }
 
-    fn density(&self, ph: &DevPhase<L, R>) -> Result<(), GpuError> {
+    fn density(&self, gas: bool) -> Result<(), GpuError> {
         let a = th::DensityArgs {
-            ph: ph.bufs(&self.d),
+            ph: self.masked(gas),
             p: self.params(0.0)?.dev,
         };
-        self.d.run("dustsph_density", ph.n, &a, th::density)
+        let n = if gas { self.gas.n } else { self.dust.n };
+        self.d.run("dustsph_density", n, &a, th::density)
+    }
+
+    /// A phase's buffers for the density, h and force passes, where ghosts count as fixed
+    /// (they keep their values, and stay out of the maxima, until their owners' arrive).
+    fn masked(&self, gas: bool) -> PhaseBufs<R> {
+        let ph = if gas { &self.gas } else { &self.dust };
+        let mut b = ph.bufs(&self.d);
+        if let Some(m) = self
+            .ghosts
+            .as_ref()
+            .and_then(|g| g.mask[!gas as usize].as_ref())
+        {
+            b.fixed = self.d.ptr(m);
+        }
+        b
+    }
+
+    /// Make particles ghosts (`keys`: phase 0 gas, 1 + k dust fraction k; id) refreshed by
+    /// `sync` between the step's neighbour passes, and refresh them now.
+    pub fn set_ghosts(
+        &mut self,
+        sync: Box<dyn GhostSync>,
+        keys: std::collections::HashSet<(u64, u64)>,
+    ) -> Result<(), StepError> {
+        self.ghosts = Some(Ghosts {
+            sync,
+            keys,
+            mask: [None, None],
+        });
+        self.ghost_masks()?;
+        self.ghost_sync()
+    }
+
+    /// Every slot's key (phase, id) of a phase, in the current order.
+    fn slot_keys(&self, gas: bool) -> Result<Vec<(u64, u64)>, GpuError> {
+        let ph = if gas { &self.gas } else { &self.dust };
+        let ids = self.d.get(&ph.id, ph.n)?;
+        Ok(ids
+            .iter()
+            .enumerate()
+            .map(|(i, &id)| {
+                let phase = if gas {
+                    0
+                } else {
+                    1 + (0..ph.groups)
+                        .find(|&g| (i as u32) < ph.off[g + 1])
+                        .unwrap_or(0) as u64
+                };
+                (phase, id)
+            })
+            .collect())
+    }
+
+    /// The ghost masks in the current order (after each sort).
+    fn ghost_masks(&mut self) -> Result<(), GpuError> {
+        let Some(g) = &self.ghosts else {
+            return Ok(());
+        };
+        let mut masks: [Option<Buf<L, u8>>; 2] = [None, None];
+        for (k, gas) in [true, false].into_iter().enumerate() {
+            let ph = if gas { &self.gas } else { &self.dust };
+            if ph.n == 0 {
+                continue;
+            }
+            let fixed = match &ph.fixed {
+                Some(f) => self.d.get(f, ph.n)?,
+                None => vec![0; ph.n],
+            };
+            let m: Vec<u8> = (self.slot_keys(gas)?.iter().zip(&fixed))
+                .map(|(key, &f)| (f != 0 || g.keys.contains(key)) as u8)
+                .collect();
+            masks[k] = Some(self.d.from(&m)?);
+        }
+        if let Some(g) = &mut self.ghosts {
+            g.mask = masks;
+        }
+        Ok(())
+    }
+
+    /// Refresh the ghosts from their owners (a no-op without ghosts): every per-particle
+    /// buffer, as bytes, row by row.
+    fn ghost_sync(&mut self) -> Result<(), StepError> {
+        if self.ghosts.is_none() {
+            return Ok(());
+        }
+        let mut tables = Vec::with_capacity(2);
+        for gas in [true, false] {
+            let n = if gas { self.gas.n } else { self.dust.n };
+            let cols = self.ghost_columns(gas, None)?;
+            let row: usize = cols.iter().map(|c| c.len() / n.max(1)).sum();
+            let mut data = vec![0u8; n * row];
+            let mut at = 0;
+            for c in &cols {
+                let w = c.len() / n.max(1);
+                for i in 0..n {
+                    data[i * row + at..i * row + at + w].copy_from_slice(&c[i * w..(i + 1) * w]);
+                }
+                at += w;
+            }
+            tables.push(GhostRows {
+                keys: self.slot_keys(gas)?,
+                row,
+                data,
+            });
+        }
+        let g = self.ghosts.as_mut().expect("checked above");
+        g.sync
+            .refresh(&mut tables)
+            .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
+        for (t, gas) in tables.iter().zip([true, false]) {
+            self.ghost_columns(gas, Some(t))?;
+        }
+        Ok(())
+    }
+
+    /// A phase's per-particle buffers as byte columns (`put` = None), or written back from
+    /// the rows of `put`; those this scene's pipeline does not use are left out.
+    fn ghost_columns(
+        &mut self,
+        gas: bool,
+        put: Option<&GhostRows>,
+    ) -> Result<Vec<Vec<u8>>, GpuError> {
+        fn one<L: Launcher, T: Copy>(
+            d: &Dev<L>,
+            b: Option<&mut Buf<L, T>>,
+            n: usize,
+            put: Option<(&GhostRows, &mut usize)>,
+            out: &mut Vec<Vec<u8>>,
+        ) -> Result<(), GpuError> {
+            let Some(b) = b else { return Ok(()) };
+            if n == 0 {
+                return Ok(());
+            }
+            let w = std::mem::size_of::<T>();
+            match put {
+                None => {
+                    let mut bytes = vec![0u8; n * w];
+                    d.0.download(&b.mem, &mut bytes)?;
+                    out.push(bytes);
+                }
+                Some((t, at)) => {
+                    let mut bytes = vec![0u8; n * w];
+                    for i in 0..n {
+                        bytes[i * w..(i + 1) * w]
+                            .copy_from_slice(&t.data[i * t.row + *at..i * t.row + *at + w]);
+                    }
+                    *at += w;
+                    d.0.upload(&mut b.mem, &bytes)?;
+                }
+            }
+            Ok(())
+        }
+        let mut out = Vec::new();
+        let mut at = 0usize;
+        let d = &self.d;
+        // Which buffers: by the scene's pipeline (the same on every rank), never by a length.
+        let save = self.pipe.kdk || self.phys.position_update == PositionUpdate::Old;
+        let smooth = self.pipe.variable_h || self.pipe.iad;
+        let iad = self.pipe.iad;
+        macro_rules! col {
+            ($b:expr, $n:expr) => {
+                one(d, $b, $n, put.map(|t| (t, &mut at)), &mut out)?
+            };
+        }
+        if gas {
+            let n = self.gas.n;
+            col!(Some(&mut self.gas.x), n);
+            col!(Some(&mut self.gas.v), n);
+            col!(Some(&mut self.gas.m), n);
+            col!(Some(&mut self.gas.rho), n);
+            col!(self.gas.loss.as_mut(), n);
+            col!(Some(&mut self.pres), n);
+            col!(Some(&mut self.cs), n);
+            col!(self.e.as_mut(), n);
+            col!(Some(&mut self.acc), n);
+            col!(self.dedt.as_mut(), n);
+            col!(self.kdk.vsig.as_mut(), n);
+            col!(save.then_some(&mut self.kdk.v_save), n);
+            col!(self.kdk.e_save.as_mut(), n);
+            col!(self.sm.gas_h.as_mut(), n);
+            col!(self.sm.gas_omega.as_mut(), n);
+            col!(smooth.then_some(&mut self.sm.kat), n);
+            col!(smooth.then_some(&mut self.sm.pt), n);
+            col!(iad.then_some(&mut self.sm.iad), n);
+        } else {
+            let n = self.dust.n;
+            col!(Some(&mut self.dust.x), n);
+            col!(Some(&mut self.dust.v), n);
+            col!(Some(&mut self.dust.m), n);
+            col!(Some(&mut self.dust.rho), n);
+            col!(self.dust.loss.as_mut(), n);
+            col!(save.then_some(&mut self.kdk.u_save), n);
+        }
+        Ok(out)
     }
 
     /// The grid's search radius: the support 2h; with variable h, 2 max h_a plus 0.1% (the
@@ -1184,7 +1410,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             d.put(&mut self.bad, &[u32::MAX])?;
             let ph = if gas { &self.gas } else { &self.dust };
             let a = th::HSolveArgs {
-                ph: ph.bufs(d),
+                ph: self.masked(gas),
                 h0: match (&self.sm.gas_h, gas) {
                     (Some(h), true) => d.ptr(h),
                     _ => std::ptr::null(),
@@ -1271,7 +1497,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 self.solve_h(true, self.step, H_TOL)?;
             }
         } else if !self.pipe.continuity_density {
-            self.density(&self.gas)?;
+            self.density(true)?;
         } else if let Some(tau) = tau {
             let a = th::DensityArgs {
                 ph: self.gas.bufs(&self.d),
@@ -1327,7 +1553,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 };
                 self.solve_h(false, self.step, tol)?;
             } else {
-                self.density(&self.dust)?;
+                self.density(false)?;
             }
             self.dust_density_fresh = true;
         }
@@ -1440,9 +1666,12 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             timers.time("gas IAD matrices (Garcia-Senz et al. 2012)", || {
                 d.run("dustsph_iad_matrix", self.gas.n, &a, th::iad_matrix)
             })?;
+            // The forces read the neighbours' matrices.
+            self.ghost_sync()?;
         }
+        let d = &self.d;
         let a = th::ForcesArgs {
-            gas: self.gas.bufs(d),
+            gas: self.masked(true),
             pres: d.ptr(&self.pres),
             c: d.ptr(&self.cs),
             acc: d.ptr(&self.acc),
@@ -1464,7 +1693,9 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             (true, _) => "gas forces (pressure + artificial viscosity, IAD gradient)",
         };
         timers.time(name, || d.run("dustsph_forces", self.gas.n, &a, th::forces))?;
-        let l = d.get(&self.limits, 2)?;
+        // The drag's cell sums read the cell-mates' accelerations.
+        self.ghost_sync()?;
+        let l = self.d.get(&self.limits, 2)?;
         let dec = |b: u64| if b == 0 { 0.0 } else { from_ordered_bits(b) };
         Ok(Forces {
             acc: Vec::new(),
@@ -1764,7 +1995,8 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             };
             timers.time(name, || self.dust_density())?;
         }
-        Ok(())
+        // The leapfrog's predicted kick reads the cell-mates' new densities.
+        self.ghost_sync()
     }
 
     /// Advance one step of size τ from layer n (forces already computed at layer n).
@@ -1812,6 +2044,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             }
             self.energy_step(tau, heat)
         })?;
+        self.ghost_sync()?;
         self.new_layer(timers, tau, |_| Ok(()))
     }
 
@@ -1833,6 +2066,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             self.drift(&self.gas, tau)?;
             self.drift(&self.dust, tau)
         })?;
+        self.ghost_sync()?;
         // The sort carries A^n and ė^n (kdk sorts them with the gas): e* = e^{n+1/2} + τ/2 ė^n
         // sets the pressure of the new layer.
         self.new_layer(timers, tau, |eng| {
@@ -1848,6 +2082,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         // would be off by O(1)), timed apart from the two half kicks.
         let mut pred = Timers::default();
         self.kick(&mut pred, half, false)?;
+        self.ghost_sync()?;
         let t_pred: f64 = pred.entries().iter().map(|e| e.1).sum();
         timers.add(
             "leapfrog: predicted v*, u* at the new layer (half kick + drag)",
