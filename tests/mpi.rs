@@ -90,15 +90,16 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
 /// between the step's passes; the step retaken when particles outrun its margin): the box (also
 /// with dust at 30 sound speeds), the 1D wave (also with IDIC cells of 4h, and with variable h,
 /// whose output dust density must not depend on its warm start), the Phantom slab (leapfrog,
-/// variable h, IAD, CFL), the shock tube (walls, adiabatic, heating), the open 3D ball. The
-/// deep halo (the step's chain of passes recomputed on a halo `depth_for` supports deep, a
-/// fixed shell beyond): the settling column (kernel coupling, IAD, gravity), and the Phantom
-/// slab at depth 4. Too thin a deep halo is caught: three supports for the leapfrog's longer
+/// variable h, IAD, CFL), the shock tube (walls, adiabatic, heating), the settling column
+/// (kernel coupling, IAD, gravity), the open 3D ball. The deep halo (`--depth K`: the step's
+/// chain of passes recomputed on a halo K supports deep, a fixed shell beyond; a run's fallback
+/// when a rank holds no gas): the Phantom slab and the settling column at 4. Too thin a deep
+/// halo is caught: three supports for the leapfrog's longer
 /// chain, one for the first-order wave, two for the wave's 4h cells, three for the settling
 /// column's kernel coupling.
 #[test]
 fn stepping_over_ranks_matches_one_process() {
-    let cases: [&[&str]; 10] = [
+    let cases: [&[&str]; 11] = [
         &["configs/dustybox.toml"],
         // Dust at 30 sound speeds: the thin halo's margin is outrun and the step retaken.
         &[
@@ -106,7 +107,7 @@ fn stepping_over_ranks_matches_one_process() {
             "--set",
             "dustybox.u_dust=[30.0,30.0,30.0,30.0]",
         ],
-        // The deep halo, as the kernel coupling takes it, on the leapfrog.
+        // The deep halo (`--depth`): on the leapfrog, and on the kernel coupling.
         &[
             "configs/dustywave_phantom.toml",
             "--set",
@@ -114,6 +115,7 @@ fn stepping_over_ranks_matches_one_process() {
             "--depth",
             "4",
         ],
+        &["configs/dustysettle.toml", "--depth", "4"],
         &["configs/dustysettle.toml"],
         &["configs/dustywave.toml"],
         &["configs/dustywave.toml", "--set", "idic.cell=4"],
@@ -249,14 +251,9 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             let o = finish(cmd, &format!("mpirun -n {ranks} run {args:?}"));
             let err = String::from_utf8_lossy(&o.stderr);
             assert!(o.status.success(), "-n {ranks} {args:?}: {err}");
-            // The kernel coupling takes the deep halo; every other scene the thin one.
+            // The thin halo, not the deep one it falls back to when a rank holds no gas.
             let summary = std::fs::read_to_string(dir.join("summary.json")).unwrap();
-            let form = if args[0].contains("settle") {
-                "supports deep"
-            } else {
-                "thin halo"
-            };
-            assert!(summary.contains(form), "{args:?}: {summary}");
+            assert!(summary.contains("thin halo"), "{args:?}: {summary}");
             let (got, _, t) = last_snapshot(&dir);
             assert_eq!(t, t1, "-n {ranks} {args:?}");
             assert_same(&reference, &got, vscale, &format!("-n {ranks} {args:?}"));

@@ -161,12 +161,6 @@ pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::par
     }
 }
 
-/// Whether the thin halo steps this scene (the kernel coupling's dust → gas → dust chain of
-/// passes has no refresh between them yet: it takes the deep halo).
-pub fn thin_halo(phys: &Physics) -> bool {
-    phys.laws.is_empty() || phys.coupling != crate::scene::Coupling::Kernel
-}
-
 /// What a scene needs that stepping over ranks does not do yet, or nothing.
 pub fn supported(phys: &Physics) -> Result<(), String> {
     if phys.drag == crate::scene::DragMethod::Explicit {
@@ -375,6 +369,8 @@ pub struct RankStepper {
     margin: f64,
     /// Steps taken again because the particles outran the margin.
     pub retakes: u64,
+    /// Steps the thin halo handed to the deep one (a rank held no gas).
+    deep_steps: u64,
     /// The largest halo over any rank and step, as a multiple of the rank's own particles.
     halo_ratio: f64,
 }
@@ -488,7 +484,9 @@ impl RankStepper {
             .into_iter()
             .map(|b| String::from_utf8_lossy(&b).into_owned())
             .collect();
-        let (thin, margin) = (thin_halo(&phys), 0.5 * phys.support());
+        // The thin halo, unless a step finds a rank without gas (`Tried::NoGasOnARank`) or
+        // `use_deep_halo` asks for the deep one.
+        let (thin, margin) = (true, 0.5 * phys.support());
         Ok(RankStepper {
             world,
             phys,
@@ -501,6 +499,7 @@ impl RankStepper {
             thin,
             margin,
             retakes: 0,
+            deep_steps: 0,
             halo_ratio: 0.0,
         })
     }
@@ -548,10 +547,17 @@ impl RankStepper {
                 depth.trim_end_matches('0').trim_end_matches('.')
             )
         };
-        let retaken = match self.retakes {
+        let mut retaken = match self.retakes {
             0 => String::new(),
             n => format!(", {n} steps retaken with a wider margin"),
         };
+        if self.thin && self.deep_steps > 0 {
+            retaken += &format!(
+                ", {} steps on a halo {} supports deep (a rank held no gas)",
+                self.deep_steps,
+                depth.trim_end_matches('0').trim_end_matches('.')
+            );
+        }
         format!("{} MPI ranks ({halo}{retaken}), {on}", self.world.size())
     }
 
@@ -570,7 +576,10 @@ impl RankStepper {
         loop {
             match self.try_step(drv, t, step, t_target, thin)? {
                 Tried::Done(r) => return Ok(r),
-                Tried::NoGasOnARank => thin = false,
+                Tried::NoGasOnARank => {
+                    thin = false;
+                    self.deep_steps += 1;
+                }
                 Tried::Moved { need } => {
                     self.margin = 1.5 * need;
                     self.retakes += 1;

@@ -1298,18 +1298,20 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         gas: bool,
         put: Option<&GhostRows>,
     ) -> Result<Vec<Vec<u8>>, GpuError> {
+        /// Buffer `b` with `per` values per particle, particle-major.
         fn one<L: Launcher, T: Copy>(
             d: &Dev<L>,
             b: Option<&mut Buf<L, T>>,
             n: usize,
+            per: usize,
             put: Option<(&GhostRows, &mut usize)>,
             out: &mut Vec<Vec<u8>>,
         ) -> Result<(), GpuError> {
             let Some(b) = b else { return Ok(()) };
-            if n == 0 {
+            if n == 0 || per == 0 {
                 return Ok(());
             }
-            let w = std::mem::size_of::<T>();
+            let w = std::mem::size_of::<T>() * per;
             match put {
                 None => {
                     let mut bytes = vec![0u8; n * w];
@@ -1337,9 +1339,13 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         let iad = self.pipe.iad;
         macro_rules! col {
             ($b:expr, $n:expr) => {
-                one(d, $b, $n, put.map(|t| (t, &mut at)), &mut out)?
+                one(d, $b, $n, 1, put.map(|t| (t, &mut at)), &mut out)?
+            };
+            ($b:expr, $n:expr, $per:expr) => {
+                one(d, $b, $n, $per, put.map(|t| (t, &mut at)), &mut out)?
             };
         }
+        let nf = self.dust.groups;
         if gas {
             let n = self.gas.n;
             col!(Some(&mut self.gas.x), n);
@@ -1360,6 +1366,13 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             col!(smooth.then_some(&mut self.sm.kat), n);
             col!(smooth.then_some(&mut self.sm.pt), n);
             col!(iad.then_some(&mut self.sm.iad), n);
+            if let Some(c) = &mut self.coupling {
+                col!(Some(&mut c.s_gas), n);
+                col!(Some(&mut c.dv), n);
+                col!(Some(&mut c.du), n, nf);
+                col!(Some(&mut c.t_stop), n, nf);
+                col!(c.heat.as_mut(), n);
+            }
         } else {
             let n = self.dust.n;
             col!(Some(&mut self.dust.x), n);
@@ -1368,6 +1381,9 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             col!(Some(&mut self.dust.rho), n);
             col!(self.dust.loss.as_mut(), n);
             col!(save.then_some(&mut self.kdk.u_save), n);
+            if let Some(c) = &mut self.coupling {
+                col!(Some(&mut c.s_dust), n);
+            }
         }
         Ok(out)
     }
@@ -1777,8 +1793,10 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
 
     /// The drag pass with the kernel coupling: normalisers, the solve on every gas particle,
     /// the increments back to the gas (from ṽ) and the dust (from ũ).
-    fn kernel_coupling(&mut self, tau: f64, heat: bool) -> Result<(), GpuError> {
+    fn kernel_coupling(&mut self, tau: f64, heat: bool) -> Result<(), StepError> {
         self.coupling_norms()?;
+        // The solve weighs each neighbour by its own norm.
+        self.ghost_sync()?;
         let ng = self.gas.n;
         let nf = self.dust.groups;
         let d = &self.d;
@@ -1821,6 +1839,10 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             }
             None => d.run("dustsph_coupling_solve", ng, &ca, th::coupling_solve)?,
         }
+        // The return reads the neighbouring gas particles' solves.
+        self.ghost_sync()?;
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
         for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
             let ra = th::ReturnArgs {
                 gas: self.gas.bufs(d),
@@ -1842,6 +1864,12 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             };
             d.run("dustsph_coupling_return", ph.n, &ra, th::coupling_return)?;
         }
+        if let (true, Some(_)) = (heat, &c.heat) {
+            // The heat sums the neighbours' losses.
+            self.ghost_sync()?;
+        }
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
         if let (true, Some(h)) = (heat, &c.heat) {
             let ha = th::CouplingHeatArgs {
                 couple: ca,
