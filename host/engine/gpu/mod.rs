@@ -1915,7 +1915,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             } else {
                 "IDIC drag, kernel coupling (gas particles as cells)"
             };
-            return Ok(timers.time(name, || self.kernel_coupling(dt, heat))?);
+            return timers.time(name, || self.kernel_coupling(dt, heat));
         }
         let name = match (drag, self.pipe.explicit_drag) {
             (false, _) => "gas velocities (v + τA, no dust)",
