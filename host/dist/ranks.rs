@@ -1,10 +1,15 @@
-//! Stepping a scene over MPI ranks, the deep-halo way (docs/scaling.md, "Stepping over ranks
-//! with a deep halo"): each step the particles are cut along the Morton curve and migrated;
-//! every rank builds an engine on its owned particles plus a halo `depth` kernel supports deep
-//! (the whole state from the owners, the step's chain of neighbour passes recomputed here) and
-//! a shell one support beyond held fixed at the owners' values (particles further out are left
-//! out); the step size comes from the maxima over all ranks; each rank keeps its owned
-//! particles' results.
+//! Stepping a scene over MPI ranks (docs/scaling.md). Each step the particles are cut along
+//! the Morton curve and migrated, and every rank builds an engine on its owned particles plus a
+//! halo, in one of two forms:
+//! - thin (a run's): ghosts within one reach (kernel support or IDIC cell, plus a margin for
+//!   the step's motion), refreshed from their owners between the step's neighbour passes
+//!   ([`RankGhosts`], the engine's `GhostSync` hooks); a step that outran the margin is retaken;
+//! - deep (`mpi-check --depth K`, and a step where a rank holds no gas): a halo K supports deep
+//!   whose chain of passes is recomputed here, and a shell one support beyond held fixed at the
+//!   owners' values.
+//!
+//! The step size comes from the maxima over all ranks; each rank keeps its owned particles'
+//! results.
 use super::comm::World;
 use crate::decomp::{CellBox, Cells, Partition};
 use crate::engine::backend::{Backend, DeviceChoice};
