@@ -442,3 +442,36 @@ fn each_rank_steps_on_the_device_asked_for() {
         "{backend}"
     );
 }
+
+/// A failure inside a step on one rank, where the thin halo's other ranks wait in a refresh it
+/// will not reach: the job stops (MPI_Abort) within the time limit with that rank's message,
+/// and the snapshots written before stay readable; no summary.
+#[test]
+fn a_failure_inside_a_step_stops_the_job_with_its_message() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("failed");
+    let mut cmd = Command::new("mpirun");
+    cmd.args(["--allow-run-as-root", "--oversubscribe", "-n", "3"])
+        .args(["-x", "DUSTSPH_FAIL_IN_STEP=1:3"])
+        .arg(env!("CARGO_BIN_EXE_dustsph"))
+        .args([
+            "run",
+            "configs/dustywave_phantom.toml",
+            "--set",
+            "sph.n=32",
+            "-q",
+            "--out",
+        ])
+        .arg(&dir)
+        .env("DUSTSPH_FAIL_IN_STEP", "1:3");
+    let o = finish(cmd, "a run with a rank failing inside a step");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("step 3: rank 1:") && err.contains("failure requested"),
+        "{err}"
+    );
+    assert!(!dir.join("summary.json").exists());
+    dustsph::io::snapshot::read_snapshot(&dir.join("snapshot_0000.h5"))
+        .expect("the first snapshot stays readable");
+}

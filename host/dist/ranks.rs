@@ -294,10 +294,24 @@ struct RankGhosts {
     /// Per rank, the keys (phase, id) of the owned particles it received as halo (a rank that
     /// left one out, being beyond its reach, ignores its row).
     sends: Vec<Vec<(u64, u64)>>,
+    /// Refreshes before this one fails, if it is to (the test of a failure inside a step:
+    /// `DUSTSPH_FAIL_IN_STEP=rank:step` fails the step's second refresh, in its forces).
+    fail: Option<u32>,
+}
+
+/// Whether `DUSTSPH_FAIL_IN_STEP=rank:step` names this rank and step (tests/mpi.rs: a failure
+/// inside a step stops the job, with its message, and does not hang).
+fn fail_requested(rank: u32, step: u64) -> bool {
+    std::env::var("DUSTSPH_FAIL_IN_STEP").is_ok_and(|v| v == format!("{rank}:{step}"))
 }
 
 impl GhostSync for RankGhosts {
     fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String> {
+        match &mut self.fail {
+            Some(0) => return Err("failure requested by DUSTSPH_FAIL_IN_STEP".into()),
+            Some(n) => *n -= 1,
+            None => {}
+        }
         for (k, t) in tables.iter_mut().enumerate() {
             let slot: std::collections::HashMap<(u64, u64), usize> = t
                 .keys
@@ -677,6 +691,7 @@ impl RankStepper {
             let sync = Box::new(RankGhosts {
                 comm: world.dup(),
                 sends: keys,
+                fail: fail_requested(me, step).then_some(1),
             });
             if let Some(e) = &mut eng {
                 if let Err(x) = e.set_ghosts(sync, ghost_keys) {
