@@ -150,3 +150,33 @@ impl State {
             + self.dust.iter().map(|d| d.kinetic_energy()).sum::<f64>()
     }
 }
+
+/// A cheap hasher for integer keys (FxHash's multiply-rotate): particle keys and cell indices
+/// of the halo's bookkeeping, where the std SipHash took a visible share of a step over ranks.
+#[derive(Default)]
+pub struct IntHasher(u64);
+
+/// Particle keys (phase: 0 gas, 1 + k dust fraction k; id), hashed cheaply.
+pub type KeySet = std::collections::HashSet<(u64, u64), std::hash::BuildHasherDefault<IntHasher>>;
+/// A map from particle keys (phase, id).
+pub type KeyMap<V> =
+    std::collections::HashMap<(u64, u64), V, std::hash::BuildHasherDefault<IntHasher>>;
+
+impl std::hash::Hasher for IntHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes.chunks(8) {
+            let mut w = [0u8; 8];
+            w[..b.len()].copy_from_slice(b);
+            self.write_u64(u64::from_le_bytes(w));
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_i64(&mut self, v: i64) {
+        self.write_u64(v as u64);
+    }
+}

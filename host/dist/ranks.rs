@@ -16,7 +16,7 @@ use crate::engine::backend::{Backend, DeviceChoice};
 use crate::engine::driver::{Driver, Plan, Taken};
 use crate::engine::gpu::{GhostRows, GhostSync, Layer};
 use crate::engine::{Forces, Physics};
-use crate::particles::State;
+use crate::particles::{IntHasher, KeyMap, KeySet, State};
 
 /// Halo depth in kernel supports that a run over ranks needs for its step's chain of
 /// neighbour passes to be exact on the owned particles (docs/scaling.md): the first-order step
@@ -313,7 +313,7 @@ impl GhostSync for RankGhosts {
             None => {}
         }
         for (k, t) in tables.iter_mut().enumerate() {
-            let slot: std::collections::HashMap<(u64, u64), usize> = t
+            let slot: KeyMap<usize> = t
                 .keys
                 .iter()
                 .enumerate()
@@ -647,12 +647,10 @@ impl RankStepper {
             .map(|ix| ix.iter().map(|&i| owned[i]).collect())
             .collect();
         let halo = world.exchange(&sends)?;
-        let mine: std::collections::HashSet<(u64, u64)> =
-            owned.iter().map(|r| (r[0], r[1])).collect();
+        let mine: KeySet = owned.iter().map(|r| (r[0], r[1])).collect();
         let mut local_recs = owned.clone();
         let kept = shell(&owned, &halo, inner, reach, &domain);
-        let ghost_keys: std::collections::HashSet<(u64, u64)> =
-            kept.iter().map(|r| (r[1], r[0])).collect();
+        let ghost_keys: KeySet = kept.iter().map(|r| (r[1], r[0])).collect();
         local_recs.extend(kept);
         // The ghosts' refresh is collective inside the step: every rank steps an engine.
         if thin && world.any(!local_recs.iter().any(|r| r[1] == 0)) {
@@ -748,8 +746,7 @@ impl RankStepper {
         if thin {
             // Did every neighbour and cell-mate of an owned particle at the new layer lie in
             // the halo? Two particles close in by at most twice the largest displacement.
-            let old: std::collections::HashMap<(u64, u64), [f64; 3]> =
-                owned.iter().map(|r| ((r[1], r[0]), full_pos(r))).collect();
+            let old: KeyMap<[f64; 3]> = owned.iter().map(|r| ((r[1], r[0]), full_pos(r))).collect();
             let mut worst = [
                 0.0f64,
                 0.0,
@@ -853,7 +850,7 @@ fn shell(
         let i = ((v - lo) / size).floor() as i64;
         n.map_or(i, |n| i.clamp(0, n - 1))
     };
-    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>, std::hash::BuildHasherDefault<CellHasher>> =
+    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>, std::hash::BuildHasherDefault<IntHasher>> =
         HashMap::default();
     for r in owned {
         let x = full_pos(r);
@@ -939,28 +936,4 @@ fn shell(
             })
         })
         .collect()
-}
-
-/// A cheap hasher for small integer cell keys (FxHash's multiply-rotate; the std SipHash
-/// dominated the halo's shell test).
-#[derive(Default)]
-struct CellHasher(u64);
-
-impl std::hash::Hasher for CellHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-    fn write(&mut self, bytes: &[u8]) {
-        for b in bytes.chunks(8) {
-            let mut w = [0u8; 8];
-            w[..b.len()].copy_from_slice(b);
-            self.write_u64(u64::from_le_bytes(w));
-        }
-    }
-    fn write_u64(&mut self, v: u64) {
-        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
-    }
-    fn write_i64(&mut self, v: i64) {
-        self.write_u64(v as u64);
-    }
 }

@@ -304,7 +304,7 @@ impl Backend {
     pub fn set_ghosts(
         &mut self,
         sync: Box<dyn gpu::GhostSync>,
-        keys: std::collections::HashSet<(u64, u64)>,
+        keys: crate::particles::KeySet,
     ) -> Result<(), StepError> {
         each!(self, e => e.set_ghosts(sync, keys))
     }

@@ -696,7 +696,7 @@ pub struct GhostRows {
 /// that the density, h and force passes take in place of `fixed`.
 struct Ghosts<L: Launcher> {
     sync: Box<dyn GhostSync>,
-    keys: std::collections::HashSet<(u64, u64)>,
+    keys: crate::particles::KeySet,
     mask: [Option<Buf<L, u8>>; 2],
 }
 
@@ -1198,7 +1198,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     pub fn set_ghosts(
         &mut self,
         sync: Box<dyn GhostSync>,
-        keys: std::collections::HashSet<(u64, u64)>,
+        keys: crate::particles::KeySet,
     ) -> Result<(), StepError> {
         self.ghosts = Some(Ghosts {
             sync,
