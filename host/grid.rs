@@ -15,6 +15,22 @@ pub struct Domain {
     pub periodic: [Option<(f64, f64)>; 3],
 }
 
+impl Domain {
+    /// |a − b|² with the minimum image on periodic axes (`update::min_image`, as the step's
+    /// neighbour walk takes it).
+    pub fn distance2(&self, a: [f64; 3], b: [f64; 3]) -> f64 {
+        let mut s = 0.0;
+        for k in 0..3 {
+            let mut d = a[k] - b[k];
+            if let Some((_, len)) = self.periodic[k] {
+                d = dustsph_device::update::min_image(d, len);
+            }
+            s += d * d;
+        }
+        s
+    }
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridError(pub String);
 

@@ -174,17 +174,7 @@ fn check(
         return "a particle arrived twice (owned and halo, or two copies)".into();
     }
     // Completeness by brute force: every particle within reach of an owned one is here.
-    let sep = |a: [f64; 3], b: [f64; 3]| -> f64 {
-        let mut s = 0.0;
-        for k in 0..3 {
-            let mut d = a[k] - b[k];
-            if let Some((_, len)) = domain.periodic[k] {
-                d -= len * (d / len).round();
-            }
-            s += d * d;
-        }
-        s
-    };
+    let sep = |a: [f64; 3], b: [f64; 3]| domain.distance2(a, b);
     let r2 = reach * reach;
     for p in all {
         if have.binary_search(&key(p)).is_ok() {

@@ -753,15 +753,7 @@ impl RankStepper {
                 (local_recs.len() - owned.len()) as f64 / owned.len().max(1) as f64,
             ];
             for r in &next {
-                let (a, b) = (old[&(r[1], r[0])], full_pos(r));
-                let mut d2 = 0.0;
-                for k in 0..3 {
-                    let mut d = b[k] - a[k];
-                    if let Some((_, len)) = domain.periodic[k] {
-                        d -= len * (d / len).round();
-                    }
-                    d2 += d * d;
-                }
+                let d2 = domain.distance2(old[&(r[1], r[0])], full_pos(r));
                 worst[0] = worst[0].max(d2.sqrt());
                 worst[1] = worst[1].max(h_of(r));
             }
@@ -858,23 +850,7 @@ fn shell(
             .or_default()
             .push(x);
     }
-    // The minimum image as `d − L round(d/L)` (positions lie in the period), without libm.
-    let sep2 = |a: [f64; 3], b: [f64; 3]| -> f64 {
-        let mut s = 0.0;
-        for k in 0..3 {
-            let mut d = a[k] - b[k];
-            if let Some((_, len)) = domain.periodic[k] {
-                let q = d / len;
-                if q >= 0.5 {
-                    d -= len;
-                } else if q <= -0.5 {
-                    d += len;
-                }
-            }
-            s += d * d;
-        }
-        s
-    };
+    let sep2 = |a: [f64; 3], b: [f64; 3]| domain.distance2(a, b);
     // Along axis k, the cells within `radius` of coordinate v: (index, lower bound of the
     // distance, less a rounding margin); every cell of a period the reach spans whole.
     let cells_along = |k: usize, v: f64, radius: f64, out: &mut Vec<(i64, f64)>| {
