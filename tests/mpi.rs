@@ -475,3 +475,28 @@ fn a_failure_inside_a_step_stops_the_job_with_its_message() {
     dustsph::io::snapshot::read_snapshot(&dir.join("snapshot_0000.h5"))
         .expect("the first snapshot stays readable");
 }
+
+/// Rank 0 alone builds the engine on the whole scene and checks the first step: a step that
+/// collapses at t = 0 is refused on every rank (exit 2, rank 0's message, no output directory),
+/// none left waiting.
+#[test]
+fn a_first_step_refused_on_rank_0_stops_every_rank_before_any_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("refused");
+    let mut cmd = Command::new("mpirun");
+    cmd.args(["--allow-run-as-root", "--oversubscribe", "-n", "3"])
+        .arg(env!("CARGO_BIN_EXE_dustsph"))
+        .args([
+            "run",
+            "configs/dustywave.toml",
+            "--set",
+            "gas.cs=1e12",
+            "--out",
+        ])
+        .arg(&dir);
+    let o = finish(cmd, "a run refused by rank 0");
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("the first step cannot be taken"), "{err}");
+    assert!(!dir.exists());
+}

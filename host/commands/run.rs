@@ -50,8 +50,16 @@ fn over_ranks(
     world: crate::dist::comm::World,
     device: DeviceChoice,
     verbose: bool,
-) -> impl FnOnce(&Physics, &State) -> Result<Option<Ranks>, RunError> {
-    move |phys, state| {
+) -> impl FnOnce(&Physics, &State, Result<(), RunError>) -> Result<Option<Ranks>, RunError> {
+    move |phys, state, verdict| {
+        // Rank 0 alone builds the engine on the whole scene and checks the first step: its
+        // verdict reaches every rank before any of them goes on (none waits on another).
+        if world.any(verdict.is_err()) {
+            verdict?;
+            return Err(RunError::Input(
+                "rank 0 refused the input (its message above)".into(),
+            ));
+        }
         crate::dist::ranks::RankStepper::new(
             world,
             phys.clone(),
@@ -62,6 +70,15 @@ fn over_ranks(
         )
         .map(Some)
         .map_err(RunError::Input)
+    }
+}
+
+/// This process's rank when it runs over MPI ranks (`None`: one process).
+fn rank_over(ranks: bool) -> Option<u32> {
+    if ranks {
+        Some(crate::dist::launched().map_or(0, |(r, _)| r))
+    } else {
+        None
     }
 }
 
@@ -341,7 +358,7 @@ pub struct Runner {
 impl Runner {
     /// Validate, set up, and write the t = 0 snapshot.
     pub fn start(loaded: &LoadedScene, opts: &RunOptions) -> Result<Runner, RunError> {
-        Self::start_on(loaded, opts, |_, _| Ok(None))
+        Self::start_on(loaded, opts, None, |_, _, v| v.map(|_| None))
     }
 
     /// [`Runner::start`] as one of several MPI ranks: every rank sets up the whole scene, keeps
@@ -357,43 +374,44 @@ impl Runner {
             device: DeviceChoice::Cpu,
             ..opts.clone()
         };
-        Self::start_on(loaded, &setup, over_ranks(world, opts.device, opts.verbose))
+        Self::start_on(
+            loaded,
+            &setup,
+            rank_over(true),
+            over_ranks(world, opts.device, opts.verbose),
+        )
     }
 
+    /// `rank`: this process's rank over MPI ranks (`None`: one process). Only one process or
+    /// rank 0 builds an engine on the whole scene (its first step is checked there, and its
+    /// first snapshot written from it); the other ranks set up the scene and keep their share.
     fn start_on(
         loaded: &LoadedScene,
         opts: &RunOptions,
-        ranks: impl FnOnce(&Physics, &State) -> Result<Option<Ranks>, RunError>,
+        rank: Option<u32>,
+        ranks: impl FnOnce(&Physics, &State, Result<(), RunError>) -> Result<Option<Ranks>, RunError>,
     ) -> Result<Runner, RunError> {
-        let (mut eng, mut state) = Self::engine(loaded, None, opts.device, opts.verbose)?;
-        // The first step's size, before anything is written (with --force the old run's files
-        // would already be gone): a CFL step that has collapsed at t = 0, or a t_end beyond the
-        // step count allowed, is bad input, not a run to start. The forces are computed again
-        // by the first step (the same ones: the engine's forces are a pure function of its state).
-        if let Some(&t1) = output_times(loaded).get(1) {
-            let drv = Driver::new(&loaded.scene.time, eng.phys().h);
-            let forces = eng.forces(&state);
-            let first = match &forces {
-                Ok(f) => drv.plan(&mut eng, &state, f, t1).map(|_| f),
-                Err(e) => Err(StepError::Blowup(e.to_string())),
-            };
-            match first {
-                Err(e) => {
-                    return Err(RunError::Input(format!(
-                        "{}: the first step cannot be taken: {e}",
-                        loaded.path.display()
-                    )))
-                }
-                Ok(f) => {
-                    if crate::dist::launched().is_none_or(|(rank, _)| rank == 0) {
-                        for w in start_warnings(loaded, eng.phys(), &state, f) {
-                            eprintln!("dustsph: warning: {w}");
-                        }
-                    }
-                }
-            }
+        let whole = rank.is_none_or(|r| r == 0);
+        let (phys, mut state) = Self::prepare(loaded, None, whole)?;
+        let mut built = None;
+        let verdict = if whole {
+            Self::start_engine(loaded, phys.clone(), &mut state, opts.device, opts.verbose)
+                .and_then(|mut eng| {
+                    let checked = Self::check_first_step(loaded, &mut eng, &state);
+                    built = Some(eng);
+                    checked
+                })
+        } else {
+            Ok(())
+        };
+        if rank.is_none() {
+            verdict.clone()?;
         }
-        let ranks = ranks(eng.phys(), &state)?;
+        let ranks = ranks(&phys, &state, verdict)?;
+        let mut eng = match built {
+            Some(e) => e,
+            None => Self::idle_engine(phys, &state)?,
+        };
         let root = ranks.as_ref().is_none_or(|r| r.is_root());
         // All input is valid: only now touch the output directory (rank 0's).
         let out = if root {
@@ -498,7 +516,7 @@ impl Runner {
 
     /// Continue a run from `DIR/checkpoint.h5`.
     pub fn resume(dir: &Path, verbose: bool, device: DeviceChoice) -> Result<Runner, RunError> {
-        Self::resume_on(dir, verbose, device, |_, _| Ok(None))
+        Self::resume_on(dir, verbose, device, None, |_, _, v| v.map(|_| None))
     }
 
     /// [`Runner::resume`] as one of several MPI ranks: every rank reads the checkpoint (one
@@ -511,14 +529,15 @@ impl Runner {
         world: crate::dist::comm::World,
     ) -> Result<Runner, RunError> {
         let steps_on = over_ranks(world, device, verbose);
-        Self::resume_on(dir, verbose, DeviceChoice::Cpu, steps_on)
+        Self::resume_on(dir, verbose, DeviceChoice::Cpu, rank_over(true), steps_on)
     }
 
     fn resume_on(
         dir: &Path,
         verbose: bool,
         device: DeviceChoice,
-        ranks: impl FnOnce(&Physics, &State) -> Result<Option<Ranks>, RunError>,
+        rank: Option<u32>,
+        ranks: impl FnOnce(&Physics, &State, Result<(), RunError>) -> Result<Option<Ranks>, RunError>,
     ) -> Result<Runner, RunError> {
         let ck = dir.join(io::checkpoint::CHECKPOINT_NAME);
         // Everything resume checks is input: on a mismatch it exits 2 and changes nothing.
@@ -539,8 +558,22 @@ impl Runner {
         let prog: Progress =
             serde_json::from_str(&meta.progress_json).map_err(|e| bad(e.to_string()))?;
         verify_resume(dir, &state, &loaded, &prog).map_err(bad)?;
-        let (eng, state) = Self::engine(&loaded, Some(state), device, verbose)?;
-        let ranks = ranks(eng.phys(), &state)?;
+        let whole = rank.is_none_or(|r| r == 0);
+        let (phys, mut state) = Self::prepare(&loaded, Some(state), whole)?;
+        let built = if whole {
+            Self::start_engine(&loaded, phys.clone(), &mut state, device, verbose).map(Some)
+        } else {
+            Ok(None)
+        };
+        let verdict = built.as_ref().map(|_| ()).map_err(Clone::clone);
+        if rank.is_none() {
+            verdict.clone()?;
+        }
+        let ranks = ranks(&phys, &state, verdict)?;
+        let eng = match built? {
+            Some(e) => e,
+            None => Self::idle_engine(phys, &state)?,
+        };
         let root = ranks.as_ref().is_none_or(|r| r.is_root());
         let mut r = Runner {
             times: output_times(&loaded),
@@ -558,21 +591,53 @@ impl Runner {
         Ok(r)
     }
 
-    /// The engine for a scene, on its initial state or on a given (checkpointed) one. Sorting
-    /// an already sorted state is the identity and densities are recomputed by the same code
-    /// in the same order, so a resumed run continues bit for bit.
-    fn engine(
+    /// The first step's size, before anything is written (with --force the old run's files
+    /// would already be gone): a CFL step that has collapsed at t = 0, or a t_end beyond the
+    /// step count allowed, is bad input, not a run to start. The forces are computed again by
+    /// the first step (the same ones: the engine's forces are a pure function of its state).
+    /// Warnings on the start are printed here.
+    fn check_first_step(
+        loaded: &LoadedScene,
+        eng: &mut Backend,
+        state: &State,
+    ) -> Result<(), RunError> {
+        if let Some(&t1) = output_times(loaded).get(1) {
+            let drv = Driver::new(&loaded.scene.time, eng.phys().h);
+            let forces = eng.forces(state);
+            let first = match &forces {
+                Ok(f) => drv.plan(eng, state, f, t1).map(|_| f),
+                Err(e) => Err(StepError::Blowup(e.to_string())),
+            };
+            match first {
+                Err(e) => {
+                    return Err(RunError::Input(format!(
+                        "{}: the first step cannot be taken: {e}",
+                        loaded.path.display()
+                    )))
+                }
+                Ok(f) => {
+                    for w in start_warnings(loaded, eng.phys(), state, f) {
+                        eprintln!("dustsph: warning: {w}");
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The scene's physics and its initial state (or a given, checkpointed one); `warn`: say
+    /// what the set-up found worth a warning (one process, or rank 0 only).
+    fn prepare(
         loaded: &LoadedScene,
         state: Option<State>,
-        device: DeviceChoice,
-        verbose: bool,
-    ) -> Result<(Backend, State), RunError> {
+        warn: bool,
+    ) -> Result<(Physics, State), RunError> {
         let file = loaded.path.display().to_string();
         let su =
             setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
-        let mut state = state.unwrap_or(su.state);
+        let state = state.unwrap_or(su.state);
         let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
-        if phys.coupling == crate::scene::Coupling::Cell {
+        if warn && phys.coupling == crate::scene::Coupling::Cell {
             if let Some(f) = crate::engine::dust_without_gas_in_cell(&phys, &state) {
                 if f > UNCOUPLED_WARNING {
                     eprintln!(
@@ -585,21 +650,47 @@ impl Runner {
                 }
             }
         }
+        Ok((phys, state))
+    }
+
+    /// The engine on a scene's state (sorted in place). Sorting an already sorted state is the
+    /// identity and densities are recomputed by the same code in the same order, so a resumed
+    /// run continues bit for bit.
+    fn start_engine(
+        loaded: &LoadedScene,
+        phys: Physics,
+        state: &mut State,
+        device: DeviceChoice,
+        verbose: bool,
+    ) -> Result<Backend, RunError> {
+        let file = loaded.path.display().to_string();
         // The initial grid and densities come from the scene alone: a failure here is bad input.
-        let (eng, note) =
-            Backend::start(device, phys, &mut state).map_err(|e| match e {
-                StartError::Device(m) => RunError::Input(m),
-                StartError::Step(StepError::Unsupported(m)) => {
-                    RunError::Input(format!("{file}: {m}"))
-                }
-                StartError::Step(e) => RunError::Input(format!(
-                    "{file}: the initial state cannot be set up (check idic.cell, sph.h/hfact, sph.n): {e}"
-                )),
-            })?;
+        let (eng, note) = Backend::start(device, phys, state).map_err(|e| match e {
+            StartError::Device(m) => RunError::Input(m),
+            StartError::Step(StepError::Unsupported(m)) => RunError::Input(format!("{file}: {m}")),
+            StartError::Step(e) => RunError::Input(format!(
+                "{file}: the initial state cannot be set up (check idic.cell, sph.h/hfact, sph.n): {e}"
+            )),
+        })?;
         if let (Some(n), true) = (note, verbose) {
             eprintln!("dustsph: {n}");
         }
-        Ok((eng, state))
+        Ok(eng)
+    }
+
+    /// A rank other than 0: an engine on no particles (it steps its share through its
+    /// `RankStepper`; this one only answers for the physics).
+    fn idle_engine(phys: Physics, state: &State) -> Result<Backend, RunError> {
+        let mut empty = State {
+            t: state.t,
+            step: state.step,
+            gas: crate::particles::Gas {
+                e: state.gas.e.as_ref().map(|_| Vec::new()),
+                ..Default::default()
+            },
+            dust: vec![Default::default(); state.dust.len()],
+        };
+        Backend::new(DeviceChoice::Cpu, phys, &mut empty).map_err(|e| RunError::Step(e.to_string()))
     }
 
     pub fn out_dir(&self) -> &Path {

@@ -454,7 +454,8 @@ fn rank_device(
 
 impl RankStepper {
     /// This rank's share of `full` (the scene's whole state, built alike on every rank): the
-    /// particles k with k mod R = rank, until the first step's cut moves them to their owners.
+    /// particles of id + phase ≡ rank (mod R), until the first step's cut moves them to their
+    /// owners.
     /// Each rank steps on the device `device` resolves to for it ([`rank_device`]); a rank
     /// that cannot stops every rank (collective), before anything is written.
     pub fn new(
@@ -467,16 +468,27 @@ impl RankStepper {
     ) -> Result<RankStepper, String> {
         supported(&phys)?;
         let (me, ranks) = (world.rank(), world.size());
+        // By particle key, not position: rank 0's copy of the scene is sorted by its engine,
+        // the others' are not.
         let owned: Vec<Full> = records(full)
             .into_iter()
-            .enumerate()
-            .filter(|(k, _)| *k as u32 % ranks == me)
-            .map(|(_, r)| r)
+            .filter(|r| (r[0].wrapping_add(r[1]) % ranks as u64) as u32 == me)
             .collect();
-        let mut template = full.clone();
-        template.gas.h = None;
-        template.gas.omega = None;
-        template.gas.next_forces = None;
+        // The shape of the state (phases, energy, fixed particles), without its particles.
+        let empty = |p: &crate::particles::Phase| crate::particles::Phase {
+            fixed: p.fixed.as_ref().map(|_| Vec::new()),
+            ..Default::default()
+        };
+        let template = State {
+            t: full.t,
+            step: full.step,
+            gas: crate::particles::Gas {
+                ph: empty(&full.gas.ph),
+                e: full.gas.e.as_ref().map(|_| Vec::new()),
+                ..Default::default()
+            },
+            dust: full.dust.iter().map(empty).collect(),
+        };
         let mut share = state_of(&owned, &template);
         let chosen = rank_device(device, me, &phys, &mut share);
         if world.any(chosen.is_err()) {
