@@ -73,13 +73,10 @@ fn over_ranks(
     }
 }
 
-/// This process's rank when it runs over MPI ranks (`None`: one process).
-fn rank_over(ranks: bool) -> Option<u32> {
-    if ranks {
-        Some(crate::dist::launched().map_or(0, |(r, _)| r))
-    } else {
-        None
-    }
+/// This process's rank in a run over MPI ranks.
+#[cfg(feature = "mpi")]
+fn this_rank() -> Option<u32> {
+    Some(crate::dist::launched().map_or(0, |(r, _)| r))
 }
 
 #[derive(Debug, Clone)]
@@ -377,7 +374,7 @@ impl Runner {
         Self::start_on(
             loaded,
             &setup,
-            rank_over(true),
+            this_rank(),
             over_ranks(world, opts.device, opts.verbose),
         )
     }
@@ -529,7 +526,7 @@ impl Runner {
         world: crate::dist::comm::World,
     ) -> Result<Runner, RunError> {
         let steps_on = over_ranks(world, device, verbose);
-        Self::resume_on(dir, verbose, DeviceChoice::Cpu, rank_over(true), steps_on)
+        Self::resume_on(dir, verbose, DeviceChoice::Cpu, this_rank(), steps_on)
     }
 
     fn resume_on(
