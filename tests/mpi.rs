@@ -91,7 +91,8 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
 /// with dust at 30 sound speeds), the 1D wave (also with IDIC cells of 4h, and with variable h,
 /// whose output dust density must not depend on its warm start), the Phantom slab (leapfrog,
 /// variable h, IAD, CFL), the shock tube (walls, adiabatic, heating), the settling column
-/// (kernel coupling, IAD, gravity), the open 3D ball. The deep halo (`--depth K`: the step's
+/// (kernel coupling, IAD, gravity), the open 3D ball, the explicit drag baseline with its limit
+/// setting the step. The deep halo (`--depth K`: the step's
 /// chain of passes recomputed on a halo K supports deep, a fixed shell beyond; a run's fallback
 /// when a rank holds no gas): the Phantom slab and the settling column at 4. Too thin a deep
 /// halo is caught: three supports for the leapfrog's longer
@@ -99,7 +100,7 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
 /// column's kernel coupling.
 #[test]
 fn stepping_over_ranks_matches_one_process() {
-    let cases: [&[&str]; 11] = [
+    let cases: [&[&str]; 12] = [
         &["configs/dustybox.toml"],
         // Dust at 30 sound speeds: the thin halo's margin is outrun and the step retaken.
         &[
@@ -117,6 +118,15 @@ fn stepping_over_ranks_matches_one_process() {
         ],
         &["configs/dustysettle.toml", "--depth", "4"],
         &["configs/dustysettle.toml"],
+        // The explicit drag baseline, its limit setting the step: the least over the ranks of
+        // their cells holding a particle of their own.
+        &[
+            "configs/dustywave.toml",
+            "--set",
+            "drag.method=\"explicit\"",
+            "--set",
+            "dust.fractions.0.t_stop=1e-3",
+        ],
         &["configs/dustywave.toml"],
         &["configs/dustywave.toml", "--set", "idic.cell=4"],
         &["configs/dustywave.toml", "--set", "sph.variable_h=true"],

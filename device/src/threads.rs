@@ -985,6 +985,13 @@ pub struct LimitArgs<R> {
     pub cells: CellBufs<R>,
     /// The fastest drag rate Λ of any union cell as [`kernels::ordered_bits`]; zeroed.
     pub rate: *mut u64,
+    pub gas: PhaseBufs<R>,
+    pub dust: PhaseBufs<R>,
+    /// Over MPI ranks, 1 for a ghost (a copy of another rank's particle), per phase; null
+    /// without ghosts. A cell of ghosts only may lack members beyond the halo: it is left to
+    /// the rank that owns one of them.
+    pub gas_ghost: *const u8,
+    pub dust_ghost: *const u8,
     pub p: Params<R>,
 }
 
@@ -994,6 +1001,20 @@ pub unsafe fn explicit_limit<R: Real>(t: usize, a: &LimitArgs<R>) {
         return;
     }
     let nf = a.p.nf as usize;
+    if !a.gas_ghost.is_null() || !a.dust_ghost.is_null() {
+        let k = *a.cells.ukey.add(t);
+        let own = |ph: &PhaseBufs<R>, ghost: *const u8, g: usize| -> bool {
+            let (lo, hi) = ph.cell_range(&a.p, g, k);
+            (lo..hi).any(|i| ghost.is_null() || *ghost.add(i) == 0)
+        };
+        let mut any = own(&a.gas, a.gas_ghost, 0);
+        for f in 0..nf {
+            any |= own(&a.dust, a.dust_ghost, f);
+        }
+        if !any {
+            return;
+        }
+    }
     let mut inv_t = [R::ZERO; MAX_FRACTIONS];
     for (k, r) in inv_t.iter_mut().enumerate().take(nf) {
         let ts = *a.cells.t_stop.add(t * nf + k);

@@ -166,18 +166,6 @@ pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::par
     }
 }
 
-/// What a scene needs that stepping over ranks does not do yet, or nothing.
-pub fn supported(phys: &Physics) -> Result<(), String> {
-    if phys.drag == crate::scene::DragMethod::Explicit {
-        return Err(
-            "the explicit drag baseline (drag.method = \"explicit\") is not yet stepped \
-                    over ranks: its step limit is a minimum over cells on every rank"
-                .into(),
-        );
-    }
-    Ok(())
-}
-
 /// Decomposition cells per halo reach: cells half the reach wide (the halo then spans the
 /// cells within three of a rank's own), so that a reach of several supports still leaves a
 /// small domain enough cells to cut evenly.
@@ -466,7 +454,6 @@ impl RankStepper {
         device: DeviceChoice,
         verbose: bool,
     ) -> Result<RankStepper, String> {
-        supported(&phys)?;
         let (me, ranks) = (world.rank(), world.size());
         // By particle key, not position: rank 0's copy of the scene is sorted by its engine,
         // the others' are not.
@@ -731,11 +718,32 @@ impl RankStepper {
             vsig_max: most[0],
             acc_max: most[1],
         };
+        // The explicit drag's limit: the least over the ranks of each one's cells that hold a
+        // particle of its own (a cell of ghosts only may lack members beyond the halo).
+        let explicit = self.phys.drag == crate::scene::DragMethod::Explicit;
+        if explicit && !thin {
+            return Err(format!(
+                "step {step}: the explicit drag baseline (drag.method = \"explicit\") steps \
+                 over ranks with the thin halo only, and a rank holds no gas"
+            ));
+        }
+        let mut drag = [f64::INFINITY];
+        if let (true, Some(e)) = (explicit, &mut eng) {
+            match e.drag_dt_limit(&local) {
+                Ok(d) => drag[0] = d,
+                Err(x) => err = x.to_string(),
+            }
+        }
+        if world.any(!err.is_empty()) {
+            return Err(failure(world, step, me, &err));
+        }
+        world.min_f64(&mut drag);
+        let drag = explicit.then_some(drag[0]);
         let mut plan = None;
         let mut next = Vec::new();
         if let (Some(e), Some(f)) = (&mut eng, forces) {
             let r = (|| -> Result<Plan, crate::engine::StepError> {
-                let p = drv.plan(e, &local, &global, t_target)?;
+                let p = drv.plan_with(e, &local, &global, t_target, drag)?;
                 drv.take(e, &mut local, &Taken { plan: p, forces: f })?;
                 // The dust densities stay as a step leaves them (fresh only where the drag
                 // needs them each step): rank 0 computes them for an output.

@@ -54,8 +54,23 @@ impl Driver {
         forces: &Forces,
         t_target: f64,
     ) -> Result<Plan, StepError> {
+        self.plan_with(eng, state, forces, t_target, None)
+    }
+
+    /// As [`Driver::plan`], with the explicit drag's step limit given (over MPI ranks: the
+    /// least of every rank's) instead of computed here.
+    pub fn plan_with(
+        &self,
+        eng: &mut Backend,
+        state: &State,
+        forces: &Forces,
+        t_target: f64,
+        drag_limit: Option<f64>,
+    ) -> Result<Plan, StepError> {
         let (dt_cfl, dt_force) = dt_limits(self.h, forces);
-        let dt_drag = if eng.pipe().explicit_drag {
+        let dt_drag = if let Some(d) = drag_limit {
+            d
+        } else if eng.pipe().explicit_drag {
             let t0 = std::time::Instant::now();
             let d = eng.drag_dt_limit(state)?;
             eng.timers_mut().add(

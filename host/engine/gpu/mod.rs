@@ -698,6 +698,8 @@ struct Ghosts<L: Launcher> {
     sync: Box<dyn GhostSync>,
     keys: crate::particles::KeySet,
     mask: [Option<Buf<L, u8>>; 2],
+    /// 1 for a ghost only (not a wall), per phase: the explicit drag limit's cells.
+    only: [Option<Buf<L, u8>>; 2],
 }
 
 /// Whether an engine computes its first layer's densities or takes the state's.
@@ -1204,6 +1206,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             sync,
             keys,
             mask: [None, None],
+            only: [None, None],
         });
         self.ghost_masks()?;
         self.ghost_sync()
@@ -1235,6 +1238,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             return Ok(());
         };
         let mut masks: [Option<Buf<L, u8>>; 2] = [None, None];
+        let mut only: [Option<Buf<L, u8>>; 2] = [None, None];
         for (k, gas) in [true, false].into_iter().enumerate() {
             let ph = if gas { &self.gas } else { &self.dust };
             if ph.n == 0 {
@@ -1244,13 +1248,16 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 Some(f) => self.d.get(f, ph.n)?,
                 None => vec![0; ph.n],
             };
-            let m: Vec<u8> = (self.slot_keys(gas)?.iter().zip(&fixed))
-                .map(|(key, &f)| (f != 0 || g.keys.contains(key)) as u8)
+            let ghost: Vec<u8> = (self.slot_keys(gas)?.iter())
+                .map(|key| g.keys.contains(key) as u8)
                 .collect();
+            let m: Vec<u8> = (ghost.iter().zip(&fixed)).map(|(&g, &f)| g | f).collect();
             masks[k] = Some(self.d.from(&m)?);
+            only[k] = Some(self.d.from(&ghost)?);
         }
         if let Some(g) = &mut self.ghosts {
             g.mask = masks;
+            g.only = only;
         }
         Ok(())
     }
@@ -1539,9 +1546,18 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         self.cell_step(0.0, true)?;
         let d = &self.d;
         d.put(&mut self.limits, &[0, 0])?;
+        let only = |k: usize| -> *const u8 {
+            (self.ghosts.as_ref())
+                .and_then(|g| g.only[k].as_ref())
+                .map_or(std::ptr::null(), |b| d.ptr(b) as *const u8)
+        };
         let a = th::LimitArgs {
             cells: self.cells.bufs(d),
             rate: d.ptr(&self.limits),
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            gas_ghost: only(0),
+            dust_ghost: only(1),
             p: self.params(0.0)?.dev,
         };
         d.run(
