@@ -122,6 +122,25 @@ pub struct State {
 }
 
 impl State {
+    /// The same phases, time and step, without particles (whether the gas has an energy and
+    /// which phases have fixed particles is kept).
+    pub fn shape(&self) -> State {
+        let empty = |p: &Phase| Phase {
+            fixed: p.fixed.as_ref().map(|_| Vec::new()),
+            ..Default::default()
+        };
+        State {
+            t: self.t,
+            step: self.step,
+            gas: Gas {
+                ph: empty(&self.gas.ph),
+                e: self.gas.e.as_ref().map(|_| Vec::new()),
+                ..Default::default()
+            },
+            dust: self.dust.iter().map(empty).collect(),
+        }
+    }
+
     pub fn total_momentum(&self) -> [f64; 3] {
         let mut p = self.gas.ph.momentum();
         for d in &self.dust {

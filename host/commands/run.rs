@@ -483,32 +483,17 @@ impl Runner {
         };
         r.record_ball_step();
         r.write_output()?;
-        r.shed_whole_state()?;
+        r.shed_whole_state();
         Ok(r)
     }
 
     /// Over ranks, only rank 0 keeps the whole state (for its outputs); every other rank steps
-    /// its share alone and drops the set-up's whole state and the engine built on it, which
-    /// it would otherwise hold, unused, for the whole run.
-    fn shed_whole_state(&mut self) -> Result<(), RunError> {
-        if self.ranks.is_none() || self.is_root() {
-            return Ok(());
+    /// its share alone (its engine is idle) and drops the set-up's whole state, which it would
+    /// otherwise hold, unused, for the whole run.
+    fn shed_whole_state(&mut self) {
+        if self.ranks.is_some() && !self.is_root() {
+            self.state = self.state.shape();
         }
-        let s = &self.state;
-        let mut empty = State {
-            t: s.t,
-            step: s.step,
-            gas: crate::particles::Gas {
-                e: s.gas.e.as_ref().map(|_| Vec::new()),
-                ..Default::default()
-            },
-            dust: vec![Default::default(); s.dust.len()],
-        };
-        let phys = self.eng.phys().clone();
-        self.eng = Backend::new(DeviceChoice::Cpu, phys, &mut empty)
-            .map_err(|e| RunError::Step(e.to_string()))?;
-        self.state = empty;
-        Ok(())
     }
 
     /// Continue a run from `DIR/checkpoint.h5`.
@@ -584,7 +569,7 @@ impl Runner {
             ranks,
             eng_stale: false,
         };
-        r.shed_whole_state()?;
+        r.shed_whole_state();
         Ok(r)
     }
 
@@ -678,16 +663,8 @@ impl Runner {
     /// A rank other than 0: an engine on no particles (it steps its share through its
     /// `RankStepper`; this one only answers for the physics).
     fn idle_engine(phys: Physics, state: &State) -> Result<Backend, RunError> {
-        let mut empty = State {
-            t: state.t,
-            step: state.step,
-            gas: crate::particles::Gas {
-                e: state.gas.e.as_ref().map(|_| Vec::new()),
-                ..Default::default()
-            },
-            dust: vec![Default::default(); state.dust.len()],
-        };
-        Backend::new(DeviceChoice::Cpu, phys, &mut empty).map_err(|e| RunError::Step(e.to_string()))
+        Backend::new(DeviceChoice::Cpu, phys, &mut state.shape())
+            .map_err(|e| RunError::Step(e.to_string()))
     }
 
     pub fn out_dir(&self) -> &Path {

@@ -462,20 +462,7 @@ impl RankStepper {
             .filter(|r| (r[0].wrapping_add(r[1]) % ranks as u64) as u32 == me)
             .collect();
         // The shape of the state (phases, energy, fixed particles), without its particles.
-        let empty = |p: &crate::particles::Phase| crate::particles::Phase {
-            fixed: p.fixed.as_ref().map(|_| Vec::new()),
-            ..Default::default()
-        };
-        let template = State {
-            t: full.t,
-            step: full.step,
-            gas: crate::particles::Gas {
-                ph: empty(&full.gas.ph),
-                e: full.gas.e.as_ref().map(|_| Vec::new()),
-                ..Default::default()
-            },
-            dust: full.dust.iter().map(empty).collect(),
-        };
+        let template = full.shape();
         let mut share = state_of(&owned, &template);
         let chosen = rank_device(device, me, &phys, &mut share);
         if world.any(chosen.is_err()) {
