@@ -291,6 +291,8 @@ struct Progress {
     next_output: usize,
     snapshots: Vec<String>,
     errors: Vec<ExactErrors>,
+    /// +∞ before the first step (a checkpoint on an interrupt at step 0): JSON has no ∞.
+    #[serde(with = "infinite_as_null")]
     dt_min: f64,
     dt_max: f64,
     cfl_max: f64,
@@ -309,6 +311,43 @@ struct Progress {
     /// Steps whose size the explicit drag's limit set.
     #[serde(default)]
     drag_limited_steps: u64,
+}
+
+/// An f64 that may be +∞ in JSON: written as null, read back as +∞ (serde_json writes every
+/// non-finite number as null, which it cannot read as an f64).
+mod infinite_as_null {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_finite() {
+            s.serialize_f64(*v)
+        } else {
+            s.serialize_none()
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
+    }
+
+    #[cfg(test)]
+    mod tests {
+        #[derive(serde::Serialize, serde::Deserialize)]
+        struct T {
+            #[serde(with = "super")]
+            v: f64,
+        }
+
+        /// A checkpoint written before the first step (dt_min = +∞) reads back.
+        #[test]
+        fn infinity_round_trips_through_json() {
+            for v in [f64::INFINITY, 0.25, 1e-300] {
+                let text = serde_json::to_string(&T { v }).unwrap();
+                let back: T = serde_json::from_str(&text).unwrap();
+                assert_eq!(back.v, v, "{text}");
+            }
+        }
+    }
 }
 
 /// Exact checks of the ball into vacuum (method.md §6.1).
