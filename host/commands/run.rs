@@ -106,7 +106,7 @@ impl std::fmt::Display for RunError {
 }
 impl std::error::Error for RunError {}
 
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct ParticleCounts {
     pub gas: usize,
     pub gas_fixed: usize,
@@ -286,7 +286,7 @@ fn write_snapshot(
 /// nearest-cell coupling warns (their drag is off).
 const UNCOUPLED_WARNING: f64 = 0.05;
 /// The driver's progress: everything besides the particles that a resumed run must know.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 struct Progress {
     next_output: usize,
     snapshots: Vec<String>,
@@ -338,7 +338,6 @@ mod infinite_as_null {
             v: f64,
         }
 
-        /// A checkpoint written before the first step (dt_min = +∞) reads back.
         #[test]
         fn infinity_round_trips_through_json() {
             for v in [f64::INFINITY, 0.25, 1e-300] {
@@ -346,6 +345,18 @@ mod infinite_as_null {
                 let back: T = serde_json::from_str(&text).unwrap();
                 assert_eq!(back.v, v, "{text}");
             }
+        }
+
+        /// A checkpoint's progress written before the first step (dt_min = +∞) reads back.
+        #[test]
+        fn progress_before_the_first_step_reads_back() {
+            let p = super::super::Progress {
+                dt_min: f64::INFINITY,
+                ..Default::default()
+            };
+            let text = serde_json::to_string(&p).unwrap();
+            let back: super::super::Progress = serde_json::from_str(&text).unwrap();
+            assert_eq!(back.dt_min, f64::INFINITY);
         }
     }
 }
