@@ -5,7 +5,8 @@
 //! Built: the decomposition of a cloud into Morton key ranges agreed by every rank (global
 //! bounds and cell counts by all-reduce, [`crate::decomp::Partition`]), the migration of
 //! particles to the rank owning their cell, the halo exchange, and stepping over ranks with a
-//! deep halo ([`ranks`]): `mpirun -n R dustsph run` (rank 0 gathers and writes the output).
+//! thin halo refreshed between the step's passes ([`ranks`]): `mpirun -n R dustsph run` (rank 0
+//! gathers and writes the output).
 //! Every other command runs on one process and refuses to start as one of several ranks.
 
 /// The rank and the rank count this process was started as by an MPI launcher (`mpirun`,
