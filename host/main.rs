@@ -59,17 +59,17 @@ struct MpiCheckArgs {
     /// Override a scene key (repeatable)
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
-    /// Halo depth in kernel supports (2h): 1 for the exchange check; for `--steps`, what a
-    /// run over ranks uses (`dist::ranks::depth_for`: 2 for the first-order step, 4 for the
-    /// leapfrog, more for IDIC cells wider than a support)
+    /// Halo depth in kernel supports (2h): 1 for the exchange check (default); with `--steps`,
+    /// step with a deep halo this many supports deep, its chain of passes recomputed on every
+    /// rank (default: the thin halo a run uses, refreshed between the step's passes)
     #[arg(long)]
     depth: Option<f64>,
     /// Make this rank report a failure (checks that every rank then stops)
     #[arg(long, hide = true)]
     fail_rank: Option<u32>,
-    /// Then step the scene N times over the ranks (a halo `--depth` supports deep, recomputed
-    /// on every rank) and compare every particle with one process on rank 0 (exit 1 above 1e-12 of a field's
-    /// scale); not the kernel coupling
+    /// Then step the scene N times over the ranks (the run's thin halo, or `--depth`'s deep
+    /// one) and compare every particle with one process on rank 0 (exit 1 above 1e-12 of a
+    /// field's scale)
     #[arg(long, default_value_t = 0)]
     steps: u64,
 }
