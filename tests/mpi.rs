@@ -505,8 +505,8 @@ fn a_first_step_refused_on_rank_0_stops_every_rank_before_any_output() {
         ])
         .arg(&dir);
     let o = finish(cmd, "a run refused by rank 0");
-    assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("the first step cannot be taken"), "{err}");
     assert!(!dir.exists());
 }

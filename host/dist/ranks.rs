@@ -294,7 +294,7 @@ fn fail_requested(rank: u32, step: u64) -> bool {
 }
 
 impl GhostSync for RankGhosts {
-    fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String> {
+    fn refresh(&mut self, tables: &mut [GhostRows<'_>]) -> Result<(), String> {
         match &mut self.fail {
             Some(0) => return Err("failure requested by DUSTSPH_FAIL_IN_STEP".into()),
             Some(n) => *n -= 1,

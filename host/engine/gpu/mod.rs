@@ -681,13 +681,13 @@ const H_TOL_OUTPUT: f64 = 1e-8;
 /// maxima.
 pub trait GhostSync: Send {
     /// Overwrite the ghosts' rows (gas first, then the dust) with their owners' (collective).
-    fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String>;
+    fn refresh(&mut self, tables: &mut [GhostRows<'_>]) -> Result<(), String>;
 }
 
 /// One phase's particles as rows of bytes: `keys[i]` = (phase: 0 gas, 1 + k dust fraction k,
 /// particle id); row i is `data[i * row .. (i + 1) * row]`, every per-particle buffer's value.
-pub struct GhostRows {
-    pub keys: Vec<(u64, u64)>,
+pub struct GhostRows<'a> {
+    pub keys: &'a [(u64, u64)],
     pub row: usize,
     pub data: Vec<u8>,
 }
@@ -700,6 +700,8 @@ struct Ghosts<L: Launcher> {
     mask: [Option<Buf<L, u8>>; 2],
     /// 1 for a ghost only (not a wall), per phase: the explicit drag limit's cells.
     only: [Option<Buf<L, u8>>; 2],
+    /// Every slot's key (phase, id), per phase, in the order of the last sort.
+    slots: [Vec<(u64, u64)>; 2],
 }
 
 /// Whether an engine computes its first layer's densities or takes the state's.
@@ -1207,6 +1209,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             keys,
             mask: [None, None],
             only: [None, None],
+            slots: [Vec::new(), Vec::new()],
         });
         self.ghost_masks()?;
         self.ghost_sync()
@@ -1232,15 +1235,17 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             .collect())
     }
 
-    /// The ghost masks in the current order (after each sort).
+    /// The slots' keys and the ghost masks in the current order (after each sort).
     fn ghost_masks(&mut self) -> Result<(), GpuError> {
         let Some(g) = &self.ghosts else {
             return Ok(());
         };
         let mut masks: [Option<Buf<L, u8>>; 2] = [None, None];
         let mut only: [Option<Buf<L, u8>>; 2] = [None, None];
+        let mut slots = [Vec::new(), Vec::new()];
         for (k, gas) in [true, false].into_iter().enumerate() {
             let ph = if gas { &self.gas } else { &self.dust };
+            slots[k] = self.slot_keys(gas)?;
             if ph.n == 0 {
                 continue;
             }
@@ -1248,7 +1253,8 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 Some(f) => self.d.get(f, ph.n)?,
                 None => vec![0; ph.n],
             };
-            let ghost: Vec<u8> = (self.slot_keys(gas)?.iter())
+            let ghost: Vec<u8> = slots[k]
+                .iter()
                 .map(|key| g.keys.contains(key) as u8)
                 .collect();
             let m: Vec<u8> = (ghost.iter().zip(&fixed)).map(|(&g, &f)| g | f).collect();
@@ -1258,6 +1264,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         if let Some(g) = &mut self.ghosts {
             g.mask = masks;
             g.only = only;
+            g.slots = slots;
         }
         Ok(())
     }
@@ -1268,7 +1275,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
         if self.ghosts.is_none() {
             return Ok(());
         }
-        let mut tables = Vec::with_capacity(2);
+        let mut rows = Vec::with_capacity(2);
         for gas in [true, false] {
             let n = if gas { self.gas.n } else { self.dust.n };
             let cols = self.ghost_columns(gas, None)?;
@@ -1282,18 +1289,18 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 }
                 at += w;
             }
-            tables.push(GhostRows {
-                keys: self.slot_keys(gas)?,
-                row,
-                data,
-            });
+            rows.push((row, data));
         }
-        let g = self.ghosts.as_mut().expect("checked above");
-        g.sync
-            .refresh(&mut tables)
+        // The slots' keys of the last sort (ghost_masks): no id download per refresh.
+        let Ghosts { sync, slots, .. } = self.ghosts.as_mut().expect("checked above");
+        let mut tables: Vec<GhostRows<'_>> = (slots.iter().zip(rows))
+            .map(|(keys, (row, data))| GhostRows { keys, row, data })
+            .collect();
+        sync.refresh(&mut tables)
             .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
-        for (t, gas) in tables.iter().zip([true, false]) {
-            self.ghost_columns(gas, Some(t))?;
+        let rows: Vec<(usize, Vec<u8>)> = tables.into_iter().map(|t| (t.row, t.data)).collect();
+        for ((row, data), gas) in rows.iter().zip([true, false]) {
+            self.ghost_columns(gas, Some((*row, data)))?;
         }
         Ok(())
     }
@@ -1303,7 +1310,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     fn ghost_columns(
         &mut self,
         gas: bool,
-        put: Option<&GhostRows>,
+        put: Option<(usize, &[u8])>,
     ) -> Result<Vec<Vec<u8>>, GpuError> {
         /// Buffer `b` with `per` values per particle, particle-major.
         fn one<L: Launcher, T: Copy>(
@@ -1311,7 +1318,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             b: Option<&mut Buf<L, T>>,
             n: usize,
             per: usize,
-            put: Option<(&GhostRows, &mut usize)>,
+            put: Option<((usize, &[u8]), &mut usize)>,
             out: &mut Vec<Vec<u8>>,
         ) -> Result<(), GpuError> {
             let Some(b) = b else { return Ok(()) };
@@ -1325,11 +1332,11 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                     d.0.download(&b.mem, &mut bytes)?;
                     out.push(bytes);
                 }
-                Some((t, at)) => {
+                Some(((row, data), at)) => {
                     let mut bytes = vec![0u8; n * w];
                     for i in 0..n {
                         bytes[i * w..(i + 1) * w]
-                            .copy_from_slice(&t.data[i * t.row + *at..i * t.row + *at + w]);
+                            .copy_from_slice(&data[i * row + *at..i * row + *at + w]);
                     }
                     *at += w;
                     d.0.upload(&mut b.mem, &bytes)?;
