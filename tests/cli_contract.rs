@@ -36,7 +36,12 @@ fn run_writes_snapshots_at_output_times_and_a_summary() {
             s.time
         );
         assert_eq!(s.dim, 1);
-        assert_eq!(s.scene_text, scene_text);
+        // Without overrides the effective scene is the file's table.
+        let effective = dustsph::scene::effective_text(&scene_text, Path::new("f"), &[]).unwrap();
+        assert_eq!(s.scene_text, effective);
+        let h = dustsph::io::snapshot::read_header(&p).unwrap();
+        assert_eq!(h.source_text.as_deref(), Some(scene_text.as_str()));
+        assert_eq!(h.overrides, Some(vec![]));
         assert_eq!(s.num_part, [64, 0, 0, 4 * 64, 0, 0]);
         let d = s.dust.as_ref().unwrap();
         for k in 0..4u32 {

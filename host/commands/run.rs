@@ -153,6 +153,9 @@ pub struct Summary {
     pub problem: &'static str,
     pub scene_file: String,
     pub overrides: Vec<String>,
+    /// The scene as run: the file with the overrides applied, as TOML (what the snapshots'
+    /// `Scene` attribute holds).
+    pub scene_effective: String,
     pub dimension: u32,
     pub backend: String,
     pub precision: &'static str,
@@ -240,12 +243,18 @@ fn write_snapshot(
     let e_iso: Option<Vec<f64>> =
         g.e.is_none()
             .then(|| g.p.iter().zip(&g.ph.rho).map(|(p, r)| p / r).collect());
+    let scene_file = loaded.path.display().to_string();
     let view = SnapshotView {
         time: state.t,
         dim,
         periodic: phys.domain.periodic,
         pad: dustsph_device::kernel::SUPPORT * h_max,
-        scene_text: &loaded.text,
+        scene_text: &loaded.effective,
+        source: io::SceneSource {
+            file: &scene_file,
+            text: &loaded.text,
+            overrides: &loaded.overrides,
+        },
         gas: Some(PhaseView {
             x: &g.ph.x,
             v: &g.ph.v,
@@ -579,14 +588,8 @@ impl Runner {
         let overrides: Vec<String> =
             serde_json::from_str(&meta.overrides_json).map_err(|e| bad(e.to_string()))?;
         let file = PathBuf::from(&meta.scene_file);
-        let scene = crate::scene::parse(&meta.scene_text, &file, &overrides)
+        let loaded = LoadedScene::from_text(&meta.scene_text, &file, &overrides)
             .map_err(|e| bad(e.to_string()))?;
-        let loaded = LoadedScene {
-            scene,
-            path: file,
-            text: meta.scene_text,
-            overrides,
-        };
         let prog: Progress =
             serde_json::from_str(&meta.progress_json).map_err(|e| bad(e.to_string()))?;
         verify_resume(dir, &state, &loaded, &prog).map_err(bad)?;
@@ -1039,6 +1042,7 @@ impl Runner {
             problem: scene.scene.problem.name(),
             scene_file: loaded.path.display().to_string(),
             overrides: loaded.overrides.clone(),
+            scene_effective: loaded.effective.clone(),
             dimension: scene.dim(),
             backend: match &ranks {
                 Some(r) => format!("{}; set-up and outputs: {}", r.describe(), eng.describe()),
@@ -1147,7 +1151,7 @@ fn verify_resume(
         let h = io::snapshot::read_header(&p).map_err(|e| {
             format!("the snapshot {name} its run wrote is missing or unreadable ({e})")
         })?;
-        let same_scene = h.scene_text == loaded.text;
+        let same_scene = same_run_scene(&h, loaded);
         let same_counts = h.num_part[io::snapshot::GAS_TYPE] as usize == have.0
             && h.num_part[io::snapshot::DUST_TYPE] as usize == n_dust;
         if !same_scene || !same_counts || h.dim as usize != dim {
@@ -1186,7 +1190,7 @@ fn verify_resume(
         if io::output_dir::is_snapshot_name(&name) && !listed.contains(name.as_str()) {
             // The same run, written after the checkpoint was: say so.
             if let Ok(h) = io::snapshot::read_header(&e.path()) {
-                if h.scene_text == loaded.text && h.time > state.t {
+                if same_run_scene(&h, loaded) && h.time > state.t {
                     return Err(format!(
                         "{name} in {} (t = {}) was written after the checkpoint (t = {}); \
                          resuming would overwrite it (move it and the later snapshots away \
@@ -1205,6 +1209,16 @@ fn verify_resume(
         }
     }
     Ok(())
+}
+
+/// Whether a snapshot was written from the scene a run is made of: the same effective scene
+/// (file and overrides). A snapshot from before the Header recorded the effective scene holds
+/// the file's text alone, which is the run's only if it had no overrides.
+fn same_run_scene(h: &io::snapshot::SnapshotHeader, loaded: &LoadedScene) -> bool {
+    match h.source_text {
+        Some(_) => h.scene_text == loaded.effective,
+        None => loaded.overrides.is_empty() && h.scene_text == loaded.text,
+    }
 }
 
 /// What a physicist should hear before a run that will likely be noise or unstable: a fixed

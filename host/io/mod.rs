@@ -18,7 +18,7 @@ pub use output_dir::{
     owned_or_temporary, prepare_dir, prepare_output_dir, snapshot_name, write_json_atomic,
 };
 pub use snapshot::{
-    read_snapshot, write_snapshot, PhaseData, PhaseView, SnapshotData, SnapshotView,
+    read_snapshot, write_snapshot, PhaseData, PhaseView, SceneSource, SnapshotData, SnapshotView,
 };
 pub use xdmf::{write_xdmf, write_xdmf_series, write_xdmf_view};
 

@@ -107,11 +107,23 @@ pub struct SnapshotView<'a> {
     pub periodic: [Option<(f64, f64)>; 3],
     /// Margin around the particles on open axes (the kernel support).
     pub pad: f64,
-    /// The scene TOML verbatim.
+    /// The effective scene as TOML (the file with its `--set` overrides applied): the
+    /// `Scene` attribute every reader parses.
     pub scene_text: &'a str,
+    /// Where the effective scene came from.
+    pub source: SceneSource<'a>,
     pub gas: Option<PhaseView<'a>>,
     /// One per dust fraction; index = fraction index.
     pub dust: Vec<PhaseView<'a>>,
+}
+
+/// How a run's scene was made: the file as given, its text verbatim (comments included), and
+/// the `--set` overrides (Header attributes `SceneFile`, `SceneFileText`, `SceneOverrides`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SceneSource<'a> {
+    pub file: &'a str,
+    pub text: &'a str,
+    pub overrides: &'a [String],
 }
 
 /// One phase read back from a snapshot.
@@ -297,7 +309,7 @@ pub(crate) fn h5err<'a>(
     move |e| IoError::hdf5(path, object, e)
 }
 
-fn validate(path: &Path, snap: &SnapshotView) -> Result<VarLenUnicode, IoError> {
+fn validate(path: &Path, snap: &SnapshotView) -> Result<SceneTexts, IoError> {
     if !(1..=3).contains(&snap.dim) {
         return Err(IoError::invalid(
             path,
@@ -311,8 +323,26 @@ fn validate(path: &Path, snap: &SnapshotView) -> Result<VarLenUnicode, IoError> 
         d.check(&format!("dust fraction {k}"), path)?;
     }
     // HDF5 strings are C strings: an interior NUL would silently truncate the scene.
-    VarLenUnicode::from_str(snap.scene_text)
-        .map_err(|e| IoError::invalid(path, format!("scene text cannot be stored: {e}")))
+    let text = |s: &str| {
+        VarLenUnicode::from_str(s)
+            .map_err(|e| IoError::invalid(path, format!("scene text cannot be stored: {e}")))
+    };
+    let overrides = serde_json::to_string(snap.source.overrides)
+        .map_err(|e| IoError::invalid(path, format!("overrides cannot be stored: {e}")))?;
+    Ok(SceneTexts {
+        effective: text(snap.scene_text)?,
+        file: text(snap.source.file)?,
+        file_text: text(snap.source.text)?,
+        overrides: text(&overrides)?,
+    })
+}
+
+/// The Header's scene attributes, checked storable before the file is touched.
+struct SceneTexts {
+    effective: VarLenUnicode,
+    file: VarLenUnicode,
+    file_text: VarLenUnicode,
+    overrides: VarLenUnicode,
 }
 
 /// Writes the snapshot to `path` atomically: write to a temporary name in the same directory
@@ -353,7 +383,7 @@ fn write_file(
     path: &Path,
     snap: &SnapshotView,
     frame: &Frame,
-    scene: &VarLenUnicode,
+    scene: &SceneTexts,
     gas: Option<&Columns>,
     dust: Option<&Columns>,
 ) -> Result<(), IoError> {
@@ -378,7 +408,7 @@ fn write_header(
     path: &Path,
     snap: &SnapshotView,
     frame: &Frame,
-    scene: &VarLenUnicode,
+    scene: &SceneTexts,
     num_part: &[u64; 6],
 ) -> Result<(), IoError> {
     let obj = format!("/{HEADER_GROUP}");
@@ -403,7 +433,11 @@ fn write_header(
     put_scalar(&g, "SmoothingLengthPerH", &SMOOTHING_LENGTH_PER_H, path)?;
     put_scalar(&g, "Dimension", &dim, path)?;
     put_scalar(&g, "Code", &code, path)?;
-    put_scalar(&g, "Scene", scene, path)?;
+    // The scene as run (what readers parse), and how it was made.
+    put_scalar(&g, "Scene", &scene.effective, path)?;
+    put_scalar(&g, "SceneFile", &scene.file, path)?;
+    put_scalar(&g, "SceneFileText", &scene.file_text, path)?;
+    put_scalar(&g, "SceneOverrides", &scene.overrides, path)?;
     // Conventional GADGET fields: older yt releases and other GADGET readers index them
     // unconditionally; OmegaLambda = 0 marks the run as non-cosmological.
     put_array(&g, "NumPart_Total_HighWord", &[0u32; 6], path)?;
@@ -498,6 +532,10 @@ pub struct SnapshotHeader {
     pub time: f64,
     pub dim: u32,
     pub scene_text: String,
+    /// The scene file's verbatim text and the overrides (None in snapshots written before
+    /// the Header recorded them, whose `Scene` is the file's text alone).
+    pub source_text: Option<String>,
+    pub overrides: Option<Vec<String>>,
     pub num_part: [u64; 6],
 }
 
@@ -514,13 +552,27 @@ fn open_header(path: &Path) -> Result<(File, SnapshotHeader), IoError> {
     let obj = format!("/{HEADER_GROUP}");
     let header = file.group(HEADER_GROUP).map_err(h5err(path, &obj))?;
     let dim: i32 = get_scalar(&header, "Dimension", path)?;
-    let h = SnapshotHeader {
-        time: get_scalar(&header, "Time", path)?,
-        dim: u32::try_from(dim)
-            .map_err(|_| IoError::invalid(path, format!("/Header/Dimension is {dim}")))?,
-        scene_text: get_string(&header, "Scene", path)?,
-        num_part: get_counts(&header, "NumPart_Total", path)?,
-    };
+    let h =
+        SnapshotHeader {
+            time: get_scalar(&header, "Time", path)?,
+            dim: u32::try_from(dim)
+                .map_err(|_| IoError::invalid(path, format!("/Header/Dimension is {dim}")))?,
+            scene_text: get_string(&header, "Scene", path)?,
+            source_text: match header.attr("SceneFileText") {
+                Ok(_) => Some(get_string(&header, "SceneFileText", path)?),
+                Err(_) => None,
+            },
+            overrides: match header.attr("SceneOverrides") {
+                Ok(_) => {
+                    let json = get_string(&header, "SceneOverrides", path)?;
+                    Some(serde_json::from_str(&json).map_err(|e| {
+                        IoError::invalid(path, format!("/Header/SceneOverrides: {e}"))
+                    })?)
+                }
+                Err(_) => None,
+            },
+            num_part: get_counts(&header, "NumPart_Total", path)?,
+        };
     Ok((file, h))
 }
 
@@ -552,6 +604,7 @@ pub fn read_snapshot(path: &Path) -> Result<SnapshotData, IoError> {
         dim,
         scene_text,
         num_part,
+        ..
     } = h;
     let this_file = get_counts(&header, "NumPart_ThisFile", path)?;
     if this_file != num_part {
@@ -813,6 +866,7 @@ mod tests {
             periodic: [None; 3],
             pad: 0.25,
             scene_text: SCENE,
+            source: SceneSource::default(),
             gas,
             dust,
         }

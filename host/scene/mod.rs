@@ -31,13 +31,54 @@ impl fmt::Display for SceneError {
 
 impl std::error::Error for SceneError {}
 
-/// A scene as loaded: the validated settings plus the verbatim file text (stored in snapshots).
+/// A scene as loaded: the validated settings and how they were made (the file, its verbatim
+/// text, the `--set` overrides, and the effective scene: the file's table with the overrides
+/// applied, as TOML). Every output records all four; readers parse the effective scene.
 #[derive(Debug, Clone)]
 pub struct LoadedScene {
     pub scene: Scene,
     pub path: PathBuf,
     pub text: String,
     pub overrides: Vec<String>,
+    /// The scene as run: [`effective_text`] of `text` and `overrides`.
+    pub effective: String,
+}
+
+impl LoadedScene {
+    /// A scene from its text and overrides (`file` names it in messages and outputs).
+    pub fn from_text(
+        text: &str,
+        file: &Path,
+        overrides: &[String],
+    ) -> Result<LoadedScene, SceneError> {
+        let scene = parse(text, file, overrides)?;
+        Ok(LoadedScene {
+            scene,
+            path: file.to_path_buf(),
+            text: text.to_string(),
+            overrides: overrides.to_vec(),
+            effective: effective_text(text, file, overrides)?,
+        })
+    }
+}
+
+/// The effective scene: the file's TOML table with every `--set` override applied, written
+/// back as TOML (comments and key order of the file are not kept; every value is, to the bit:
+/// TOML floats are written in their shortest round-trip form). Parsing it without overrides
+/// gives the same scene as parsing `text` with them.
+pub fn effective_text(text: &str, file: &Path, overrides: &[String]) -> Result<String, SceneError> {
+    let err = |key: Option<String>, msg: String| SceneError {
+        file: file.to_path_buf(),
+        key,
+        msg,
+    };
+    let mut table: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| err(None, format!("not valid TOML: {e}")))?;
+    for ov in overrides {
+        apply_override(&mut table, ov).map_err(|(key, msg)| err(key, msg))?;
+    }
+    toml::to_string(&table).map_err(|e| err(None, format!("cannot be written back as TOML: {e}")))
 }
 
 /// Every section of a scene is a table, and so is every `[[dust.fractions]]` entry: serde would
@@ -79,13 +120,7 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScene, SceneError
         key: None,
         msg: format!("cannot read scene file: {e}"),
     })?;
-    let scene = parse(&text, path, overrides)?;
-    Ok(LoadedScene {
-        scene,
-        path: path.to_path_buf(),
-        text,
-        overrides: overrides.to_vec(),
-    })
+    LoadedScene::from_text(&text, path, overrides)
 }
 
 /// The shipped scenes, compiled in, so that `bench` and `parity` (which name them) run from
@@ -126,14 +161,7 @@ pub fn load_shipped(name: &str, overrides: &[String]) -> Result<LoadedScene, Sce
     let Some((_, text)) = SHIPPED.iter().find(|(n, _)| *n == name) else {
         return load(Path::new(name), overrides);
     };
-    let path = Path::new(name);
-    let scene = parse(text, path, overrides)?;
-    Ok(LoadedScene {
-        scene,
-        path: path.to_path_buf(),
-        text: text.to_string(),
-        overrides: overrides.to_vec(),
-    })
+    LoadedScene::from_text(text, Path::new(name), overrides)
 }
 
 /// Keys with a default that some scenes do not use, and why a scene does not (None: used).
