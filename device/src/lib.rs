@@ -23,6 +23,7 @@ pub mod drag;
 pub mod eos;
 pub mod grid;
 pub mod kernel;
+pub mod kernel_table;
 pub mod kernels;
 pub mod real;
 pub mod sph;

@@ -391,8 +391,9 @@ unsafe fn atomic_add_u32(p: *mut u32, v: u32) -> u32 {
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct BoundsArgs<R> {
-    pub x: *const Vec3<R>,
+pub struct BoundsArgs {
+    /// Positions: f64 in every precision of the step.
+    pub x: *const Vec3<f64>,
     pub n: u32,
     /// Particles per thread.
     pub chunk: u32,
@@ -401,7 +402,7 @@ pub struct BoundsArgs<R> {
     pub out: *mut u64,
 }
 
-pub unsafe fn bounds<R: Real>(t: usize, a: &BoundsArgs<R>) {
+pub unsafe fn bounds(t: usize, a: &BoundsArgs) {
     let x = sl(a.x, a.n as usize);
     let lo = t * a.chunk as usize;
     if lo >= x.len() {
@@ -570,6 +571,32 @@ pub unsafe fn gather<T: Copy>(t: usize, a: &GatherArgs<T>) {
     if t < a.n as usize {
         *a.dst.add(t) = *a.src.add(*a.perm.add(t) as usize);
     }
+}
+
+pub type GatherV3Args<R> = GatherArgs<[R; 3]>;
+pub type CopyV3Args<R> = CopyArgs<[R; 3]>;
+
+// The element types the step copies and gathers, one kernel each (crate::kernel_table).
+pub unsafe fn gather_u64(t: usize, a: &GatherArgs<u64>) {
+    gather(t, a)
+}
+pub unsafe fn gather_u8(t: usize, a: &GatherArgs<u8>) {
+    gather(t, a)
+}
+pub unsafe fn gather_x(t: usize, a: &GatherArgs<[f64; 3]>) {
+    gather(t, a)
+}
+pub unsafe fn gather_v3<R: Copy>(t: usize, a: &GatherArgs<[R; 3]>) {
+    gather(t, a)
+}
+pub unsafe fn gather_real<R: Copy>(t: usize, a: &GatherArgs<R>) {
+    gather(t, a)
+}
+pub unsafe fn copy_v3<R: Copy>(t: usize, a: &CopyArgs<[R; 3]>) {
+    copy(t, a)
+}
+pub unsafe fn copy_real<R: Copy>(t: usize, a: &CopyArgs<R>) {
+    copy(t, a)
 }
 
 // ---------------------------------------------------------------------------------------------

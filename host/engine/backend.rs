@@ -282,7 +282,7 @@ impl Backend {
     }
 
     /// Sparse cell tables from now on (what a cloud too spread out for dense tables gets):
-    /// the step must not change (tests/gpu_parity.rs).
+    /// the step must not change (tests/launch.rs).
     pub fn force_sparse_tables(&mut self, state: &mut State) -> Result<(), StepError> {
         each!(self, e => {
             e.force_sparse_tables()?;

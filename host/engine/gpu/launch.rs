@@ -6,6 +6,7 @@ use cudarc::driver::{
     CudaContext, CudaFunction, CudaSlice, CudaStream, DevicePtr, DevicePtrMut, DeviceRepr,
     LaunchConfig, PushKernelArg,
 };
+use dustsph_device::kernel_table::{self, Kernel};
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -42,14 +43,9 @@ pub trait Launcher {
     fn upload_value<T: Copy>(&self, m: &mut Self::Mem, v: &T) -> Result<(), GpuError>;
     /// Zero the first `bytes` bytes on the device (no host copy).
     fn zero(&self, m: &mut Self::Mem, bytes: usize) -> Result<(), GpuError>;
-    /// Run `threads` threads of kernel `name`, whose per-thread function is `f`.
-    fn launch<A: Copy>(
-        &self,
-        name: &'static str,
-        threads: usize,
-        args: &A,
-        f: unsafe fn(usize, &A),
-    ) -> Result<(), GpuError>;
+    /// Run `threads` threads of kernel `k` (its PTX entry point on a GPU, its thread function
+    /// on the CPU: one constant of the kernel table names both).
+    fn launch<A: Copy>(&self, k: Kernel<A>, threads: usize, args: &A) -> Result<(), GpuError>;
     /// Whether `numerics.neighbour_list = "auto"` builds neighbour lists here: measured on
     /// the CPU (docs/performance.md); the GPU kernels are built without them.
     fn lists_by_default(&self) -> bool {
@@ -118,13 +114,8 @@ impl Launcher for Rayon {
         Ok(())
     }
 
-    fn launch<A: Copy>(
-        &self,
-        _name: &'static str,
-        threads: usize,
-        args: &A,
-        f: unsafe fn(usize, &A),
-    ) -> Result<(), GpuError> {
+    fn launch<A: Copy>(&self, k: Kernel<A>, threads: usize, args: &A) -> Result<(), GpuError> {
+        let f = k.thread;
         let a = Shared(args);
         (0..threads).into_par_iter().for_each(|t| {
             let a = &a;
@@ -144,99 +135,6 @@ unsafe impl<A> DeviceRepr for ByValue<A> {}
 
 /// Threads per block for every launch.
 const BLOCK: u32 = 256;
-
-/// The names of every kernel in the embedded PTX.
-pub const KERNELS: &[&str] = &[
-    "dustsph_bounds",
-    "dustsph_keys",
-    "dustsph_scan_sums",
-    "dustsph_scan_totals",
-    "dustsph_scan_chunks",
-    "dustsph_scatter",
-    "dustsph_sort_segments",
-    "dustsph_gather_v3",
-    "dustsph_gather_f64",
-    "dustsph_gather_u64",
-    "dustsph_gather_x",
-    "dustsph_gather_u8",
-    "dustsph_copy_v3",
-    "dustsph_copy_f64",
-    "dustsph_density",
-    "dustsph_density_continuity",
-    "dustsph_explicit_limit",
-    "dustsph_eos",
-    "dustsph_forces",
-    "dustsph_solve_h",
-    "dustsph_force_prep",
-    "dustsph_iad_matrix",
-    "dustsph_max_of",
-    "dustsph_union_flags",
-    "dustsph_union_keys",
-    "dustsph_cell_step",
-    "dustsph_gas_kick",
-    "dustsph_dust_kick",
-    "dustsph_heat",
-    "dustsph_drift",
-    "dustsph_energy",
-    "dustsph_check",
-    "dustsph_dust_accel",
-    "dustsph_coupling_norm",
-    "dustsph_coupling_solve",
-    "dustsph_coupling_return",
-    "dustsph_coupling_tstop",
-    "dustsph_coupling_heat",
-    "dustsph_coupling_scatter",
-    "dustsph_coupling_solve_sums",
-];
-
-/// Kernels with an f32 instantiation: the f64 entry's name + `_f32` (device/src/ptx.rs); the
-/// others (scans, sorts, integer gathers) serve both precisions.
-pub const KERNELS_F32: &[&str] = &[
-    "dustsph_bounds_f32",
-    "dustsph_keys_f32",
-    "dustsph_scatter_f32",
-    "dustsph_gather_v3_f32",
-    "dustsph_gather_f32",
-    "dustsph_copy_v3_f32",
-    "dustsph_copy_f32",
-    "dustsph_density_f32",
-    "dustsph_density_continuity_f32",
-    "dustsph_explicit_limit_f32",
-    "dustsph_eos_f32",
-    "dustsph_forces_f32",
-    "dustsph_solve_h_f32",
-    "dustsph_force_prep_f32",
-    "dustsph_iad_matrix_f32",
-    "dustsph_max_of_f32",
-    "dustsph_union_flags_f32",
-    "dustsph_union_keys_f32",
-    "dustsph_cell_step_f32",
-    "dustsph_gas_kick_f32",
-    "dustsph_dust_kick_f32",
-    "dustsph_heat_f32",
-    "dustsph_drift_f32",
-    "dustsph_energy_f32",
-    "dustsph_check_f32",
-    "dustsph_dust_accel_f32",
-    "dustsph_coupling_norm_f32",
-    "dustsph_coupling_solve_f32",
-    "dustsph_coupling_return_f32",
-    "dustsph_coupling_tstop_f32",
-    "dustsph_coupling_heat_f32",
-    "dustsph_coupling_scatter_f32",
-    "dustsph_coupling_solve_sums_f32",
-];
-
-/// The f32 entry point of kernel `name`: `name_f32`, or `x_f32` for `x_f64` (the scalar
-/// gather and copy); `name` itself when the kernel has no float data.
-pub fn f32_name(name: &'static str) -> &'static str {
-    let stem = name.strip_suffix("_f64").unwrap_or(name);
-    KERNELS_F32
-        .iter()
-        .find(|k| k.strip_suffix("_f32") == Some(stem))
-        .copied()
-        .unwrap_or(name)
-}
 
 /// An NVIDIA GPU through the CUDA driver (loaded at run time), one stream. Clones share the
 /// context, the stream and the loaded kernels.
@@ -293,7 +191,7 @@ impl Cuda {
         let stream = ctx.default_stream();
         let module = ctx.load_module(cudarc::nvrtc::Ptx::from_src(ptx))?;
         let mut funcs = HashMap::new();
-        for &k in KERNELS.iter().chain(KERNELS_F32) {
+        for &k in kernel_table::NAMES {
             funcs.insert(k, module.load_function(k)?);
         }
         let (free, total) = ctx.mem_get_info()?;
@@ -393,13 +291,8 @@ impl Launcher for Cuda {
         Ok(())
     }
 
-    fn launch<A: Copy>(
-        &self,
-        name: &'static str,
-        threads: usize,
-        args: &A,
-        _f: unsafe fn(usize, &A),
-    ) -> Result<(), GpuError> {
+    fn launch<A: Copy>(&self, k: Kernel<A>, threads: usize, args: &A) -> Result<(), GpuError> {
+        let name = k.name;
         if threads == 0 {
             return Ok(());
         }

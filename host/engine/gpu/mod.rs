@@ -20,6 +20,7 @@ use crate::scene::{ListChoice, PositionUpdate};
 use bytemuck::Pod;
 use dustsph_device::eos::Eos;
 use dustsph_device::kernel::{KernelAt, SUPPORT};
+use dustsph_device::kernel_table::{self as kt, FloatKernels, Kernel};
 use dustsph_device::kernels::{from_ordered_bits, MAX_FRACTIONS};
 use dustsph_device::sph::Sym3;
 use dustsph_device::threads::{self as th, LawParam, PhaseBufs, StepParams};
@@ -33,7 +34,7 @@ pub const PTX: &str = include_str!(concat!(env!("OUT_DIR"), "/dustsph.ptx"));
 /// How the PTX was (or was not) built.
 pub const PTX_NOTE: &str = env!("DUSTSPH_PTX_NOTE");
 /// Device memory a run needs per particle (gas or dust), by precision: measured with the rayon
-/// launcher, which allocates the very buffers a GPU does (`tests/gpu_parity.rs`,
+/// launcher, which allocates the very buffers a GPU does (`tests/launch.rs`,
 /// `device_memory_estimate_bounds_what_the_engine_allocates`: at most 516 B (f64) and 326 B
 /// (f32) per particle over the 23 parity scenes after three steps, the leapfrog with the
 /// kernel coupling the largest), with a margin for the dense tables of sparser clouds. Without
@@ -48,7 +49,9 @@ type V3 = [f64; 3];
 /// The float type the step runs in (`--precision`, docs/accuracy.md): f64, or f32 with the
 /// same kernels instantiated for it (PTX entry points with the suffix `_f32`). The host's state,
 /// time, step and grid stay f64; buffers are converted at upload and download only.
-pub trait Float: Real + Pod + CopyKernel + std::fmt::Debug + Send + Sync + 'static {
+pub trait Float:
+    Real + Pod + CopyKernel + FloatKernels + std::fmt::Debug + Send + Sync + 'static
+{
     /// "f64" or "f32" (summary.json, messages).
     const NAME: &'static str;
 }
@@ -66,17 +69,20 @@ pub struct Buf<L: Launcher, T> {
     _t: PhantomData<T>,
 }
 
-/// The launcher, whether the kernels are the f32 instantiations, and the bytes allocated so
-/// far (the rayon launcher allocates exactly what a GPU would: the device-memory estimate
-/// [`DEVICE_BYTES_PER_PARTICLE`] is measured with it).
-struct Dev<L: Launcher>(L, bool, std::cell::Cell<usize>);
+/// A launcher with typed buffers, copies and launches over it.
+struct Device<L: Launcher> {
+    launcher: L,
+    /// Bytes allocated so far (the rayon launcher allocates exactly what a GPU would: the
+    /// device-memory estimate [`DEVICE_BYTES_PER_PARTICLE`] is measured with it).
+    allocated: std::cell::Cell<usize>,
+}
 
-impl<L: Launcher> Dev<L> {
+impl<L: Launcher> Device<L> {
     fn buf<T: Copy>(&self, len: usize) -> Result<Buf<L, T>, GpuError> {
         let bytes = len * std::mem::size_of::<T>();
-        self.2.set(self.2.get() + bytes.max(1));
+        self.allocated.set(self.allocated.get() + bytes.max(1));
         Ok(Buf {
-            mem: self.0.alloc(bytes)?,
+            mem: self.launcher.alloc(bytes)?,
             len,
             _t: PhantomData,
         })
@@ -90,7 +96,7 @@ impl<L: Launcher> Dev<L> {
     }
     fn put<T: Pod>(&self, b: &mut Buf<L, T>, data: &[T]) -> Result<(), GpuError> {
         assert!(data.len() <= b.len, "upload larger than the buffer");
-        self.0.upload(&mut b.mem, bytemuck::cast_slice(data))
+        self.launcher.upload(&mut b.mem, bytemuck::cast_slice(data))
     }
     /// Upload into `b`, reallocating (with room to grow) only when it is too small.
     fn put_growing<T: Pod>(&self, b: &mut Buf<L, T>, data: &[T]) -> Result<(), GpuError> {
@@ -121,11 +127,12 @@ impl<L: Launcher> Dev<L> {
     fn get<T: Pod>(&self, b: &Buf<L, T>, n: usize) -> Result<Vec<T>, GpuError> {
         assert!(n <= b.len, "download larger than the buffer");
         let mut v = vec![T::zeroed(); n];
-        self.0.download(&b.mem, bytemuck::cast_slice_mut(&mut v))?;
+        self.launcher
+            .download(&b.mem, bytemuck::cast_slice_mut(&mut v))?;
         Ok(v)
     }
     fn ptr<T>(&self, b: &Buf<L, T>) -> *mut T {
-        self.0.addr(&b.mem) as *mut T
+        self.launcher.addr(&b.mem) as *mut T
     }
     fn opt<T>(&self, b: &Option<Buf<L, T>>) -> *mut T {
         b.as_ref().map_or(std::ptr::null_mut(), |b| self.ptr(b))
@@ -136,19 +143,13 @@ impl<L: Launcher> Dev<L> {
         if b.len < len {
             *b = self.buf(len + len / 2)?;
         } else {
-            self.0.zero(&mut b.mem, len * std::mem::size_of::<T>())?;
+            self.launcher
+                .zero(&mut b.mem, len * std::mem::size_of::<T>())?;
         }
         Ok(())
     }
-    fn run<A: Copy>(
-        &self,
-        name: &'static str,
-        n: usize,
-        a: &A,
-        f: unsafe fn(usize, &A),
-    ) -> Result<(), GpuError> {
-        let name = if self.1 { launch::f32_name(name) } else { name };
-        self.0.launch(name, n, a, f)
+    fn run<A: Copy>(&self, k: Kernel<A>, n: usize, a: &A) -> Result<(), GpuError> {
+        self.launcher.launch(k, n, a)
     }
 
     /// dst[..n] = src[..n] (f64 or 3-vectors).
@@ -163,7 +164,7 @@ impl<L: Launcher> Dev<L> {
             dst: self.ptr(dst),
             n: n as u32,
         };
-        self.run(T::NAME, n, &a, th::copy::<T>)
+        self.run(T::COPY, n, &a)
     }
 
     /// Exclusive prefix sum of `data[..len]` in place (three launches).
@@ -178,25 +179,24 @@ impl<L: Launcher> Dev<L> {
             chunk: SCAN_CHUNK as u32,
             sums: self.ptr(sums),
         };
-        self.run("dustsph_scan_sums", chunks, &a, th::scan_sums)?;
-        self.run("dustsph_scan_totals", 1, &a, th::scan_totals)?;
-        self.run("dustsph_scan_chunks", chunks, &a, th::scan_chunks)
+        self.run(kt::SCAN_SUMS, chunks, &a)?;
+        self.run(kt::SCAN_TOTALS, 1, &a)?;
+        self.run(kt::SCAN_CHUNKS, chunks, &a)
     }
 }
 
 /// Element types with a copy kernel.
-pub trait CopyKernel {
-    const NAME: &'static str;
+pub trait CopyKernel: Sized + 'static {
+    const COPY: Kernel<th::CopyArgs<Self>>;
 }
-// Named as the f64 kernels: `Dev::run` maps them to their `_f32` entry points.
 impl CopyKernel for f64 {
-    const NAME: &'static str = "dustsph_copy_f64";
+    const COPY: Kernel<th::CopyArgs<f64>> = <f64 as FloatKernels>::COPY_REAL;
 }
 impl CopyKernel for f32 {
-    const NAME: &'static str = "dustsph_copy_f64";
+    const COPY: Kernel<th::CopyArgs<f32>> = <f32 as FloatKernels>::COPY_REAL;
 }
 impl<R: Float> CopyKernel for [R; 3] {
-    const NAME: &'static str = "dustsph_copy_v3";
+    const COPY: Kernel<th::CopyArgs<[R; 3]>> = R::COPY_V3;
 }
 
 /// A step's parameters: the host's copy (for the host's own arithmetic: table sizes) and the
@@ -285,7 +285,7 @@ const LIST_STRIDE_MAX: usize = 512;
 pub const LIST_BYTES_PER_GAS_PARTICLE: f64 = 4.0 * (LIST_STRIDE_MAX as f64 + 1.0);
 
 impl<L: Launcher, R: Float> DevPhase<L, R> {
-    fn new(d: &Dev<L>, phases: &[&Phase], heating: bool) -> Result<DevPhase<L, R>, GpuError> {
+    fn new(d: &Device<L>, phases: &[&Phase], heating: bool) -> Result<DevPhase<L, R>, GpuError> {
         let cat = |f: &dyn Fn(&Phase) -> Vec<f64>| phases.iter().flat_map(|p| f(p)).collect();
         let x: Vec<V3> = phases.iter().flat_map(|p| p.x.iter().copied()).collect();
         let v: Vec<V3> = phases.iter().flat_map(|p| p.v.iter().copied()).collect();
@@ -342,7 +342,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
         })
     }
 
-    fn bufs(&self, d: &Dev<L>) -> PhaseBufs<R> {
+    fn bufs(&self, d: &Device<L>) -> PhaseBufs<R> {
         let b = PhaseBufs {
             x: d.ptr(&self.x),
             v: d.ptr(&self.v),
@@ -385,7 +385,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
     /// order) and permute every per-particle array; `extra` are further f64 fields to carry.
     fn sort(
         &mut self,
-        d: &Dev<L>,
+        d: &Device<L>,
         p: &Hp<R>,
         sums: &mut Buf<L, u32>,
         extra: &mut [&mut Buf<L, R>],
@@ -406,7 +406,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
                 p: p.dev,
                 counts: d.ptr(&self.dense),
             };
-            d.run("dustsph_keys", self.n, &ka, th::keys)?;
+            d.run(R::KEYS, self.n, &ka)?;
             d.scan(&self.dense, nkeys + 1, sums)?;
             d.zeroed(&mut self.cursor, nkeys)?;
             let sa = th::ScatterArgs {
@@ -417,7 +417,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
                 perm: d.ptr(&self.perm),
                 p: p.dev,
             };
-            d.run("dustsph_scatter", self.n, &sa, th::scatter)?;
+            d.run(R::SCATTER, self.n, &sa)?;
             let seg = th::SegmentArgs {
                 dense: d.ptr(&self.dense),
                 nkeys: nkeys as u32,
@@ -425,36 +425,36 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
                 keys: d.ptr(&self.keys),
                 n: self.n as u32,
             };
-            d.run("dustsph_sort_segments", nkeys, &seg, th::sort_segments)?;
+            d.run(kt::SORT_SEGMENTS, nkeys, &seg)?;
         }
         let perm = d.ptr(&self.perm);
         let n = self.n;
         macro_rules! carry {
-            ($field:expr, $scratch:expr, $name:literal) => {{
+            ($field:expr, $scratch:expr, $kernel:expr) => {{
                 let a = th::GatherArgs {
                     src: d.ptr(&$field),
                     dst: d.ptr(&$scratch),
                     perm,
                     n: n as u32,
                 };
-                d.run($name, n, &a, th::gather)?;
+                d.run($kernel, n, &a)?;
                 std::mem::swap(&mut $field, &mut $scratch);
             }};
         }
-        carry!(self.x, self.s_x, "dustsph_gather_x");
-        carry!(self.v, self.s_v3, "dustsph_gather_v3");
-        carry!(self.m, self.s_f64, "dustsph_gather_f64");
-        carry!(self.rho, self.s_f64, "dustsph_gather_f64");
-        carry!(self.id, self.s_u64, "dustsph_gather_u64");
-        carry!(self.keys, self.s_u64, "dustsph_gather_u64");
+        carry!(self.x, self.s_x, kt::GATHER_X);
+        carry!(self.v, self.s_v3, R::GATHER_V3);
+        carry!(self.m, self.s_f64, R::GATHER_REAL);
+        carry!(self.rho, self.s_f64, R::GATHER_REAL);
+        carry!(self.id, self.s_u64, kt::GATHER_U64);
+        carry!(self.keys, self.s_u64, kt::GATHER_U64);
         if let (Some(f), Some(s)) = (&mut self.fixed, &mut self.s_u8) {
-            carry!(*f, *s, "dustsph_gather_u8");
+            carry!(*f, *s, kt::GATHER_U8);
         }
         for e in extra.iter_mut() {
-            carry!(**e, self.s_f64, "dustsph_gather_f64");
+            carry!(**e, self.s_f64, R::GATHER_REAL);
         }
         for e in extra_v3.iter_mut() {
-            carry!(**e, self.s_v3, "dustsph_gather_v3");
+            carry!(**e, self.s_v3, R::GATHER_V3);
         }
         Ok(())
     }
@@ -472,13 +472,13 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
 
     /// Sparse mode: keys on the device, the (key, index) sort on the host (the dense path's
     /// order), and the occupied cells' keys and starts uploaded for binary-search lookups.
-    fn sort_on_host(&mut self, d: &Dev<L>, p: &Hp<R>) -> Result<(), GpuError> {
+    fn sort_on_host(&mut self, d: &Device<L>, p: &Hp<R>) -> Result<(), GpuError> {
         let ka = th::KeysArgs {
             ph: self.bufs(d),
             p: p.dev,
             counts: std::ptr::null_mut(),
         };
-        d.run("dustsph_keys", self.n, &ka, th::keys)?;
+        d.run(R::KEYS, self.n, &ka)?;
         let keys = d.get(&self.keys, self.n)?;
         let mut kp: Vec<(u64, u32)> = keys
             .iter()
@@ -503,7 +503,7 @@ impl<L: Launcher, R: Float> DevPhase<L, R> {
     }
 
     /// Download into host phases (split by group).
-    fn download(&self, d: &Dev<L>, phases: &mut [&mut Phase]) -> Result<(), GpuError> {
+    fn download(&self, d: &Device<L>, phases: &mut [&mut Phase]) -> Result<(), GpuError> {
         let x = d.get(&self.x, self.n)?;
         let v = d.get_v3(&self.v, self.n)?;
         let m = d.get_f64(&self.m, self.n)?;
@@ -546,7 +546,7 @@ struct DevCoupling<L: Launcher, R: Float> {
 
 impl<L: Launcher, R: Float> DevCoupling<L, R> {
     /// `kat`: the engine's per-gas-particle kernels (used with variable h).
-    fn bufs(&self, d: &Dev<L>, kat: &Buf<L, KernelAt<R>>) -> th::CouplingBufs<R> {
+    fn bufs(&self, d: &Device<L>, kat: &Buf<L, KernelAt<R>>) -> th::CouplingBufs<R> {
         th::CouplingBufs {
             s_gas: d.ptr(&self.s_gas),
             s_dust: d.ptr(&self.s_dust),
@@ -582,7 +582,7 @@ struct DevCells<L: Launcher, R: Float> {
 }
 
 impl<L: Launcher, R: Float> DevCells<L, R> {
-    fn bufs(&self, d: &Dev<L>) -> th::CellBufs<R> {
+    fn bufs(&self, d: &Device<L>) -> th::CellBufs<R> {
         th::CellBufs {
             uidx: d.ptr(&self.uidx),
             sparse: self.sparse.is_some() as u32,
@@ -602,7 +602,7 @@ pub struct GpuEngine<L: Launcher, R: Float> {
     pub phys: Physics,
     pub pipe: Pipeline,
     pub timers: Timers,
-    d: Dev<L>,
+    d: Device<L>,
     /// The step's constants, in f64 (cast to the step's precision per launch).
     base: StepParams<f64>,
     grid: Grid,
@@ -747,11 +747,10 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
             )));
         }
-        let d = Dev(
+        let d = Device {
             launcher,
-            <R as Float>::NAME == "f32",
-            std::cell::Cell::new(0),
-        );
+            allocated: std::cell::Cell::new(0),
+        };
         let (eos_kind, eos_value) = match phys.eos {
             Eos::Isothermal { cs } => (0, cs),
             Eos::Adiabatic { gamma } => (1, gamma),
@@ -854,7 +853,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             lists: match phys.neighbour_list {
                 ListChoice::On => true,
                 ListChoice::Off => false,
-                ListChoice::Auto => d.0.lists_by_default(),
+                ListChoice::Auto => d.launcher.lists_by_default(),
             },
             kdk: {
                 let k = pipe.kdk;
@@ -953,13 +952,13 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     }
 
     pub fn describe(&self) -> String {
-        self.d.0.describe()
+        self.d.launcher.describe()
     }
 
     /// Bytes of device memory the engine has allocated (buffers grown and replaced count
     /// again: an upper bound of what it holds).
     pub fn device_bytes(&self) -> usize {
-        self.d.2.get()
+        self.d.allocated.get()
     }
 
     /// The particle farthest from the origin (or with a non-finite position): phase, id and
@@ -1005,10 +1004,13 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 let i = slots.uploads % PARAM_SLOTS;
                 slots.uploads += 1;
                 if slots.mem.len() <= i {
-                    let m = self.d.0.alloc(std::mem::size_of::<StepParams<R>>())?;
+                    let m = self
+                        .d
+                        .launcher
+                        .alloc(std::mem::size_of::<StepParams<R>>())?;
                     slots.mem.push(m);
                 }
-                self.d.0.upload_value(&mut slots.mem[i], &host)?;
+                self.d.launcher.upload_value(&mut slots.mem[i], &host)?;
                 if slots.recent.len() == PARAM_RECENT {
                     slots.recent.remove(0);
                 }
@@ -1016,7 +1018,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 i
             }
         };
-        let dev = th::Params(self.d.0.addr(&slots.mem[i]) as *const StepParams<R>);
+        let dev = th::Params(self.d.launcher.addr(&slots.mem[i]) as *const StepParams<R>);
         Ok(Hp { host, dev })
     }
 
@@ -1047,7 +1049,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 chunk: chunk as u32,
                 out: d.ptr(&self.bounds),
             };
-            d.run("dustsph_bounds", ph.n.div_ceil(chunk), &a, th::bounds)?;
+            d.run(kt::BOUNDS, ph.n.div_ceil(chunk), &a)?;
             let o = d.get(&self.bounds, 6)?;
             let dec = |k: usize| from_ordered_bits(o[k]);
             b = merge_bounds(b, ([dec(0), dec(1), dec(2)], [dec(3), dec(4), dec(5)]));
@@ -1179,7 +1181,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             p: self.params(0.0)?.dev,
         };
         let n = if gas { self.gas.n } else { self.dust.n };
-        self.d.run("dustsph_density", n, &a, th::density)
+        self.d.run(R::DENSITY, n, &a)
     }
 
     /// A phase's buffers for the density, h and force passes, where ghosts count as fixed
@@ -1314,7 +1316,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
     ) -> Result<Vec<Vec<u8>>, GpuError> {
         /// Buffer `b` with `per` values per particle, particle-major.
         fn one<L: Launcher, T: Copy>(
-            d: &Dev<L>,
+            d: &Device<L>,
             b: Option<&mut Buf<L, T>>,
             n: usize,
             per: usize,
@@ -1329,7 +1331,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             match put {
                 None => {
                     let mut bytes = vec![0u8; n * w];
-                    d.0.download(&b.mem, &mut bytes)?;
+                    d.launcher.download(&b.mem, &mut bytes)?;
                     out.push(bytes);
                 }
                 Some(((row, data), at)) => {
@@ -1339,7 +1341,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                             .copy_from_slice(&data[i * row + *at..i * row + *at + w]);
                     }
                     *at += w;
-                    d.0.upload(&mut b.mem, &bytes)?;
+                    d.launcher.upload(&mut b.mem, &bytes)?;
                 }
             }
             Ok(())
@@ -1418,7 +1420,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             chunk: chunk as u32,
             out: d.ptr(&self.sm.hmax),
         };
-        d.run("dustsph_max_of", self.gas.n.div_ceil(chunk), &a, th::max_of)?;
+        d.run(R::MAX_OF, self.gas.n.div_ceil(chunk), &a)?;
         let b = d.get(&self.sm.hmax, 1)?[0];
         let hmax = if b == 0 { 0.0 } else { from_ordered_bits(b) };
         Ok(base.max(SUPPORT * hmax * (1.0 + 1e-3)))
@@ -1462,7 +1464,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 tol: R::from_f64(tol.max(16.0 * eps)),
                 p: self.params(0.0)?.dev,
             };
-            d.run("dustsph_solve_h", ph.n, &a, th::solve_h)?;
+            d.run(R::SOLVE_H, ph.n, &a)?;
             let bad = d.get(&self.bad, 1)?[0];
             if bad == u32::MAX {
                 if gas {
@@ -1514,7 +1516,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             n: self.gas.n as u32,
             p: self.params(0.0)?.dev,
         };
-        d.run("dustsph_eos", self.gas.n, &a, th::eos)
+        d.run(R::EOS, self.gas.n, &a)
     }
 
     /// Gas density at the current (new) positions, then the EOS: variable h, summation, or the
@@ -1533,12 +1535,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 ph: self.gas.bufs(&self.d),
                 p: self.params(tau)?.dev,
             };
-            self.d.run(
-                "dustsph_density_continuity",
-                self.gas.n,
-                &a,
-                th::density_continuity,
-            )?;
+            self.d.run(R::DENSITY_CONTINUITY, self.gas.n, &a)?;
         }
         Ok(self.eos()?)
     }
@@ -1567,12 +1564,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             dust_ghost: only(1),
             p: self.params(0.0)?.dev,
         };
-        d.run(
-            "dustsph_explicit_limit",
-            self.cells.ukey.len,
-            &a,
-            th::explicit_limit,
-        )?;
+        d.run(R::EXPLICIT_LIMIT, self.cells.ukey.len, &a)?;
         let b = d.get(&self.limits, 1)?[0];
         let rate = if b == 0 { 0.0 } else { from_ordered_bits(b) };
         Ok(if rate > 0.0 {
@@ -1693,7 +1685,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 pt: d.ptr(&self.sm.pt),
                 p: p.dev,
             };
-            d.run("dustsph_force_prep", self.gas.n, &a, th::force_prep)?;
+            d.run(R::FORCE_PREP, self.gas.n, &a)?;
         }
         if mode == 2 {
             let a = th::IadArgs {
@@ -1703,7 +1695,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 p: p.dev,
             };
             timers.time("gas IAD matrices (Garcia-Senz et al. 2012)", || {
-                d.run("dustsph_iad_matrix", self.gas.n, &a, th::iad_matrix)
+                d.run(R::IAD_MATRIX, self.gas.n, &a)
             })?;
             // The forces read the neighbours' matrices.
             self.ghost_sync()?;
@@ -1731,7 +1723,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             (false, _) => "gas forces (pressure, IAD gradient)",
             (true, _) => "gas forces (pressure + artificial viscosity, IAD gradient)",
         };
-        timers.time(name, || d.run("dustsph_forces", self.gas.n, &a, th::forces))?;
+        timers.time(name, || d.run(R::FORCES, self.gas.n, &a))?;
         // The drag's cell sums read the cell-mates' accelerations.
         self.ghost_sync()?;
         let l = self.d.get(&self.limits, 2)?;
@@ -1760,10 +1752,10 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             ukey: std::ptr::null_mut(),
             p: p.dev,
         };
-        d.run("dustsph_union_flags", nb, &ua, th::union_flags)?;
+        d.run(R::UNION_FLAGS, nb, &ua)?;
         d.scan(&self.cells.uidx, nb, &mut self.sums)?;
         ua.ukey = d.ptr(&self.cells.ukey);
-        d.run("dustsph_union_keys", nb - 1, &ua, th::union_keys)?;
+        d.run(R::UNION_KEYS, nb - 1, &ua)?;
         self.cells.union_fresh = true;
         self.cell_step_on_union(tau, acc_zero)
     }
@@ -1781,7 +1773,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             p: p.dev,
         };
         // The union count stays on the device: launch one thread per possible cell.
-        d.run("dustsph_cell_step", self.cells.ukey.len, &ca, th::cell_step)
+        d.run(R::CELL_STEP, self.cells.ukey.len, &ca)
     }
 
     /// The kernel coupling's normalisers at the current positions.
@@ -1799,7 +1791,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 pt: d.ptr(&self.sm.pt),
                 p: self.params(0.0)?.dev,
             };
-            d.run("dustsph_force_prep", self.gas.n, &a, th::force_prep)?;
+            d.run(R::FORCE_PREP, self.gas.n, &a)?;
         }
         for (ph, s) in [(&self.gas, &c.s_gas), (&self.dust, &c.s_dust)] {
             let a = th::NormArgs {
@@ -1809,7 +1801,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 kat: c.bufs(d, &self.sm.kat).kat,
                 p: self.params(0.0)?.dev,
             };
-            d.run("dustsph_coupling_norm", ph.n, &a, th::coupling_norm)?;
+            d.run(R::COUPLING_NORM, ph.n, &a)?;
         }
         Ok(())
     }
@@ -1845,7 +1837,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                         is_gas: gas as u32,
                         sums: d.ptr(sums),
                     };
-                    d.run("dustsph_coupling_scatter", ph.n, &sa, th::coupling_scatter)?;
+                    d.run(R::COUPLING_SCATTER, ph.n, &sa)?;
                 }
                 let sa = th::ScatterDepositArgs {
                     couple: ca,
@@ -1853,14 +1845,9 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                     is_gas: 1,
                     sums: d.ptr(sums),
                 };
-                d.run(
-                    "dustsph_coupling_solve_sums",
-                    ng,
-                    &sa,
-                    th::coupling_solve_sums,
-                )?;
+                d.run(R::COUPLING_SOLVE_SUMS, ng, &sa)?;
             }
-            None => d.run("dustsph_coupling_solve", ng, &ca, th::coupling_solve)?,
+            None => d.run(R::COUPLING_SOLVE, ng, &ca)?,
         }
         // The return reads the neighbouring gas particles' solves.
         self.ghost_sync()?;
@@ -1885,7 +1872,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 },
                 p: p.dev,
             };
-            d.run("dustsph_coupling_return", ph.n, &ra, th::coupling_return)?;
+            d.run(R::COUPLING_RETURN, ph.n, &ra)?;
         }
         if let (true, Some(_)) = (heat, &c.heat) {
             // The heat sums the neighbours' losses.
@@ -1900,7 +1887,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 loss_dust: d.opt(&self.dust.loss),
                 heat: d.ptr(h),
             };
-            d.run("dustsph_coupling_heat", ng, &ha, th::coupling_heat)?;
+            d.run(R::COUPLING_HEAT, ng, &ha)?;
         }
         Ok(())
     }
@@ -1911,7 +1898,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             ph: ph.bufs(&self.d),
             p: self.params(tau)?.dev,
         };
-        self.d.run("dustsph_drift", ph.n, &a, th::drift)
+        self.d.run(R::DRIFT, ph.n, &a)
     }
 
     /// Velocity kick over `dt` from the accelerations in `acc` (A^n, or zero): ũ = u + dt·B for
@@ -1927,8 +1914,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 p: self.params(dt)?.dev,
             };
             timers.time("external dust acceleration (ũ = u + τB)", || {
-                self.d
-                    .run("dustsph_dust_accel", self.dust.n, &a, th::dust_accel)
+                self.d.run(R::DUST_ACCEL, self.dust.n, &a)
             })?;
         }
         if drag && self.coupling.is_some() {
@@ -1963,7 +1949,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 },
                 p: p.dev,
             };
-            d.run("dustsph_gas_kick", self.gas.n, &ga, th::gas_kick)?;
+            d.run(R::GAS_KICK, self.gas.n, &ga)?;
             if drag {
                 let da = th::KickArgs {
                     ph: self.dust.bufs(d),
@@ -1975,7 +1961,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                     },
                     ..ga
                 };
-                d.run("dustsph_dust_kick", self.dust.n, &da, th::dust_kick)?;
+                d.run(R::DUST_KICK, self.dust.n, &da)?;
             }
             Ok(())
         })?;
@@ -1991,7 +1977,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 p: self.params(dt)?.dev,
             };
             timers.time("drag heating (the kinetic energy lost, to the gas)", || {
-                d.run("dustsph_heat", self.cells.ukey.len, &ha, th::heat)
+                d.run(R::HEAT, self.cells.ukey.len, &ha)
             })?;
         }
         Ok(())
@@ -2014,7 +2000,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 cells: self.cells.bufs(d),
                 p: self.params(dt)?.dev,
             };
-            d.run("dustsph_energy", self.gas.n, &a, th::energy)?;
+            d.run(R::ENERGY, self.gas.n, &a)?;
         }
         Ok(())
     }
@@ -2256,12 +2242,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             cb: c.bufs(d, &self.sm.kat),
             p: p.dev,
         };
-        d.run(
-            "dustsph_coupling_solve",
-            self.gas.n,
-            &ca,
-            th::coupling_solve,
-        )?;
+        d.run(R::COUPLING_SOLVE, self.gas.n, &ca)?;
         let out: Buf<L, R> = d.buf(self.dust.n.max(1))?;
         let ra = th::ReturnArgs {
             gas: self.gas.bufs(d),
@@ -2273,12 +2254,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
             loss: std::ptr::null_mut(),
             p: p.dev,
         };
-        d.run(
-            "dustsph_coupling_tstop",
-            self.dust.n,
-            &ra,
-            th::coupling_tstop,
-        )?;
+        d.run(R::COUPLING_TSTOP, self.dust.n, &ra)?;
         let ts = d.get_f64(&out, self.dust.n)?;
         Ok((0..self.dust.groups)
             .map(|g| ts[self.dust.off[g] as usize..self.dust.off[g + 1] as usize].to_vec())
@@ -2307,7 +2283,7 @@ impl<L: Launcher, R: Float> GpuEngine<L, R> {
                 check_rho: rho as u32,
                 bad: d.ptr(&self.bad),
             };
-            d.run("dustsph_check", ph.n, &a, th::check)?;
+            d.run(R::CHECK, ph.n, &a)?;
             any |= d.get(&self.bad, 1)?[0] != u32::MAX;
         }
         if any {

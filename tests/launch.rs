@@ -1,20 +1,20 @@
-//! The GPU path without a GPU.
+//! The step on its launchers, without a GPU.
 //!
-//! 1. The GPU step, run on the CPU through the emulated launcher (the very kernel code the PTX
-//!    entry points call), against the rayon CPU engine: every array of every phase after every
-//!    step, on every scene kind. Both backends call the same bodies in the same summation order
-//!    (the GPU's cell sums are segmented over cell-sorted particles, not atomic), so the
-//!    comparison is exact, bit for bit — the f64 bound the real GPU must also meet.
-//! 2. The PTX entry points take exactly the argument bytes the host passes: the parameter size
-//!    of every `.entry` equals the size of its host-side argument struct.
+//! 1. Determinism: every scene kind and option stepped on one thread and on four threads of
+//!    the rayon launcher (the thread functions the PTX entry points call), every array of
+//!    every phase compared after every step, bit for bit. The kernels' contract — no thread
+//!    writes another's element except through atomics whose order cannot change a result — is
+//!    what a GPU relies on too. (The CUDA launcher against this reference is `dustsph parity
+//!    --device cuda`, run by scripts/gpu-check on a GPU.)
+//! 2. The PTX's entry points are the kernel table's, each taking the bytes of its host-side
+//!    argument struct.
+//! 3. Forms that must not change the step: sparse cell tables, neighbour lists, the kernel
+//!    coupling's scatter deposits (to round-off); f32 against f64; the device-memory estimate.
 mod common;
 use dustsph::engine::backend::DeviceChoice;
-use dustsph::engine::gpu::{
-    self,
-    launch::{KERNELS, KERNELS_F32},
-};
+use dustsph::engine::gpu;
 use dustsph::parity::{compare, compare_scenes, compare_tables, CASES};
-use dustsph_device::threads as th;
+use dustsph_device::kernel_table;
 use std::path::PathBuf;
 
 fn case(i: usize) {
@@ -22,7 +22,15 @@ fn case(i: usize) {
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
     let loaded = dustsph::scene::load(&path, &sets).unwrap();
-    let p = compare(&loaded, steps, DeviceChoice::Emulate).unwrap();
+    // Four threads even on a one-core runner: the comparison is of the kernels' contract,
+    // not of the machine.
+    let four = rayon::ThreadPoolBuilder::new()
+        .num_threads(4)
+        .build()
+        .unwrap();
+    let p = four
+        .install(|| compare(&loaded, steps, DeviceChoice::Cpu))
+        .unwrap();
     assert_eq!(p.steps, steps);
     for f in &p.fields {
         assert!(
@@ -35,117 +43,117 @@ fn case(i: usize) {
 }
 
 #[test]
-fn dustybox_gpu_kernels_match_cpu_bit_for_bit() {
+fn dustybox_steps_bit_identically_on_1_and_4_threads() {
     case(0);
 }
 
 #[test]
-fn dustywave_gpu_kernels_match_cpu_bit_for_bit() {
+fn dustywave_steps_bit_identically_on_1_and_4_threads() {
     case(1);
 }
 
 #[test]
-fn adiabatic_constant_k_wave_gpu_kernels_match_cpu_bit_for_bit() {
+fn adiabatic_constant_k_wave_steps_bit_identically_on_1_and_4_threads() {
     case(2);
 }
 
 #[test]
-fn dustyshock_gpu_kernels_match_cpu_bit_for_bit() {
+fn dustyshock_steps_bit_identically_on_1_and_4_threads() {
     case(3);
 }
 
 #[test]
-fn small_ball_gpu_kernels_match_cpu_bit_for_bit() {
+fn small_ball_steps_bit_identically_on_1_and_4_threads() {
     case(4);
 }
 
 #[test]
-fn kernel_coupling_box_3d_offset_with_external_matches_cpu_bit_for_bit() {
+fn kernel_coupling_box_3d_offset_with_external_steps_bit_identically_on_1_and_4_threads() {
     case(5);
 }
 
 #[test]
-fn kernel_coupling_wave_offset_matches_cpu_bit_for_bit() {
+fn kernel_coupling_wave_offset_steps_bit_identically_on_1_and_4_threads() {
     case(6);
 }
 
 #[test]
-fn kernel_coupling_adiabatic_constant_k_wave_matches_cpu_bit_for_bit() {
+fn kernel_coupling_adiabatic_constant_k_wave_steps_bit_identically_on_1_and_4_threads() {
     case(7);
 }
 
 #[test]
-fn kernel_coupling_shock_matches_cpu_bit_for_bit() {
+fn kernel_coupling_shock_steps_bit_identically_on_1_and_4_threads() {
     case(8);
 }
 
 #[test]
-fn kernel_coupling_ball_matches_cpu_bit_for_bit() {
+fn kernel_coupling_ball_steps_bit_identically_on_1_and_4_threads() {
     case(9);
 }
 
 #[test]
-fn kernel_coupling_settle_matches_cpu_bit_for_bit() {
+fn kernel_coupling_settle_steps_bit_identically_on_1_and_4_threads() {
     case(10);
 }
 
 #[test]
-fn variable_h_iad_phantom_wave_matches_cpu_bit_for_bit() {
+fn variable_h_iad_phantom_wave_steps_bit_identically_on_1_and_4_threads() {
     case(11);
 }
 
 #[test]
-fn variable_h_adiabatic_wave_with_heating_matches_cpu_bit_for_bit() {
+fn variable_h_adiabatic_wave_with_heating_steps_bit_identically_on_1_and_4_threads() {
     case(12);
 }
 
 #[test]
-fn iad_small_ball_matches_cpu_bit_for_bit() {
+fn iad_small_ball_steps_bit_identically_on_1_and_4_threads() {
     case(13);
 }
 
 #[test]
-fn leapfrog_phantom_wave_as_shipped_matches_cpu_bit_for_bit() {
+fn leapfrog_phantom_wave_as_shipped_steps_bit_identically_on_1_and_4_threads() {
     case(14);
 }
 
 #[test]
-fn leapfrog_shock_with_heating_matches_cpu_bit_for_bit() {
+fn leapfrog_shock_with_heating_steps_bit_identically_on_1_and_4_threads() {
     case(15);
 }
 
 #[test]
-fn leapfrog_kernel_coupling_box_matches_cpu_bit_for_bit() {
+fn leapfrog_kernel_coupling_box_steps_bit_identically_on_1_and_4_threads() {
     case(16);
 }
 
 #[test]
-fn explicit_drag_wave_matches_cpu_bit_for_bit() {
+fn explicit_drag_wave_steps_bit_identically_on_1_and_4_threads() {
     case(17);
 }
 
 #[test]
-fn explicit_drag_leapfrog_shock_matches_cpu_bit_for_bit() {
+fn explicit_drag_leapfrog_shock_steps_bit_identically_on_1_and_4_threads() {
     case(18);
 }
 
 #[test]
-fn continuity_density_wave_matches_cpu_bit_for_bit() {
+fn continuity_density_wave_steps_bit_identically_on_1_and_4_threads() {
     case(19);
 }
 
 #[test]
-fn kernel_coupling_variable_h_phantom_wave_matches_cpu_bit_for_bit() {
+fn kernel_coupling_variable_h_phantom_wave_steps_bit_identically_on_1_and_4_threads() {
     case(20);
 }
 
 #[test]
-fn kernel_coupling_heating_shock_matches_cpu_bit_for_bit() {
+fn kernel_coupling_heating_shock_steps_bit_identically_on_1_and_4_threads() {
     case(21);
 }
 
 #[test]
-fn kernel_coupling_old_update_wave_matches_cpu_bit_for_bit() {
+fn kernel_coupling_old_update_wave_steps_bit_identically_on_1_and_4_threads() {
     case(22);
 }
 
@@ -173,7 +181,7 @@ fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
 }
 
 #[test]
-fn ptx_entry_points_take_the_host_argument_structs() {
+fn ptx_entry_points_are_the_kernel_table_with_its_argument_structs() {
     if gpu::PTX.is_empty() {
         assert!(
             std::env::var_os("DUSTSPH_REQUIRE_PTX").is_none(),
@@ -183,210 +191,24 @@ fn ptx_entry_points_take_the_host_argument_structs() {
         eprintln!("skipped: no PTX in this build ({})", gpu::PTX_NOTE);
         return;
     }
-    use std::mem::size_of;
-    // (f64 entry, its parameter bytes, the f32 entry's parameter bytes where there is one)
-    let want: &[(&str, usize, Option<usize>)] = &[
-        (
-            "dustsph_bounds",
-            size_of::<th::BoundsArgs<f64>>(),
-            Some(size_of::<th::BoundsArgs<f32>>()),
-        ),
-        (
-            "dustsph_keys",
-            size_of::<th::KeysArgs<f64>>(),
-            Some(size_of::<th::KeysArgs<f32>>()),
-        ),
-        ("dustsph_scan_sums", size_of::<th::ScanArgs>(), None),
-        ("dustsph_scan_totals", size_of::<th::ScanArgs>(), None),
-        ("dustsph_scan_chunks", size_of::<th::ScanArgs>(), None),
-        (
-            "dustsph_scatter",
-            size_of::<th::ScatterArgs<f64>>(),
-            Some(size_of::<th::ScatterArgs<f32>>()),
-        ),
-        ("dustsph_sort_segments", size_of::<th::SegmentArgs>(), None),
-        (
-            "dustsph_gather_v3",
-            size_of::<th::GatherArgs<[f64; 3]>>(),
-            Some(size_of::<th::GatherArgs<[f32; 3]>>()),
-        ),
-        (
-            "dustsph_gather_f64",
-            size_of::<th::GatherArgs<f64>>(),
-            Some(size_of::<th::GatherArgs<f32>>()),
-        ),
-        ("dustsph_gather_u64", size_of::<th::GatherArgs<u64>>(), None),
-        ("dustsph_gather_u8", size_of::<th::GatherArgs<u8>>(), None),
-        (
-            "dustsph_density",
-            size_of::<th::DensityArgs<f64>>(),
-            Some(size_of::<th::DensityArgs<f32>>()),
-        ),
-        (
-            "dustsph_eos",
-            size_of::<th::EosArgs<f64>>(),
-            Some(size_of::<th::EosArgs<f32>>()),
-        ),
-        (
-            "dustsph_forces",
-            size_of::<th::ForcesArgs<f64>>(),
-            Some(size_of::<th::ForcesArgs<f32>>()),
-        ),
-        (
-            "dustsph_union_flags",
-            size_of::<th::UnionArgs<f64>>(),
-            Some(size_of::<th::UnionArgs<f32>>()),
-        ),
-        (
-            "dustsph_union_keys",
-            size_of::<th::UnionArgs<f64>>(),
-            Some(size_of::<th::UnionArgs<f32>>()),
-        ),
-        (
-            "dustsph_solve_h",
-            size_of::<th::HSolveArgs<f64>>(),
-            Some(size_of::<th::HSolveArgs<f32>>()),
-        ),
-        (
-            "dustsph_force_prep",
-            size_of::<th::PrepArgs<f64>>(),
-            Some(size_of::<th::PrepArgs<f32>>()),
-        ),
-        (
-            "dustsph_iad_matrix",
-            size_of::<th::IadArgs<f64>>(),
-            Some(size_of::<th::IadArgs<f32>>()),
-        ),
-        (
-            "dustsph_max_of",
-            size_of::<th::MaxArgs<f64>>(),
-            Some(size_of::<th::MaxArgs<f32>>()),
-        ),
-        (
-            "dustsph_copy_v3",
-            size_of::<th::CopyArgs<[f64; 3]>>(),
-            Some(size_of::<th::CopyArgs<[f32; 3]>>()),
-        ),
-        (
-            "dustsph_copy_f64",
-            size_of::<th::CopyArgs<f64>>(),
-            Some(size_of::<th::CopyArgs<f32>>()),
-        ),
-        (
-            "dustsph_density_continuity",
-            size_of::<th::DensityArgs<f64>>(),
-            Some(size_of::<th::DensityArgs<f32>>()),
-        ),
-        (
-            "dustsph_explicit_limit",
-            size_of::<th::LimitArgs<f64>>(),
-            Some(size_of::<th::LimitArgs<f32>>()),
-        ),
-        (
-            "dustsph_cell_step",
-            size_of::<th::CellArgs<f64>>(),
-            Some(size_of::<th::CellArgs<f32>>()),
-        ),
-        (
-            "dustsph_gas_kick",
-            size_of::<th::KickArgs<f64>>(),
-            Some(size_of::<th::KickArgs<f32>>()),
-        ),
-        (
-            "dustsph_dust_kick",
-            size_of::<th::KickArgs<f64>>(),
-            Some(size_of::<th::KickArgs<f32>>()),
-        ),
-        (
-            "dustsph_heat",
-            size_of::<th::HeatArgs<f64>>(),
-            Some(size_of::<th::HeatArgs<f32>>()),
-        ),
-        (
-            "dustsph_drift",
-            size_of::<th::DriftArgs<f64>>(),
-            Some(size_of::<th::DriftArgs<f32>>()),
-        ),
-        (
-            "dustsph_energy",
-            size_of::<th::EnergyArgs<f64>>(),
-            Some(size_of::<th::EnergyArgs<f32>>()),
-        ),
-        (
-            "dustsph_check",
-            size_of::<th::CheckArgs<f64>>(),
-            Some(size_of::<th::CheckArgs<f32>>()),
-        ),
-        (
-            "dustsph_dust_accel",
-            size_of::<th::DustAccelArgs<f64>>(),
-            Some(size_of::<th::DustAccelArgs<f32>>()),
-        ),
-        (
-            "dustsph_coupling_norm",
-            size_of::<th::NormArgs<f64>>(),
-            Some(size_of::<th::NormArgs<f32>>()),
-        ),
-        (
-            "dustsph_coupling_solve",
-            size_of::<th::CoupleArgs<f64>>(),
-            Some(size_of::<th::CoupleArgs<f32>>()),
-        ),
-        (
-            "dustsph_coupling_return",
-            size_of::<th::ReturnArgs<f64>>(),
-            Some(size_of::<th::ReturnArgs<f32>>()),
-        ),
-        (
-            "dustsph_coupling_tstop",
-            size_of::<th::ReturnArgs<f64>>(),
-            Some(size_of::<th::ReturnArgs<f32>>()),
-        ),
-        (
-            "dustsph_coupling_heat",
-            size_of::<th::CouplingHeatArgs<f64>>(),
-            Some(size_of::<th::CouplingHeatArgs<f32>>()),
-        ),
-        (
-            "dustsph_coupling_scatter",
-            size_of::<th::ScatterDepositArgs<f64>>(),
-            Some(size_of::<th::ScatterDepositArgs<f32>>()),
-        ),
-        (
-            "dustsph_coupling_solve_sums",
-            size_of::<th::ScatterDepositArgs<f64>>(),
-            Some(size_of::<th::ScatterDepositArgs<f32>>()),
-        ),
-    ];
+    // Every entry point of the PTX is a kernel of the table, and every kernel of the table is
+    // in the PTX taking the bytes of the host's argument struct.
     let got = entry_param_sizes(gpu::PTX);
+    let mut names: Vec<&str> = got.iter().map(|g| g.0.as_str()).collect();
+    let mut want: Vec<&str> = kernel_table::NAMES.to_vec();
+    names.sort();
+    want.sort();
     assert_eq!(
-        got.len(),
-        KERNELS.len() + KERNELS_F32.len(),
-        "entry points in the PTX: {got:?}"
+        names, want,
+        "entry points in the PTX against the kernel table"
     );
-    let size_of_entry = |n: &str| got.iter().find(|(g, _)| g == n).map(|g| g.1);
-    for (name, size, size32) in want {
-        assert!(
-            KERNELS.contains(name),
-            "{name} is not in the launcher's list"
-        );
+    for (name, bytes) in kernel_table::ARG_BYTES {
+        let size = got.iter().find(|(g, _)| g == name).map(|g| g.1);
         assert_eq!(
-            size_of_entry(name),
-            Some(*size),
+            size,
+            Some(*bytes),
             "{name}: PTX parameter bytes vs host struct"
         );
-        let n32 = gpu::launch::f32_name(name);
-        match size32 {
-            Some(s) => {
-                assert!(KERNELS_F32.contains(&n32), "{name} has no f32 entry");
-                assert_eq!(
-                    size_of_entry(n32),
-                    Some(*s),
-                    "{n32}: PTX bytes vs host struct"
-                );
-            }
-            None => assert_eq!(n32, *name, "{name} needs no f32 entry"),
-        }
     }
     assert!(
         !gpu::PTX.contains(".extern"),
@@ -443,17 +265,23 @@ fn sparse_cell_tables_give_the_same_step() {
     }
 }
 
-/// The f32 kernels (`numerics.precision = "f32"`) on every scene and option: every core
-/// against one thread, bit for bit (the same f32 operations in the same order; the PTX has
-/// no contraction and IEEE-rounded div/sqrt, so a GPU must meet this too).
+/// The f32 kernels (`numerics.precision = "f32"`) on every scene and option: four threads
+/// against one, bit for bit (the same f32 operations in the same order; the PTX has no
+/// contraction and IEEE-rounded div/sqrt, so a GPU must meet this too).
 #[test]
-fn f32_kernels_are_bit_identical_across_threads_on_every_case() {
+fn f32_kernels_step_bit_identically_on_1_and_4_threads_on_every_case() {
+    let four = rayon::ThreadPoolBuilder::new()
+        .num_threads(4)
+        .build()
+        .unwrap();
     for (label, file, sets, steps) in CASES {
         let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
         sets.push("numerics.precision=\"f32\"".into());
         let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
         let loaded = dustsph::scene::load(&path, &sets).unwrap();
-        let p = compare(&loaded, (*steps).min(8), DeviceChoice::Cpu).unwrap();
+        let p = four
+            .install(|| compare(&loaded, (*steps).min(8), DeviceChoice::Cpu))
+            .unwrap();
         assert!(p.device.contains("f32"), "{label}: ran on {}", p.device);
         for f in &p.fields {
             assert!(
