@@ -8,14 +8,15 @@ pub mod analysis;
 pub mod commands;
 pub mod decomp;
 pub mod dist;
-pub mod engine;
 pub mod exact;
 pub mod grid;
 pub mod io;
+pub mod launch;
 pub mod particles;
 pub mod plot;
 pub mod scene;
 pub mod setup;
+pub mod step;
 
 // The commands' modules under their former paths (tests and scripts use them).
 pub use commands::profile as post;

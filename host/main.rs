@@ -1,8 +1,8 @@
 //! `dustsph` command line.
 use clap::{Parser, Subcommand};
-use dustsph::engine::backend::DeviceChoice;
 use dustsph::run::{RunError, RunOptions, Runner, Stop, Summary};
 use dustsph::scene::{ListChoice, Precision};
+use dustsph::step::backend::DeviceChoice;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -269,9 +269,11 @@ fn drive(
     stop_after: Option<u64>,
 ) -> ExitCode {
     let fail = |e: RunError| {
-        eprintln!("error: {e}");
+        if !matches!(e, RunError::InputReported) {
+            eprintln!("error: {e}");
+        }
         ExitCode::from(match e {
-            RunError::Input(_) => 2,
+            RunError::Input(_) | RunError::InputReported => 2,
             _ => 1,
         })
     };
@@ -716,7 +718,7 @@ fn resume(a: ResumeArgs) -> ExitCode {
 fn parity(a: ParityArgs) -> ExitCode {
     let ParityArgs { device, precision } = a;
     // A device that is not there is bad input (exit 2), said once, before any case runs.
-    if let Err(e) = dustsph::engine::backend::select(device) {
+    if let Err(e) = dustsph::step::backend::select(device) {
         eprintln!("error: {e}");
         return ExitCode::from(2);
     }
@@ -771,27 +773,30 @@ fn gpu(a: GpuArgs) -> ExitCode {
             return ExitCode::from(2);
         }
     }
-    use dustsph::engine::gpu;
+    use dustsph::launch;
     use std::io::Write as _;
     // A reader that closes the pipe early (`dustsph gpu | head -1`) is not an error.
     let mut out = std::io::stdout().lock();
     let _ = writeln!(
         out,
         "kernels: {} ({} bytes of PTX, {} entry points)",
-        gpu::PTX_NOTE,
-        gpu::PTX.len(),
-        gpu::PTX.matches(".entry ").count()
+        launch::PTX_NOTE,
+        launch::PTX.len(),
+        launch::PTX.matches(".entry ").count()
     );
-    let _ = match gpu::probe() {
+    let _ = match launch::probe() {
         Ok(name) => writeln!(out, "device: {name}"),
         Err(why) => writeln!(out, "device: none ({why})"),
     };
     if let Some(f) = write_ptx {
-        if gpu::PTX.is_empty() {
-            eprintln!("error: this binary has no PTX to write ({})", gpu::PTX_NOTE);
+        if launch::PTX.is_empty() {
+            eprintln!(
+                "error: this binary has no PTX to write ({})",
+                launch::PTX_NOTE
+            );
             return ExitCode::from(1);
         }
-        if let Err(e) = std::fs::write(&f, gpu::PTX) {
+        if let Err(e) = std::fs::write(&f, launch::PTX) {
             eprintln!("error: {}: {e}", f.display());
             return ExitCode::from(1);
         }

@@ -6,9 +6,9 @@
 //! tests measure what the coupling buys).
 mod common;
 use common::*;
-use dustsph::engine::backend::{Backend, DeviceChoice};
-use dustsph::engine::Physics;
 use dustsph::particles::State;
+use dustsph::step::backend::{Backend, DeviceChoice};
+use dustsph::step::Physics;
 
 const BOX_3D: [&str; 3] = ["scene.dim=3", "sph.n=16", "sph.hfact=1.2"];
 
@@ -239,7 +239,7 @@ fn a_run_can_tell_when_the_nearest_cell_leaves_dust_uncoupled() {
     // What `dustsph run` warns about: dust without gas in its IDIC cell has no drag.
     let share = |shift: &str| {
         let (phys, st) = setup(&with(&[&format!("dustybox.dust_shift={shift}")]));
-        dustsph::engine::dust_without_gas_in_cell(&phys, &st).unwrap()
+        dustsph::step::dust_without_gas_in_cell(&phys, &st).unwrap()
     };
     assert_eq!(share("0"), 0.0);
     let off = share("0.5");

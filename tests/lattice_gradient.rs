@@ -3,8 +3,8 @@
 //! perturbation, without any time stepping. The exact response to ρ = ρ0 (1 + A sin kx),
 //! δp = c_s² δρ (isentropic) is a_x = −c_s² A k cos kx; the fitted amplitude over that gives
 //! c²_SPH/c_s².
-use dustsph::engine::backend::{Backend, DeviceChoice};
-use dustsph::engine::Physics;
+use dustsph::step::backend::{Backend, DeviceChoice};
+use dustsph::step::Physics;
 
 mod common;
 

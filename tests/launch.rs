@@ -11,9 +11,9 @@
 //! 3. Forms that must not change the step: sparse cell tables, neighbour lists, the kernel
 //!    coupling's scatter deposits (to round-off); f32 against f64; the device-memory estimate.
 mod common;
-use dustsph::engine::backend::DeviceChoice;
-use dustsph::engine::gpu;
+use dustsph::launch;
 use dustsph::parity::{compare, compare_scenes, compare_tables, CASES};
+use dustsph::step::backend::DeviceChoice;
 use dustsph_device::kernel_table;
 use std::path::PathBuf;
 
@@ -182,18 +182,18 @@ fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
 
 #[test]
 fn ptx_entry_points_are_the_kernel_table_with_its_argument_structs() {
-    if gpu::PTX.is_empty() {
+    if launch::PTX.is_empty() {
         assert!(
             std::env::var_os("DUSTSPH_REQUIRE_PTX").is_none(),
             "no PTX in this build ({}), and DUSTSPH_REQUIRE_PTX is set",
-            gpu::PTX_NOTE
+            launch::PTX_NOTE
         );
-        eprintln!("skipped: no PTX in this build ({})", gpu::PTX_NOTE);
+        eprintln!("skipped: no PTX in this build ({})", launch::PTX_NOTE);
         return;
     }
     // Every entry point of the PTX is a kernel of the table, and every kernel of the table is
     // in the PTX taking the bytes of the host's argument struct.
-    let got = entry_param_sizes(gpu::PTX);
+    let got = entry_param_sizes(launch::PTX);
     let mut names: Vec<&str> = got.iter().map(|g| g.0.as_str()).collect();
     let mut want: Vec<&str> = kernel_table::NAMES.to_vec();
     names.sort();
@@ -211,7 +211,7 @@ fn ptx_entry_points_are_the_kernel_table_with_its_argument_structs() {
         );
     }
     assert!(
-        !gpu::PTX.contains(".extern"),
+        !launch::PTX.contains(".extern"),
         "unresolved externs in the PTX"
     );
 }
@@ -346,14 +346,14 @@ fn f32_step_follows_the_f64_step_to_single_precision() {
 }
 
 /// The device-memory estimate that `--device cuda` checks before it allocates
-/// (`gpu::DEVICE_BYTES_PER_PARTICLE`, plus `gpu::LIST_BYTES_PER_GAS_PARTICLE` with neighbour
+/// (`dustsph::step::engine::DEVICE_BYTES_PER_PARTICLE`, plus `dustsph::step::engine::LIST_BYTES_PER_GAS_PARTICLE` with neighbour
 /// lists) bounds what the engine allocates, on every case, after a few steps (buffers grown
 /// included), in both precisions, without lists (CUDA's default) and with them. The rayon
 /// launcher allocates the very buffers a GPU does.
 #[test]
 fn device_memory_estimate_bounds_what_the_engine_allocates() {
-    use dustsph::engine::backend::Backend;
-    use dustsph::engine::driver::Driver;
+    use dustsph::step::backend::Backend;
+    use dustsph::step::timestep::StepPlanner;
     let mut worst = [0.0f64; 2];
     for (label, file, sets, _) in CASES {
         for (k, prec) in ["f64", "f32"].iter().enumerate() {
@@ -364,13 +364,13 @@ fn device_memory_estimate_bounds_what_the_engine_allocates() {
                 let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
                 let loaded = dustsph::scene::load(&path, &sets).unwrap();
                 let su = dustsph::setup::build(&loaded.scene).unwrap();
-                let phys = dustsph::engine::Physics::from_scene(&loaded.scene, su.h, su.domain);
+                let phys = dustsph::step::Physics::from_scene(&loaded.scene, su.h, su.domain);
                 let mut state = su.state;
                 let ng = state.gas.ph.x.len();
                 let n = ng + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
                 let h = phys.h;
                 let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut state).unwrap();
-                let drv = Driver::new(&loaded.scene.time, h);
+                let drv = StepPlanner::new(&loaded.scene.time, h);
                 for _ in 0..3 {
                     drv.step(&mut eng, &mut state, loaded.scene.time.t_end)
                         .unwrap();
@@ -381,8 +381,8 @@ fn device_memory_estimate_bounds_what_the_engine_allocates() {
                     eprintln!("{label} ({prec}): {per:.0} B per particle ({n} particles)");
                     worst[k] = worst[k].max(per);
                 } else {
-                    let est = gpu::DEVICE_BYTES_PER_PARTICLE[k] * n as f64
-                        + gpu::LIST_BYTES_PER_GAS_PARTICLE * ng as f64;
+                    let est = dustsph::step::engine::DEVICE_BYTES_PER_PARTICLE[k] * n as f64
+                        + dustsph::step::engine::LIST_BYTES_PER_GAS_PARTICLE * ng as f64;
                     assert!(
                         bytes <= est,
                         "{label} ({prec}) with lists: {bytes:.0} B above the estimate {est:.0}"
@@ -392,7 +392,11 @@ fn device_memory_estimate_bounds_what_the_engine_allocates() {
         }
     }
     eprintln!("largest: f64 {:.0} B, f32 {:.0} B", worst[0], worst[1]);
-    for (k, (w, est)) in worst.iter().zip(gpu::DEVICE_BYTES_PER_PARTICLE).enumerate() {
+    for (k, (w, est)) in worst
+        .iter()
+        .zip(dustsph::step::engine::DEVICE_BYTES_PER_PARTICLE)
+        .enumerate()
+    {
         assert!(
             *w <= est,
             "precision {k}: {w:.0} B per particle above the estimate {est}"

@@ -1,11 +1,11 @@
 //! The step is assembled from the scene, and the unbounded grid never drops a particle.
 mod common;
 use common::*;
-use dustsph::engine::backend::{Backend, DeviceChoice};
-use dustsph::engine::Physics;
 use dustsph::grid::Domain;
 use dustsph::particles::{Gas, Phase, State};
 use dustsph::scene::{DensityMethod, DragMethod, PositionUpdate};
+use dustsph::step::backend::{Backend, DeviceChoice};
+use dustsph::step::Physics;
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
 

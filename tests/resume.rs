@@ -55,7 +55,7 @@ fn resume_is_bit_exact(scene: &str, sets: &[&str], n: u64) {
         out: tmp.path().join(d),
         force: false,
         verbose: false,
-        device: dustsph::engine::backend::DeviceChoice::Cpu,
+        device: dustsph::step::backend::DeviceChoice::Cpu,
     };
     let mut whole = Runner::start(&loaded, &opts("whole")).unwrap();
     whole.advance(Some(2 * n), None, None).unwrap();
@@ -66,7 +66,7 @@ fn resume_is_bit_exact(scene: &str, sets: &[&str], n: u64) {
     let mut second = Runner::resume(
         &tmp.path().join("split"),
         false,
-        dustsph::engine::backend::DeviceChoice::Cpu,
+        dustsph::step::backend::DeviceChoice::Cpu,
     )
     .unwrap();
     second.advance(Some(n), None, None).unwrap();
@@ -189,7 +189,7 @@ fn checkpointed(scene: &str, sets: &[&str], dir: &std::path::Path, steps: u64) {
         out: dir.to_path_buf(),
         force: false,
         verbose: false,
-        device: dustsph::engine::backend::DeviceChoice::Cpu,
+        device: dustsph::step::backend::DeviceChoice::Cpu,
     };
     let mut r = Runner::start(&loaded, &opts).unwrap();
     r.advance(Some(steps), None, None).unwrap();

@@ -182,7 +182,7 @@ fn input_error_writes_nothing(scene: &str, sets: &[String]) -> String {
         out: out.clone(),
         force: false,
         verbose: false,
-        device: dustsph::engine::backend::DeviceChoice::Cpu,
+        device: dustsph::step::backend::DeviceChoice::Cpu,
     };
     let e = dustsph::run::run(&loaded, &opts).unwrap_err();
     assert!(matches!(e, dustsph::run::RunError::Input(_)), "{e}");

@@ -669,10 +669,10 @@ pub struct ForcesArgs<R> {
     /// [max signal speed, max |A|] as [`kernels::ordered_bits`], zeroed.
     pub limits: *mut u64,
     /// 0: fixed h, standard gradient; 1: variable h (grad-h); 2: IAD gradient. Modes 1 and 2
-    /// read the per-particle kernels `kat` and pressure terms `pt` ([`force_prep`]); 2 also
+    /// read the per-particle kernels `kernel_at` and pressure terms `pt` ([`force_prep`]); 2 also
     /// the IAD matrices `iad` ([`iad_matrix`]).
     pub mode: u32,
-    pub kat: *const KernelAt<R>,
+    pub kernel_at: *const KernelAt<R>,
     pub pt: *const R,
     pub iad: *const Sym3<R>,
     /// Per-particle signal speed (the leapfrog keeps its closing forces whole); null: not kept.
@@ -698,11 +698,11 @@ pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
     let s = g.sorted(&a.p, 0);
     let r = match a.mode {
         0 => kernels::forces_at(&s, &view, t, a.p.h, a.p.dim, av.as_ref()),
-        1 => kernels::forces_vh_at(&s, &view, sl(a.kat, n), sl(a.pt, n), t, av.as_ref()),
+        1 => kernels::forces_vh_at(&s, &view, sl(a.kernel_at, n), sl(a.pt, n), t, av.as_ref()),
         _ => kernels::forces_iad_at(
             &s,
             &view,
-            sl(a.kat, n),
+            sl(a.kernel_at, n),
             sl(a.pt, n),
             sl(a.iad, n),
             t,
@@ -794,7 +794,7 @@ pub struct PrepArgs<R> {
     /// Ω per particle (grad-h: pt = p/(Ω ρ²)), or null (IAD: pt = p/ρ²).
     pub omega: *const R,
     pub pres: *const R,
-    pub kat: *mut KernelAt<R>,
+    pub kernel_at: *mut KernelAt<R>,
     pub pt: *mut R,
     pub p: Params<R>,
 }
@@ -806,7 +806,7 @@ pub unsafe fn force_prep<R: Real>(t: usize, a: &PrepArgs<R>) {
         return;
     }
     let h = if a.h.is_null() { a.p.h } else { *a.h.add(t) };
-    *a.kat.add(t) = KernelAt::new(h, a.p.dim);
+    *a.kernel_at.add(t) = KernelAt::new(h, a.p.dim);
     let (p, rho) = (*a.pres.add(t), *g.rho.add(t));
     *a.pt.add(t) = if a.omega.is_null() {
         p / (rho * rho)
@@ -819,7 +819,7 @@ pub unsafe fn force_prep<R: Real>(t: usize, a: &PrepArgs<R>) {
 #[derive(Clone, Copy, Debug)]
 pub struct IadArgs<R> {
     pub gas: PhaseBufs<R>,
-    pub kat: *const KernelAt<R>,
+    pub kernel_at: *const KernelAt<R>,
     pub iad: *mut Sym3<R>,
     pub p: Params<R>,
 }
@@ -831,7 +831,8 @@ pub unsafe fn iad_matrix<R: Real>(t: usize, a: &IadArgs<R>) {
         return;
     }
     let n = g.len();
-    *a.iad.add(t) = kernels::iad_matrix_at(&g.sorted(&a.p, 0), g.m(), g.rho(), sl(a.kat, n), t);
+    *a.iad.add(t) =
+        kernels::iad_matrix_at(&g.sorted(&a.p, 0), g.m(), g.rho(), sl(a.kernel_at, n), t);
 }
 
 #[repr(C)]
@@ -1304,22 +1305,22 @@ pub struct CouplingBufs<R> {
     pub t_stop: *mut R,
     /// The gas kernels of the weights, one per gas particle (variable h: W(r, h_a)); null:
     /// one shared kernel at the reference h.
-    pub kat: *const KernelAt<R>,
+    pub kernel_at: *const KernelAt<R>,
 }
 
 /// Calls `f` with the gas kernels of the weights: one per gas particle, or one shared
 /// ([`kernels::kernel_of`] tells them apart by length, as on the CPU).
 #[inline(always)]
 unsafe fn with_gas_kernels<R: Real, T>(
-    kat: *const KernelAt<R>,
+    kernel_at: *const KernelAt<R>,
     n_gas: usize,
     p: &StepParams<R>,
     f: impl FnOnce(&[KernelAt<R>]) -> T,
 ) -> T {
-    if kat.is_null() {
+    if kernel_at.is_null() {
         f(&[KernelAt::new(p.h, p.dim)])
     } else {
-        f(sl(kat, n_gas))
+        f(sl(kernel_at, n_gas))
     }
 }
 
@@ -1330,8 +1331,8 @@ pub struct NormArgs<R> {
     /// The phase whose normalisers are computed (the gas itself, or the dust).
     pub ph: PhaseBufs<R>,
     pub s: *mut R,
-    /// As [`CouplingBufs::kat`].
-    pub kat: *const KernelAt<R>,
+    /// As [`CouplingBufs::kernel_at`].
+    pub kernel_at: *const KernelAt<R>,
     pub p: Params<R>,
 }
 
@@ -1344,7 +1345,7 @@ pub unsafe fn coupling_norm<R: Real>(t: usize, a: &NormArgs<R>) {
     let s = if kernels::is_fixed(ph.fixed(), t) {
         R::ZERO
     } else {
-        with_gas_kernels(a.kat, a.gas.len(), &a.p, |k| {
+        with_gas_kernels(a.kernel_at, a.gas.len(), &a.p, |k| {
             kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), k, a.gas.fixed(), ph.x()[t])
         })
     };
@@ -1376,7 +1377,7 @@ pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
     if kernels::is_fixed(g.fixed(), t) {
         return coupling_finish(t, a, &kernels::Deposit::default(), &dust_dep);
     }
-    let k = with_gas_kernels(a.cb.kat, g.len(), p, |k| kernels::kernel_of(k, t));
+    let k = with_gas_kernels(a.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
     let xa = g.x()[t];
     let gas_dep = kernels::deposit_at(
         &g.sorted(p, 0),
@@ -1511,7 +1512,7 @@ pub unsafe fn coupling_scatter<R: Real>(t: usize, a: &ScatterDepositArgs<R>) {
     };
     let (m, rho) = (*ph.m.add(t), *ph.rho.add(t));
     let stride = 1 + p.nf as usize;
-    with_gas_kernels(c.cb.kat, c.gas.len(), p, |k| {
+    with_gas_kernels(c.cb.kernel_at, c.gas.len(), p, |k| {
         kernels::coupling_row_at(&c.gas.sorted(p, 0), k, c.gas.fixed(), ph.x()[t], |g, w| {
             let wm = w / s * m;
             let o = a.sums.add((g * stride + slot) * DEPOSIT_SLOTS);
@@ -1587,7 +1588,7 @@ pub unsafe fn coupling_return<R: Real>(t: usize, a: &ReturnArgs<R>) {
         (v, *a.cb.s_dust.add(t), ph.group_of(t))
     };
     let is_gas = a.is_gas != 0;
-    let inc = with_gas_kernels(a.cb.kat, a.gas.len(), p, |k| {
+    let inc = with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
         kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
             if is_gas {
                 *a.cb.dv.add(g)
@@ -1616,7 +1617,7 @@ pub unsafe fn coupling_tstop<R: Real>(t: usize, a: &ReturnArgs<R>) {
         R::from_f64(f64::INFINITY)
     } else {
         let f = ph.group_of(t);
-        with_gas_kernels(a.cb.kat, a.gas.len(), p, |k| {
+        with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
             kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
                 [*a.cb.t_stop.add(g * nf + f), R::ZERO, R::ZERO]
             })[0]
@@ -1650,7 +1651,7 @@ pub unsafe fn coupling_heat<R: Real>(t: usize, a: &CouplingHeatArgs<R>) {
         *a.heat.add(t) = R::ZERO;
         return;
     }
-    let ka = with_gas_kernels(c.cb.kat, g.len(), p, |k| kernels::kernel_of(k, t));
+    let ka = with_gas_kernels(c.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
     let xa = g.x()[t];
     let zero = [R::ZERO; 3];
     let mut q = kernels::deposit_at(

@@ -1,10 +1,10 @@
 //! Speed: particle-steps/s and neighbour interactions/s of the step, without output, on the
 //! CPU or on a device.
-use crate::engine::backend::{self, Backend, DeviceChoice};
-use crate::engine::driver::Driver;
-use crate::engine::Physics;
 use crate::scene::Scene;
 use crate::setup;
+use crate::step::backend::{self, Backend, DeviceChoice};
+use crate::step::timestep::StepPlanner;
+use crate::step::Physics;
 use std::time::Instant;
 
 #[derive(Debug, Clone)]
@@ -65,7 +65,7 @@ pub fn bench(
         let used1 = backend::device_memory_used(resolved);
         let n = state.gas.ph.len() + state.dust.iter().map(|d| d.len()).sum::<usize>();
         let t0 = Instant::now();
-        let driver = Driver::new(&scene.time, phys.h);
+        let driver = StepPlanner::new(&scene.time, phys.h);
         for _ in 0..steps {
             // No output times: the bench never lands.
             driver

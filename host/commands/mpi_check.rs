@@ -57,7 +57,7 @@ pub fn run(
 ) -> Result<(Vec<RankReport>, bool), String> {
     let (me, ranks) = (world.rank(), world.size());
     let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
-    let phys = crate::engine::Physics::from_scene(scene, su.h, su.domain);
+    let phys = crate::step::Physics::from_scene(scene, su.h, su.domain);
     let reach = depth * phys.support();
     let st = &su.state;
     let all: Vec<Rec> = std::iter::once(&st.gas.ph)
@@ -246,11 +246,11 @@ pub fn step_over_ranks(
     depth: Option<f64>,
     steps: u64,
 ) -> Result<Option<StepReport>, String> {
-    use crate::engine::backend::{Backend, DeviceChoice};
-    use crate::engine::driver::Driver;
+    use crate::step::backend::{Backend, DeviceChoice};
+    use crate::step::timestep::StepPlanner;
     let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
-    let phys = crate::engine::Physics::from_scene(scene, su.h, su.domain);
-    let drv = Driver::new(&scene.time, phys.h);
+    let phys = crate::step::Physics::from_scene(scene, su.h, su.domain);
+    let drv = StepPlanner::new(&scene.time, phys.h);
     let mut ranks = RankStepper::new(
         world,
         phys.clone(),

@@ -2,12 +2,12 @@
 //! thread (the reference order) and on `device` (a CUDA GPU, or the rayon launcher on every
 //! core), every array of every phase compared after every step. On a GPU this is CUDA against
 //! the CPU; without one it checks that no result depends on how threads are scheduled.
-use crate::engine::backend::{self, Backend, DeviceChoice};
-use crate::engine::driver::{Driver, Taken};
-use crate::engine::Physics;
 use crate::particles::{Phase, State};
 use crate::scene::LoadedScene;
 use crate::setup;
+use crate::step::backend::{self, Backend, DeviceChoice};
+use crate::step::timestep::{StepPlanner, Taken};
+use crate::step::Physics;
 
 /// The largest difference found in one field over all steps.
 #[derive(Debug, Clone, PartialEq)]
@@ -38,7 +38,7 @@ impl Parity {
     }
 }
 
-struct Acc(Vec<FieldDiff>);
+struct Comparison(Vec<FieldDiff>);
 
 /// The permutation putting `b`'s particles in `a`'s id order (new index → old), or `None`
 /// when the orders already agree (or the sets differ, which the comparison then reports).
@@ -54,7 +54,7 @@ fn id_order(a: &Phase, b: &Phase) -> Option<Vec<u32>> {
     a.id.iter().map(|id| at.get(id).copied()).collect()
 }
 
-impl Acc {
+impl Comparison {
     fn add(&mut self, field: String, a: &[f64], b: &[f64]) {
         let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
         self.add_scaled(field, a, b, scale);
@@ -192,7 +192,7 @@ pub fn compare_scenes(
         .map_err(|e| e.to_string())?;
     let mut s_cpu = su.state.clone();
     let mut s_dev = su.state;
-    let err = |e: crate::engine::StepError| e.to_string();
+    let err = |e: crate::step::StepError| e.to_string();
     let mut cpu = one
         .install(|| Backend::new(DeviceChoice::Cpu, phys.clone(), &mut s_cpu))
         .map_err(err)?;
@@ -200,14 +200,14 @@ pub fn compare_scenes(
     if sparse {
         dev.force_sparse_tables(&mut s_dev).map_err(err)?;
     }
-    let dust_rho = cpu.pipe().dust_density_each_step;
-    let mut acc = Acc(Vec::new());
+    let dust_rho = cpu.stages().dust_density_each_step;
+    let mut acc = Comparison(Vec::new());
     acc.state(&s_cpu, &s_dev, dust_rho);
     // Both step with the CPU's plan (never landing), so a difference in the forces cannot
     // change the step size and hide itself.
-    let driver = Driver::new(&scene.time, phys.h);
+    let driver = StepPlanner::new(&scene.time, phys.h);
     for step in 1..=steps {
-        if cpu.pipe().explicit_drag {
+        if cpu.stages().explicit_drag {
             let a = one.install(|| cpu.drag_dt_limit(&s_cpu)).map_err(err)?;
             let b = dev.drag_dt_limit(&s_dev).map_err(err)?;
             acc.add("explicit drag step limit".into(), &[a], &[b]);
@@ -236,7 +236,7 @@ pub fn compare_scenes(
         .map_err(err)?;
     let td = dev.dust_stopping_times(&mut s_dev).map_err(err)?;
     for (k, (a, b)) in tc.iter().zip(&td).enumerate() {
-        // Matched by particle id (see `Acc::state`).
+        // Matched by particle id (see `Comparison::state`).
         let perm = id_order(&s_cpu.dust[k], &s_dev.dust[k]);
         let in_order = |v: &[f64]| match &perm {
             Some(p) => p.iter().map(|&i| v[i as usize]).collect(),

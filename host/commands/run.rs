@@ -1,13 +1,13 @@
 //! The driver: scene → set-up → step loop → snapshots and summary.
 use crate::analysis::{self, ExactErrors};
-use crate::engine::backend::{Backend, DeviceChoice, StartError};
-use crate::engine::driver::Driver;
-use crate::engine::Physics;
-use crate::engine::StepError;
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::particles::State;
 use crate::scene::LoadedScene;
 use crate::setup;
+use crate::step::backend::{Backend, DeviceChoice, StartError};
+use crate::step::timestep::StepPlanner;
+use crate::step::Physics;
+use crate::step::StepError;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -35,11 +35,11 @@ impl Ranks {
     }
     fn step(
         &mut self,
-        _: &Driver,
+        _: &StepPlanner,
         _: f64,
         _: u64,
         _: f64,
-    ) -> Result<(crate::engine::driver::Plan, f64, f64), String> {
+    ) -> Result<(crate::step::timestep::Plan, f64, f64), String> {
         match *self {}
     }
 }
@@ -55,10 +55,15 @@ fn over_ranks(
         // Rank 0 alone builds the engine on the whole scene and checks the first step: its
         // verdict reaches every rank before any of them goes on (none waits on another).
         if world.any(verdict.is_err()) {
-            verdict?;
-            return Err(RunError::Input(
-                "rank 0 refused the input (its message above)".into(),
-            ));
+            // Rank 0 says why before any rank leaves: mpirun stops the job at the first rank
+            // that exits non-zero, which could otherwise cut rank 0 off before it speaks (the
+            // flake of tests/mpi.rs `a_first_step_refused_on_rank_0…`: rank 1's exit killed
+            // rank 0 before its message was written).
+            if let Err(e) = &verdict {
+                eprintln!("error: {e}");
+            }
+            world.any(false);
+            return Err(RunError::InputReported);
         }
         crate::dist::ranks::RankStepper::new(
             world,
@@ -93,6 +98,9 @@ pub struct RunOptions {
 pub enum RunError {
     /// Bad input (scene key at fault); nothing was written.
     Input(String),
+    /// Bad input already reported (over MPI ranks rank 0 says it, once, before any rank
+    /// leaves); exit 2 without a further message.
+    InputReported,
     Io(String),
     Step(String),
 }
@@ -101,6 +109,7 @@ impl std::fmt::Display for RunError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             RunError::Input(s) | RunError::Io(s) | RunError::Step(s) => f.write_str(s),
+            RunError::InputReported => f.write_str("bad input (reported above)"),
         }
     }
 }
@@ -211,7 +220,7 @@ fn write_snapshot(
     eng: &mut Backend,
     state: &mut State,
 ) -> Result<(), RunError> {
-    let step_err = |e: crate::engine::StepError| RunError::Step(e.to_string());
+    let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
     eng.refresh_dust_density(state).map_err(step_err)?;
     let t_stop = eng.dust_stopping_times(state).map_err(step_err)?;
     let phys = eng.phys();
@@ -637,7 +646,7 @@ impl Runner {
         state: &State,
     ) -> Result<(), RunError> {
         if let Some(&t1) = output_times(loaded).get(1) {
-            let drv = Driver::new(&loaded.scene.time, eng.phys().h);
+            let drv = StepPlanner::new(&loaded.scene.time, eng.phys().h);
             let forces = eng.forces(state);
             let first = match &forces {
                 Ok(f) => drv.plan(eng, state, f, t1).map(|_| f),
@@ -673,7 +682,7 @@ impl Runner {
         let state = state.unwrap_or(su.state);
         let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
         if warn && phys.coupling == crate::scene::Coupling::Cell {
-            if let Some(f) = crate::engine::dust_without_gas_in_cell(&phys, &state) {
+            if let Some(f) = crate::step::dust_without_gas_in_cell(&phys, &state) {
                 if f > UNCOUPLED_WARNING {
                     eprintln!(
                         "dustsph: warning: {:.0}% of the dust particles share no IDIC cell with a gas \
@@ -925,7 +934,7 @@ impl Runner {
                 return Ok(Stop::Interrupted);
             }
             let t_out = self.times[self.prog.next_output];
-            let driver = Driver::new(&self.loaded.scene.time, h);
+            let driver = StepPlanner::new(&self.loaded.scene.time, h);
             let kept =
                 |e: String| RunError::Step(format!("{e}; the snapshots written so far are kept"));
             let step = match &mut self.ranks {
@@ -934,9 +943,9 @@ impl Runner {
                     let (plan, t_new, vsig_max) = r.step(&driver, t, n, t_out).map_err(kept)?;
                     self.state.t = t_new;
                     self.state.step += 1;
-                    crate::engine::driver::Taken {
+                    crate::step::timestep::Taken {
                         plan,
-                        forces: crate::engine::Forces {
+                        forces: crate::step::Forces {
                             acc: Vec::new(),
                             dedt: None,
                             vsig_max,
@@ -1228,11 +1237,11 @@ fn start_warnings(
     loaded: &LoadedScene,
     phys: &Physics,
     state: &State,
-    f: &crate::engine::Forces,
+    f: &crate::step::Forces,
 ) -> Vec<String> {
     let mut out = Vec::new();
     if let Some(dt) = loaded.scene.time.dt {
-        let (dt_cfl, dt_force) = crate::engine::dt_limits(phys.h, f);
+        let (dt_cfl, dt_force) = crate::step::dt_limits(phys.h, f);
         let limit = dt_cfl.min(dt_force);
         if dt > limit {
             out.push(format!(

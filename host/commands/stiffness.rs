@@ -9,14 +9,14 @@
 //! table (`docs/stiffness.md`); `tests/stiffness.rs` runs the reduced grid in CI and the full grid
 //! on demand.
 use crate::analysis;
-use crate::engine::backend::{Backend, DeviceChoice};
-use crate::engine::driver::Driver;
-use crate::engine::{Physics, StepError};
 use crate::exact::complex::C;
 use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
 use crate::scene::{self, DensityMethod, DragMethod, PositionUpdate, Scene};
 use crate::setup::{self, dustywave};
+use crate::step::backend::{Backend, DeviceChoice};
+use crate::step::timestep::StepPlanner;
+use crate::step::{Physics, StepError};
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
 use std::fmt::Write as _;
@@ -514,7 +514,7 @@ fn run_checked(
     (explicit_limit, t_min): (f64, f64),
 ) -> Option<Backend> {
     let t_end = time.t_end;
-    let driver = Driver::new(time, phys.h);
+    let driver = StepPlanner::new(time, phys.h);
     let mut eng = match Backend::new(DeviceChoice::Cpu, phys, state) {
         Ok(e) => e,
         Err(e) => {

@@ -25,13 +25,13 @@
 //!
 //! Every point's scene is built and validated before anything runs or is written.
 use crate::analysis::{self, ExactErrors};
-use crate::engine::backend::{Backend, DeviceChoice};
-use crate::engine::driver::Driver;
-use crate::engine::Physics;
 use crate::io::{self, IoError};
 use crate::plot::{fig_loglog, LogLogSeries};
 use crate::scene::{self, Scene};
 use crate::setup;
+use crate::step::backend::{Backend, DeviceChoice};
+use crate::step::timestep::StepPlanner;
+use crate::step::Physics;
 use serde::Deserialize;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -672,7 +672,7 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
     };
     let mut state = su.state;
     let phys = Physics::from_scene(scene, su.h, su.domain);
-    let driver = Driver::new(&scene.time, phys.h);
+    let driver = StepPlanner::new(&scene.time, phys.h);
     let mut eng = match Backend::new(DeviceChoice::Cpu, phys, &mut state) {
         Ok(e) => e,
         Err(e) => return fail(out, e.to_string()),

@@ -12,11 +12,11 @@
 //! results.
 use super::comm::World;
 use crate::decomp::{CellBox, Cells, Partition};
-use crate::engine::backend::{Backend, DeviceChoice};
-use crate::engine::driver::{Driver, Plan, Taken};
-use crate::engine::gpu::{GhostRows, GhostSync, Layer};
-use crate::engine::{Forces, Physics};
 use crate::particles::{IntHasher, KeyMap, KeySet, State};
+use crate::step::backend::{Backend, DeviceChoice};
+use crate::step::engine::{GhostRows, GhostSync, InitialLayer};
+use crate::step::timestep::{Plan, StepPlanner, Taken};
+use crate::step::{Forces, Physics};
 
 /// Halo depth in kernel supports that a run over ranks needs for its step's chain of
 /// neighbour passes to be exact on the owned particles (docs/scaling.md): the first-order step
@@ -385,7 +385,7 @@ pub struct RankStepper {
 /// The launcher a rank steps on, kept across its steps (a GPU's kernels are loaded once).
 enum RankDevice {
     Cpu,
-    Cuda(crate::engine::gpu::Cuda),
+    Cuda(crate::launch::Cuda),
 }
 
 impl RankDevice {
@@ -394,8 +394,8 @@ impl RankDevice {
         &self,
         phys: Physics,
         state: &mut State,
-        layer: Layer,
-    ) -> Result<Backend, crate::engine::StepError> {
+        layer: InitialLayer,
+    ) -> Result<Backend, crate::step::StepError> {
         match self {
             RankDevice::Cpu => Backend::on_cpu_at(phys, state, layer),
             RankDevice::Cuda(d) => Backend::on_cuda_at(d.clone(), phys, state, layer),
@@ -412,15 +412,16 @@ fn rank_device(
     phys: &Physics,
     share: &mut State,
 ) -> Result<(RankDevice, Option<String>), String> {
-    use crate::engine::gpu::{self, Cuda};
-    let (device, note) = crate::engine::backend::select(asked)?;
+    use crate::launch::Cuda;
+    let (device, note) = crate::step::backend::select(asked)?;
     if device != DeviceChoice::Cuda {
         return Ok((RankDevice::Cpu, note));
     }
-    let tried = gpu::launch::device_count()
+    let tried = crate::launch::cuda::device_count()
         .and_then(|n| {
             let ordinal = me as usize % n.max(1);
-            Cuda::new(ordinal, gpu::PTX).map_err(|e| format!("CUDA device {ordinal}: {e}"))
+            Cuda::new(ordinal, crate::launch::PTX)
+                .map_err(|e| format!("CUDA device {ordinal}: {e}"))
         })
         .and_then(|d| {
             if share.gas.ph.x.is_empty() && share.dust.iter().all(|p| p.x.is_empty()) {
@@ -480,9 +481,9 @@ impl RankStepper {
         let mine = match &dev {
             RankDevice::Cpu => format!(
                 "cpu ({})",
-                crate::engine::gpu::launch::threads(rayon::current_num_threads())
+                crate::launch::threads(rayon::current_num_threads())
             ),
-            RankDevice::Cuda(d) => format!("cuda: {}", crate::engine::gpu::Launcher::describe(d)),
+            RankDevice::Cuda(d) => format!("cuda: {}", crate::launch::Launcher::describe(d)),
         };
         let devices = world
             .all_gather_bytes(mine.as_bytes())
@@ -572,7 +573,7 @@ impl RankStepper {
     /// taken again with a wider margin.
     pub fn step(
         &mut self,
-        drv: &Driver,
+        drv: &StepPlanner,
         t: f64,
         step: u64,
         t_target: f64,
@@ -595,7 +596,7 @@ impl RankStepper {
 
     fn try_step(
         &mut self,
-        drv: &Driver,
+        drv: &StepPlanner,
         t: f64,
         step: u64,
         t_target: f64,
@@ -615,7 +616,7 @@ impl RankStepper {
         };
         let mut h_max = [self.owned.iter().fold(self.phys.h, |a, r| a.max(h_of(r)))];
         world.max_f64(&mut h_max);
-        let support = crate::engine::SUPPORT * h_max[0];
+        let support = crate::step::SUPPORT * h_max[0];
         // Thin: every neighbour and IDIC cell-mate of an owned particle, now and after the
         // step's drift (the margin). Deep: the step's chain of passes, and a fixed shell.
         let cell = self.phys.cell_size * (self.phys.dim as f64).sqrt();
@@ -650,9 +651,9 @@ impl RankStepper {
         let mut eng = None;
         if !local_recs.is_empty() {
             let layer = if self.layer_given {
-                Layer::Given
+                InitialLayer::FromState
             } else {
-                Layer::Compute
+                InitialLayer::Compute
             };
             match self.dev.engine(self.phys.clone(), &mut local, layer) {
                 Ok(e) => eng = Some(e),
@@ -729,7 +730,7 @@ impl RankStepper {
         let mut plan = None;
         let mut next = Vec::new();
         if let (Some(e), Some(f)) = (&mut eng, forces) {
-            let r = (|| -> Result<Plan, crate::engine::StepError> {
+            let r = (|| -> Result<Plan, crate::step::StepError> {
                 let p = drv.plan_with(e, &local, &global, t_target, drag)?;
                 drv.take(e, &mut local, &Taken { plan: p, forces: f })?;
                 // The dust densities stay as a step leaves them (fresh only where the drag
@@ -766,7 +767,7 @@ impl RankStepper {
             }
             world.max_f64(&mut worst);
             self.halo_ratio = self.halo_ratio.max(worst[2]);
-            let need = (crate::engine::SUPPORT * worst[1]).max(near) + 2.0 * worst[0];
+            let need = (crate::step::SUPPORT * worst[1]).max(near) + 2.0 * worst[0];
             if need > reach {
                 return Ok(Tried::Moved { need: need - near });
             }

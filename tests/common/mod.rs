@@ -20,7 +20,7 @@ pub fn run_scene(name: &str, sets: &[&str]) -> (Summary, State) {
         out: dir.path().join("out"),
         force: false,
         verbose: false,
-        device: dustsph::engine::backend::DeviceChoice::Cpu,
+        device: dustsph::step::backend::DeviceChoice::Cpu,
     };
     run(&loaded, &opts).unwrap_or_else(|e| panic!("{name} {sets:?}: {e}"))
 }

@@ -1,6 +1,6 @@
 //! The one step loop's step: forces, the step size (fixed `time.dt` or CFL, the explicit
 //! drag's limit), landing exactly on a target time, and the advance. `run`, `resume`, `study`,
-//! `stiffness`, `parity` and `bench` all step through [`Driver`], so they choose the same τ
+//! `stiffness`, `parity` and `bench` all step through [`StepPlanner`], so they choose the same τ
 //! for the same state.
 use super::backend::Backend;
 use super::{dt_limits, step_size};
@@ -32,15 +32,15 @@ pub struct Taken {
 
 /// Chooses and takes steps for one scene's time settings.
 #[derive(Debug, Clone)]
-pub struct Driver {
+pub struct StepPlanner {
     pub time: TimeCfg,
     /// Reference smoothing length (the CFL length).
     pub h: f64,
 }
 
-impl Driver {
-    pub fn new(time: &TimeCfg, h: f64) -> Driver {
-        Driver {
+impl StepPlanner {
+    pub fn new(time: &TimeCfg, h: f64) -> StepPlanner {
+        StepPlanner {
             time: time.clone(),
             h,
         }
@@ -57,7 +57,7 @@ impl Driver {
         self.plan_with(eng, state, forces, t_target, None)
     }
 
-    /// As [`Driver::plan`], with the explicit drag's step limit given (over MPI ranks: the
+    /// As [`StepPlanner::plan`], with the explicit drag's step limit given (over MPI ranks: the
     /// least of every rank's) instead of computed here.
     pub fn plan_with(
         &self,
@@ -70,7 +70,7 @@ impl Driver {
         let (dt_cfl, dt_force) = dt_limits(self.h, forces);
         let dt_drag = if let Some(d) = drag_limit {
             d
-        } else if eng.pipe().explicit_drag {
+        } else if eng.stages().explicit_drag {
             let t0 = std::time::Instant::now();
             let d = eng.drag_dt_limit(state)?;
             eng.timers_mut().add(

@@ -1,15 +1,18 @@
-//! The step: physics parameters, the pipeline assembled from the scene, and the backends.
+//! The step: the physics resolved from the scene ([`Physics`]), the stages a scene runs
+//! ([`Stages`]), the engine that runs them as kernel launches ([`engine`]) on one of its
+//! launchers and precisions ([`backend`]), and the choice of each step's size
+//! ([`timestep`]).
 //!
 //! A scene switches stages on or off (no dust → no IDIC pass; isothermal → no energy
 //! equation; no viscosity unless asked); the run's summary lists the stages that ran, from
 //! their timers.
 pub mod backend;
-pub mod driver;
-pub mod gpu;
-pub mod step;
+pub mod check;
+pub mod engine;
 pub mod timers;
+pub mod timestep;
 
-pub use step::{check_state, Forces, StepError, SUPPORT};
+pub use check::{check_state, Forces, StepError, SUPPORT};
 
 use crate::grid::Domain;
 use crate::scene::{
@@ -182,7 +185,7 @@ pub fn step_size(time: &TimeCfg, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f
 
 /// Which stages a step runs; derived from [`Physics`], never set by hand.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Pipeline {
+pub struct Stages {
     pub drag: bool,
     /// The drag is the explicit baseline (adds a drag time-step limit).
     pub explicit_drag: bool,
@@ -205,9 +208,9 @@ pub struct Pipeline {
     pub external: bool,
 }
 
-impl Pipeline {
-    pub fn from_physics(p: &Physics) -> Pipeline {
-        Pipeline {
+impl Stages {
+    pub fn from_physics(p: &Physics) -> Stages {
+        Stages {
             drag: !p.laws.is_empty(),
             explicit_drag: !p.laws.is_empty() && p.drag == DragMethod::Explicit,
             energy: matches!(p.eos, Eos::Adiabatic { .. }),

@@ -1,130 +1,18 @@
-//! Where kernels run: a real GPU through the CUDA driver ([`Cuda`]), or this machine's cores
-//! ([`Rayon`]), which runs the very thread functions the PTX entry points call. The step is
-//! one pipeline of launches over resident buffers; these are its two launchers, so the CPU
-//! path (`--device cpu`) *is* the GPU step, launches and buffers included.
+//! The CUDA launcher: the embedded PTX loaded into a context of device 0 (or the rank's
+//! device), one stream, a launch per kernel of the kernel table.
+use super::{GpuError, Launcher};
 use cudarc::driver::{
     CudaContext, CudaFunction, CudaSlice, CudaStream, DevicePtr, DevicePtrMut, DeviceRepr,
     LaunchConfig, PushKernelArg,
 };
 use dustsph_device::kernel_table::{self, Kernel};
-use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Arc;
 
-#[derive(Debug, Clone)]
-pub struct GpuError(pub String);
-
-impl std::fmt::Display for GpuError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-impl std::error::Error for GpuError {}
-
-impl From<cudarc::driver::DriverError> for GpuError {
-    fn from(e: cudarc::driver::DriverError) -> Self {
-        GpuError(format!("CUDA driver: {e}"))
-    }
-}
-
-/// What the GPU engine needs from a device: zeroed memory, copies, launches.
-pub trait Launcher {
-    type Mem;
-    /// Device name for the summary.
-    fn describe(&self) -> String;
-    /// `bytes` of zeroed memory (at least one byte is allocated).
-    fn alloc(&self, bytes: usize) -> Result<Self::Mem, GpuError>;
-    /// The address kernels see.
-    fn addr(&self, m: &Self::Mem) -> u64;
-    fn upload(&self, m: &mut Self::Mem, bytes: &[u8]) -> Result<(), GpuError>;
-    fn download(&self, m: &Self::Mem, out: &mut [u8]) -> Result<(), GpuError>;
-    /// Write one value at the start of `m` (a kernel's parameter block; typed, so the
-    /// struct's padding is never read as bytes on the host).
-    fn upload_value<T: Copy>(&self, m: &mut Self::Mem, v: &T) -> Result<(), GpuError>;
-    /// Zero the first `bytes` bytes on the device (no host copy).
-    fn zero(&self, m: &mut Self::Mem, bytes: usize) -> Result<(), GpuError>;
-    /// Run `threads` threads of kernel `k` (its PTX entry point on a GPU, its thread function
-    /// on the CPU: one constant of the kernel table names both).
-    fn launch<A: Copy>(&self, k: Kernel<A>, threads: usize, args: &A) -> Result<(), GpuError>;
-    /// Whether `numerics.neighbour_list = "auto"` builds neighbour lists here: measured on
-    /// the CPU (docs/performance.md); the GPU kernels are built without them.
-    fn lists_by_default(&self) -> bool {
-        true
-    }
-}
-
-/// Host memory, 8-byte aligned.
-pub struct HostMem(Vec<u64>);
-
-/// The CPU launcher: runs each kernel's thread function for every thread index on rayon's
-/// pool (the same f64 operations as the PTX: round-to-nearest, no contraction).
-#[derive(Default)]
-pub struct Rayon;
-
-struct Shared<'a, A>(&'a A);
-// SAFETY: the kernels' contract (threads.rs) — distinct threads write distinct elements or use
-// atomics — is what makes running thread functions concurrently sound.
-unsafe impl<A> Sync for Shared<'_, A> {}
-
-impl Launcher for Rayon {
-    type Mem = HostMem;
-
-    fn describe(&self) -> String {
-        format!("rayon, {}", threads(rayon::current_num_threads()))
-    }
-
-    fn alloc(&self, bytes: usize) -> Result<HostMem, GpuError> {
-        Ok(HostMem(vec![0u64; bytes.div_ceil(8).max(1)]))
-    }
-
-    fn addr(&self, m: &HostMem) -> u64 {
-        m.0.as_ptr() as u64
-    }
-
-    fn upload(&self, m: &mut HostMem, bytes: &[u8]) -> Result<(), GpuError> {
-        // SAFETY: the u64 buffer holds at least `bytes.len()` bytes (checked by the caller's
-        // typed wrapper), and u8 has no alignment requirement.
-        let dst =
-            unsafe { std::slice::from_raw_parts_mut(m.0.as_mut_ptr() as *mut u8, m.0.len() * 8) };
-        dst[..bytes.len()].copy_from_slice(bytes);
-        Ok(())
-    }
-
-    fn download(&self, m: &HostMem, out: &mut [u8]) -> Result<(), GpuError> {
-        // SAFETY: as in `upload`.
-        let src = unsafe { std::slice::from_raw_parts(m.0.as_ptr() as *const u8, m.0.len() * 8) };
-        out.copy_from_slice(&src[..out.len()]);
-        Ok(())
-    }
-
-    fn upload_value<T: Copy>(&self, m: &mut HostMem, v: &T) -> Result<(), GpuError> {
-        assert!(
-            std::mem::size_of::<T>() <= m.0.len() * 8 && std::mem::align_of::<T>() <= 8,
-            "value larger than its buffer"
-        );
-        // SAFETY: the buffer is 8-byte aligned and large enough (checked above).
-        unsafe { std::ptr::write(m.0.as_mut_ptr() as *mut T, *v) };
-        Ok(())
-    }
-
-    fn zero(&self, m: &mut HostMem, bytes: usize) -> Result<(), GpuError> {
-        // Whole words: the buffer is u64-backed and callers zero from the start.
-        let words = bytes.div_ceil(8).min(m.0.len());
-        m.0[..words].fill(0);
-        Ok(())
-    }
-
-    fn launch<A: Copy>(&self, k: Kernel<A>, threads: usize, args: &A) -> Result<(), GpuError> {
-        let f = k.thread;
-        let a = Shared(args);
-        (0..threads).into_par_iter().for_each(|t| {
-            let a = &a;
-            // SAFETY: the engine built `args` over live buffers sized for `threads`.
-            unsafe { f(t, a.0) }
-        });
-        Ok(())
-    }
-}
+/// The kernels, as PTX built from `device/` by build.rs (empty when that build was skipped).
+pub const PTX: &str = include_str!(concat!(env!("OUT_DIR"), "/dustsph.ptx"));
+/// How the PTX was (or was not) built.
+pub const PTX_NOTE: &str = env!("DUSTSPH_PTX_NOTE");
 
 /// A kernel argument struct passed by value (every kernel takes exactly one).
 #[repr(transparent)]
@@ -161,15 +49,6 @@ pub fn probe() -> Result<String, String> {
     ctx.name().map_err(|e| format!("CUDA device 0: {e}"))
 }
 
-/// "1 thread", "n threads".
-pub fn threads(n: usize) -> String {
-    if n == 1 {
-        "1 thread".into()
-    } else {
-        format!("{n} threads")
-    }
-}
-
 /// How many CUDA devices this process sees (after [`probe`]).
 pub fn device_count() -> Result<usize, String> {
     probe()?;
@@ -183,7 +62,7 @@ impl Cuda {
         if ptx.is_empty() {
             return Err(GpuError(format!(
                 "this binary has no GPU kernels ({}); build with the nightly toolchain and rust-src",
-                super::PTX_NOTE
+                PTX_NOTE
             )));
         }
         probe().map_err(GpuError)?;

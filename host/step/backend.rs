@@ -1,8 +1,9 @@
 //! The backend a run steps on: the one step pipeline (host/engine/gpu) on a launcher — the
 //! CPU's rayon pool, or a CUDA device. Chosen by `--device auto|cpu|cuda`.
-use super::gpu::{self, Cuda, GpuEngine, Launcher, Layer, Rayon};
+use super::engine::{self, Engine, GhostSync, InitialLayer};
 use super::timers::Timers;
-use super::{Forces, Physics, Pipeline, StepError};
+use super::{Forces, Physics, Stages, StepError};
+use crate::launch::{self, Cuda, Launcher, Rayon};
 use crate::particles::State;
 use crate::scene::Precision;
 
@@ -22,10 +23,10 @@ pub enum DeviceChoice {
 
 /// The one step on one of its two launchers, in one of its two precisions.
 pub enum Backend {
-    Cpu(Box<GpuEngine<Rayon, f64>>),
-    Cuda(Box<GpuEngine<Cuda, f64>>),
-    CpuF32(Box<GpuEngine<Rayon, f32>>),
-    CudaF32(Box<GpuEngine<Cuda, f32>>),
+    Cpu(Box<Engine<Rayon, f64>>),
+    Cuda(Box<Engine<Cuda, f64>>),
+    CpuF32(Box<Engine<Rayon, f32>>),
+    CudaF32(Box<Engine<Cuda, f32>>),
 }
 
 /// The same call on any launcher and precision.
@@ -43,10 +44,10 @@ macro_rules! each {
 /// Either the backend, or a message for the user (bad choice for this machine).
 pub fn select(choice: DeviceChoice) -> Result<(DeviceChoice, Option<String>), String> {
     let why_not = || -> Option<String> {
-        if gpu::PTX.is_empty() {
-            return Some(format!("the GPU kernels were {}", gpu::PTX_NOTE));
+        if launch::PTX.is_empty() {
+            return Some(format!("the GPU kernels were {}", launch::PTX_NOTE));
         }
-        gpu::probe().err()
+        launch::probe().err()
     };
     match choice {
         DeviceChoice::Auto => Ok(match why_not() {
@@ -55,7 +56,7 @@ pub fn select(choice: DeviceChoice) -> Result<(DeviceChoice, Option<String>), St
                 DeviceChoice::Cpu,
                 Some(format!(
                     "no GPU used ({w}); running on the CPU with {}",
-                    gpu::launch::threads(rayon::current_num_threads())
+                    launch::threads(rayon::current_num_threads())
                 )),
             ),
         }),
@@ -93,7 +94,7 @@ fn start_resolved(
             let eng = Backend::new(DeviceChoice::Cpu, phys, state).map_err(StartError::Step)?;
             let note = format!(
                 "{why}: running on the CPU with {}",
-                gpu::launch::threads(rayon::current_num_threads())
+                launch::threads(rayon::current_num_threads())
             );
             Ok((eng, Some(note)))
         }
@@ -101,10 +102,10 @@ fn start_resolved(
 }
 
 /// Refuse, before any device allocation, a run whose particles would not fit in the GPU's free
-/// memory ([`gpu::DEVICE_BYTES_PER_PARTICLE`], measured); `auto` then runs on the CPU.
+/// memory ([`engine::DEVICE_BYTES_PER_PARTICLE`], measured); `auto` then runs on the CPU.
 fn check_device_memory(dev: &Cuda, state: &State, f32: bool) -> Result<(), StepError> {
     let n = state.gas.ph.x.len() + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
-    let per = gpu::DEVICE_BYTES_PER_PARTICLE[f32 as usize];
+    let per = engine::DEVICE_BYTES_PER_PARTICLE[f32 as usize];
     let need = n as f64 * per;
     let free = dev.memory_free()? as f64;
     if need > free {
@@ -125,7 +126,7 @@ pub fn device_memory_used(choice: DeviceChoice) -> Option<usize> {
     if choice != DeviceChoice::Cuda {
         return None;
     }
-    Cuda::new(0, gpu::PTX).ok()?.memory_used().ok()
+    Cuda::new(0, launch::PTX).ok()?.memory_used().ok()
 }
 
 /// Why no engine was started.
@@ -164,40 +165,44 @@ impl Backend {
         Ok(match choice {
             DeviceChoice::Cuda => {
                 Self::refuse_on_cuda(&phys)?;
-                Self::on_cuda(Cuda::new(0, gpu::PTX)?, phys, state)?
+                Self::on_cuda(Cuda::new(0, launch::PTX)?, phys, state)?
             }
-            _ => Self::on_cpu_at(phys, state, Layer::Compute)?,
+            _ => Self::on_cpu_at(phys, state, InitialLayer::Compute)?,
         })
     }
 
     /// The engine on an opened CUDA device (a rank's own GPU keeps one across its steps).
     pub fn on_cuda(dev: Cuda, phys: Physics, state: &mut State) -> Result<Backend, StepError> {
-        Self::on_cuda_at(dev, phys, state, Layer::Compute)
+        Self::on_cuda_at(dev, phys, state, InitialLayer::Compute)
     }
 
-    /// As [`Backend::on_cuda`], taking the state's layer as given ([`Layer`]).
+    /// As [`Backend::on_cuda`], taking the state's layer as given ([`InitialLayer`]).
     pub fn on_cuda_at(
         dev: Cuda,
         phys: Physics,
         state: &mut State,
-        layer: Layer,
+        layer: InitialLayer,
     ) -> Result<Backend, StepError> {
         Self::refuse_on_cuda(&phys)?;
         let f32 = phys.precision == Precision::F32;
         check_device_memory(&dev, state, f32)?;
         Ok(if f32 {
-            Backend::CudaF32(Box::new(GpuEngine::with_layer(phys, state, dev, layer)?))
+            Backend::CudaF32(Box::new(Engine::with_layer(phys, state, dev, layer)?))
         } else {
-            Backend::Cuda(Box::new(GpuEngine::with_layer(phys, state, dev, layer)?))
+            Backend::Cuda(Box::new(Engine::with_layer(phys, state, dev, layer)?))
         })
     }
 
-    /// The CPU engine (rayon) taking the state's layer as given or not ([`Layer`]).
-    pub fn on_cpu_at(phys: Physics, state: &mut State, layer: Layer) -> Result<Backend, StepError> {
+    /// The CPU engine (rayon) taking the state's layer as given or not ([`InitialLayer`]).
+    pub fn on_cpu_at(
+        phys: Physics,
+        state: &mut State,
+        layer: InitialLayer,
+    ) -> Result<Backend, StepError> {
         Ok(if phys.precision == Precision::F32 {
-            Backend::CpuF32(Box::new(GpuEngine::with_layer(phys, state, Rayon, layer)?))
+            Backend::CpuF32(Box::new(Engine::with_layer(phys, state, Rayon, layer)?))
         } else {
-            Backend::Cpu(Box::new(GpuEngine::with_layer(phys, state, Rayon, layer)?))
+            Backend::Cpu(Box::new(Engine::with_layer(phys, state, Rayon, layer)?))
         })
     }
 
@@ -218,8 +223,8 @@ impl Backend {
         each!(self, e => &e.phys)
     }
 
-    pub fn pipe(&self) -> &Pipeline {
-        each!(self, e => &e.pipe)
+    pub fn stages(&self) -> &Stages {
+        each!(self, e => &e.stages)
     }
 
     pub fn timers(&self) -> &Timers {
@@ -300,16 +305,16 @@ impl Backend {
         each!(self, e => Ok(e.sync(state)?))
     }
 
-    /// See [`GpuEngine::set_ghosts`].
+    /// See [`Engine::set_ghosts`].
     pub fn set_ghosts(
         &mut self,
-        sync: Box<dyn gpu::GhostSync>,
+        sync: Box<dyn GhostSync>,
         keys: crate::particles::KeySet,
     ) -> Result<(), StepError> {
         each!(self, e => e.set_ghosts(sync, keys))
     }
 
-    /// See [`GpuEngine::dust_density_as_after_step`].
+    /// See [`Engine::dust_density_as_after_step`].
     pub fn dust_density_as_after_step(&mut self) {
         each!(self, e => e.dust_density_as_after_step())
     }
@@ -369,7 +374,7 @@ mod tests {
         assert_eq!(state.gas.ph.x, reference.gas.ph.x);
         assert_eq!(state.gas.ph.rho, reference.gas.ph.rho);
         // `cuda` asked explicitly never falls back: without a usable GPU it is an error.
-        if gpu::probe().is_ok() {
+        if launch::probe().is_ok() {
             return;
         }
         let mut s2 = su.state.clone();

@@ -1,0 +1,356 @@
+//! The drag: the IDIC cell step (method.md §3), the kernel coupling (§K), the explicit
+//! baseline's limit, the velocity kick with the drag, and the stopping times for output.
+use super::*;
+
+impl<L: Launcher, R: Float> Engine<L, R> {
+    /// The explicit drag's step limit at the current layer, [`drag::EXPLICIT_SAFETY`]/Λ with Λ
+    /// the fastest drag rate of any cell; +∞ with IDIC (the drag never limits its step).
+    pub fn drag_dt_limit(&mut self) -> Result<f64, StepError> {
+        if !self.stages.explicit_drag {
+            return Ok(f64::INFINITY);
+        }
+        // ε_k and t_k* do not depend on the velocities handed to the cell sums.
+        self.cell_step(0.0, true)?;
+        let d = &self.d;
+        d.put(&mut self.limits, &[0, 0])?;
+        let only = |k: usize| -> *const u8 {
+            (self.ghosts.as_ref())
+                .and_then(|g| g.only[k].as_ref())
+                .map_or(std::ptr::null(), |b| d.ptr(b) as *const u8)
+        };
+        let a = th::LimitArgs {
+            cells: self.cells.bufs(d),
+            rate: d.ptr(&self.limits),
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            gas_ghost: only(0),
+            dust_ghost: only(1),
+            p: self.params(0.0)?.dev,
+        };
+        d.run(R::EXPLICIT_LIMIT, self.cells.ukey.len, &a)?;
+        let b = d.get(&self.limits, 1)?[0];
+        let rate = if b == 0 { 0.0 } else { from_ordered_bits(b) };
+        Ok(if rate > 0.0 {
+            dustsph_device::drag::EXPLICIT_SAFETY / rate
+        } else {
+            f64::INFINITY
+        })
+    }
+
+    /// Union of occupied cells and the IDIC cell step at step size τ (velocities ṽ = v + τA).
+    pub(super) fn cell_step(&mut self, tau: f64, acc_zero: bool) -> Result<(), GpuError> {
+        let d = &self.d;
+        let p = self.params(tau)?;
+        let nb = p.stride();
+        if self.cells.sparse.is_some() || self.cells.union_fresh {
+            return self.cell_step_on_union(tau, acc_zero);
+        }
+        d.zeroed(&mut self.cells.uidx, nb)?;
+        let mut ua = th::UnionArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            flags: d.ptr(&self.cells.uidx),
+            ukey: std::ptr::null_mut(),
+            p: p.dev,
+        };
+        d.run(R::UNION_FLAGS, nb, &ua)?;
+        d.scan(&self.cells.uidx, nb, &mut self.sums)?;
+        ua.ukey = d.ptr(&self.cells.ukey);
+        d.run(R::UNION_KEYS, nb - 1, &ua)?;
+        self.cells.union_fresh = true;
+        self.cell_step_on_union(tau, acc_zero)
+    }
+
+    /// The IDIC cell step over the union built for this layer.
+    pub(super) fn cell_step_on_union(&mut self, tau: f64, acc_zero: bool) -> Result<(), GpuError> {
+        let d = &self.d;
+        let p = self.params(tau)?;
+        let ca = th::CellArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            pres: d.ptr(&self.pres),
+            acc: d.ptr(if acc_zero { &self.zero_acc } else { &self.acc }),
+            cells: self.cells.bufs(d),
+            p: p.dev,
+        };
+        // The union count stays on the device: launch one thread per possible cell.
+        d.run(R::CELL_STEP, self.cells.ukey.len, &ca)
+    }
+
+    /// The kernel coupling's normalisers at the current positions.
+    pub(super) fn coupling_norms(&self) -> Result<(), GpuError> {
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        if c.per_particle_kernels {
+            // Variable h: the weights' kernels at the gas particles' current h.
+            let a = th::PrepArgs {
+                gas: self.gas.bufs(d),
+                h: d.opt(&self.sm.gas_h),
+                omega: std::ptr::null_mut(),
+                pres: d.ptr(&self.pres),
+                kernel_at: d.ptr(&self.sm.kernel_at),
+                pt: d.ptr(&self.sm.pt),
+                p: self.params(0.0)?.dev,
+            };
+            d.run(R::FORCE_PREP, self.gas.n, &a)?;
+        }
+        for (ph, s) in [(&self.gas, &c.s_gas), (&self.dust, &c.s_dust)] {
+            let a = th::NormArgs {
+                gas: self.gas.bufs(d),
+                ph: ph.bufs(d),
+                s: d.ptr(s),
+                kernel_at: c.bufs(d, &self.sm.kernel_at).kernel_at,
+                p: self.params(0.0)?.dev,
+            };
+            d.run(R::COUPLING_NORM, ph.n, &a)?;
+        }
+        Ok(())
+    }
+
+    /// The drag pass with the kernel coupling: normalisers, the solve on every gas particle,
+    /// the increments back to the gas (from ṽ) and the dust (from ũ).
+    pub(super) fn kernel_coupling(&mut self, tau: f64, heat: bool) -> Result<(), StepError> {
+        self.coupling_norms()?;
+        // The solve weighs each neighbour by its own norm.
+        self.ghost_sync()?;
+        let ng = self.gas.n;
+        let nf = self.dust.groups;
+        let d = &self.d;
+        if let Some(sums) = &mut self.coupling.as_mut().expect("kernel coupling").sums {
+            d.zeroed(sums, ng * (1 + nf) * th::DEPOSIT_SLOTS)?;
+        }
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        let p = self.params(tau)?;
+        let ca = th::CoupleArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            acc: d.ptr(&self.acc),
+            pres: d.ptr(&self.pres),
+            cb: c.bufs(d, &self.sm.kernel_at),
+            p: p.dev,
+        };
+        match &c.sums {
+            Some(sums) => {
+                for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
+                    let sa = th::ScatterDepositArgs {
+                        couple: ca,
+                        ph: ph.bufs(d),
+                        is_gas: gas as u32,
+                        sums: d.ptr(sums),
+                    };
+                    d.run(R::COUPLING_SCATTER, ph.n, &sa)?;
+                }
+                let sa = th::ScatterDepositArgs {
+                    couple: ca,
+                    ph: self.gas.bufs(d),
+                    is_gas: 1,
+                    sums: d.ptr(sums),
+                };
+                d.run(R::COUPLING_SOLVE_SUMS, ng, &sa)?;
+            }
+            None => d.run(R::COUPLING_SOLVE, ng, &ca)?,
+        }
+        // The return reads the neighbouring gas particles' solves.
+        self.ghost_sync()?;
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
+            let ra = th::ReturnArgs {
+                gas: self.gas.bufs(d),
+                ph: ph.bufs(d),
+                acc: if gas {
+                    d.ptr(&self.acc)
+                } else {
+                    std::ptr::null_mut()
+                },
+                is_gas: gas as u32,
+                cb: c.bufs(d, &self.sm.kernel_at),
+                out: std::ptr::null_mut(),
+                loss: if heat {
+                    d.opt(&ph.loss)
+                } else {
+                    std::ptr::null_mut()
+                },
+                p: p.dev,
+            };
+            d.run(R::COUPLING_RETURN, ph.n, &ra)?;
+        }
+        if let (true, Some(_)) = (heat, &c.heat) {
+            // The heat sums the neighbours' losses.
+            self.ghost_sync()?;
+        }
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        if let (true, Some(h)) = (heat, &c.heat) {
+            let ha = th::CouplingHeatArgs {
+                couple: ca,
+                loss_gas: d.opt(&self.gas.loss),
+                loss_dust: d.opt(&self.dust.loss),
+                heat: d.ptr(h),
+            };
+            d.run(R::COUPLING_HEAT, ng, &ha)?;
+        }
+        Ok(())
+    }
+
+    /// Velocity kick over `dt` from the accelerations in `acc` (A^n, or zero): ũ = u + dt·B for
+    /// the dust, the drag pass over `dt` (cell or kernel coupling) and the particle velocity
+    /// updates, or without dust v = v + dt·A. With `heat`, the drag heat per union cell is left
+    /// in `cells.heat` for [`Self::energy_step`].
+    pub(super) fn kick(
+        &mut self,
+        timers: &mut Timers,
+        dt: f64,
+        heat: bool,
+    ) -> Result<(), StepError> {
+        // The stage names are what summary.json lists as the run's pipeline.
+        let drag = self.stages.drag;
+        if self.phys.ext_dust.iter().any(|a| *a != 0.0) && self.dust.n > 0 {
+            let a = th::DustAccelArgs {
+                ph: self.dust.bufs(&self.d),
+                p: self.params(dt)?.dev,
+            };
+            timers.time("external dust acceleration (ũ = u + τB)", || {
+                self.d.run(R::DUST_ACCEL, self.dust.n, &a)
+            })?;
+        }
+        if drag && self.coupling.is_some() {
+            // The kernel coupling updates the velocities (and spreads the heat) itself.
+            let name = if heat {
+                "IDIC drag, kernel coupling (gas particles as cells) + drag heating"
+            } else {
+                "IDIC drag, kernel coupling (gas particles as cells)"
+            };
+            return timers.time(name, || self.kernel_coupling(dt, heat));
+        }
+        let name = match (drag, self.stages.explicit_drag) {
+            (false, _) => "gas velocities (v + τA, no dust)",
+            (true, false) => "IDIC drag (cell sums, implicit cell solve, particle velocities)",
+            (true, true) => "explicit drag (cell means, forward-Euler particle velocities)",
+        };
+        timers.time(name, || -> Result<(), GpuError> {
+            if drag {
+                self.cell_step(dt, false)?;
+            }
+            let d = &self.d;
+            let p = self.params(dt)?;
+            let ga = th::KickArgs {
+                ph: self.gas.bufs(d),
+                acc: d.ptr(&self.acc),
+                drag: drag as u32,
+                cells: self.cells.bufs(d),
+                loss: if heat {
+                    d.opt(&self.gas.loss)
+                } else {
+                    std::ptr::null_mut()
+                },
+                p: p.dev,
+            };
+            d.run(R::GAS_KICK, self.gas.n, &ga)?;
+            if drag {
+                let da = th::KickArgs {
+                    ph: self.dust.bufs(d),
+                    acc: std::ptr::null(),
+                    loss: if heat {
+                        d.opt(&self.dust.loss)
+                    } else {
+                        std::ptr::null_mut()
+                    },
+                    ..ga
+                };
+                d.run(R::DUST_KICK, self.dust.n, &da)?;
+            }
+            Ok(())
+        })?;
+        if drag && heat {
+            let d = &self.d;
+            let ha = th::HeatArgs {
+                gas: self.gas.bufs(d),
+                dust: self.dust.bufs(d),
+                loss_gas: d.opt(&self.gas.loss),
+                loss_dust: d.opt(&self.dust.loss),
+                cells: self.cells.bufs(d),
+                heat: d.ptr(&self.cells.heat),
+                p: self.params(dt)?.dev,
+            };
+            timers.time("drag heating (the kinetic energy lost, to the gas)", || {
+                d.run(R::HEAT, self.cells.ukey.len, &ha)
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Stopping time of every dust particle (its cell's t_k*; +∞ where uncoupled).
+    pub fn dust_stopping_times(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, StepError> {
+        if state.dust.is_empty() {
+            return Ok(Vec::new());
+        }
+        self.refresh_dust_density(state)?;
+        if self.coupling.is_some() {
+            return Ok(self.kernel_stopping_times()?);
+        }
+        self.cell_step(0.0, true)?;
+        let d = &self.d;
+        let p = self.params(0.0)?;
+        let (nb, ks) = (p.stride(), self.grid.total_cells() + 1);
+        let sparse = self.cells.sparse;
+        let ubidx = match sparse {
+            Some(_) => Vec::new(),
+            None => d.get(&self.cells.uidx, nb)?,
+        };
+        let nu = sparse.map_or_else(|| ubidx[nb - 1] as usize, |n| n as usize);
+        let ukey = d.get(&self.cells.ukey, nu)?;
+        let nf = self.dust.groups;
+        let ts = d.get_f64(&self.cells.t_stop, nu * nf)?;
+        let keys = d.get(&self.dust.keys, self.dust.n)?;
+        let sc = p.sub_cells();
+        Ok((0..nf)
+            .map(|g| {
+                (self.dust.off[g] as usize..self.dust.off[g + 1] as usize)
+                    .map(|j| {
+                        let k = keys[j] % ks;
+                        let u = match sparse {
+                            Some(_) => ukey.binary_search(&k).ok(),
+                            None => th::union_index(&ubidx, &ukey, sc, k),
+                        };
+                        ts[u.expect("a dust particle's cell is occupied") * nf + g]
+                    })
+                    .collect()
+            })
+            .collect())
+    }
+
+    /// Kernel coupling: the stopping time each dust particle feels (the CPU's
+    /// `kernel_stopping_times`, kernel for kernel).
+    pub(super) fn kernel_stopping_times(&mut self) -> Result<Vec<Vec<f64>>, GpuError> {
+        self.coupling_norms()?;
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        let p = self.params(0.0)?;
+        let ca = th::CoupleArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            acc: d.ptr(&self.zero_acc),
+            pres: d.ptr(&self.pres),
+            cb: c.bufs(d, &self.sm.kernel_at),
+            p: p.dev,
+        };
+        d.run(R::COUPLING_SOLVE, self.gas.n, &ca)?;
+        let out: Buf<L, R> = d.buf(self.dust.n.max(1))?;
+        let ra = th::ReturnArgs {
+            gas: self.gas.bufs(d),
+            ph: self.dust.bufs(d),
+            acc: std::ptr::null_mut(),
+            is_gas: 0,
+            cb: c.bufs(d, &self.sm.kernel_at),
+            out: d.ptr(&out),
+            loss: std::ptr::null_mut(),
+            p: p.dev,
+        };
+        d.run(R::COUPLING_TSTOP, self.dust.n, &ra)?;
+        let ts = d.get_f64(&out, self.dust.n)?;
+        Ok((0..self.dust.groups)
+            .map(|g| ts[self.dust.off[g] as usize..self.dust.off[g + 1] as usize].to_vec())
+            .collect())
+    }
+}

@@ -1,0 +1,506 @@
+//! The engine: the whole step as kernel launches over particle buffers resident on a launcher
+//! (a CUDA GPU, or this machine's cores through rayon running the same thread functions).
+//!
+//! One step (method.md §3.6): the gas forces at layer n ([`forces`]), the velocity kick with
+//! the implicit drag ([`drag`]), the drift and the energy, the new layer — grid rebuild and sort
+//! ([`sort`]), densities and EOS ([`density`]) — and the check; [`integrate`] is that sequence,
+//! for the first-order step and the leapfrog. Over MPI ranks [`halo`] refreshes the ghost
+//! particles between the passes. The host reads back only a few numbers per step (the
+//! time-step maxima, the grid's bounds, one failure flag); particle arrays come back for
+//! snapshots, checkpoints and the summary.
+mod buffers;
+mod density;
+mod drag;
+mod forces;
+mod halo;
+mod integrate;
+mod sort;
+
+use super::timers::Timers;
+use super::{Forces, Physics, Stages, StepError};
+use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
+use crate::launch::{GpuError, Launcher};
+use crate::particles::{Phase, State};
+use crate::scene::{ListChoice, PositionUpdate};
+use buffers::*;
+use bytemuck::Pod;
+use dustsph_device::eos::Eos;
+use dustsph_device::kernel::{KernelAt, SUPPORT};
+use dustsph_device::kernel_table::{self as kt, FloatKernels, Kernel};
+use dustsph_device::kernels::{from_ordered_bits, MAX_FRACTIONS};
+use dustsph_device::sph::Sym3;
+use dustsph_device::threads::{self as th, LawParam, PhaseBufs, StepParams};
+use dustsph_device::Real;
+use rayon::prelude::*;
+use std::marker::PhantomData;
+
+pub use buffers::{Float, LIST_BYTES_PER_GAS_PARTICLE};
+use halo::Ghosts;
+pub use halo::{GhostRows, GhostSync};
+
+/// Device memory a run needs per particle (gas or dust), by precision: measured with the rayon
+/// launcher, which allocates the very buffers a GPU does (`tests/launch.rs`,
+/// `device_memory_estimate_bounds_what_the_engine_allocates`: at most 516 B (f64) and 326 B
+/// (f32) per particle over the 23 parity scenes after three steps, the leapfrog with the
+/// kernel coupling the largest), with a margin for the dense tables of sparser clouds. Without
+/// neighbour lists (the GPU kernels have none).
+pub const DEVICE_BYTES_PER_PARTICLE: [f64; 2] = [700.0, 420.0];
+
+type V3 = [f64; 3];
+
+pub struct Engine<L: Launcher, R: Float> {
+    pub phys: Physics,
+    pub stages: Stages,
+    pub timers: Timers,
+    d: Device<L>,
+    /// The step's constants, in f64 (cast to the step's precision per launch).
+    base: StepParams<f64>,
+    grid: Grid,
+    gas: PhaseBuffers<L, R>,
+    dust: PhaseBuffers<L, R>,
+    pres: Buf<L, R>,
+    cs: Buf<L, R>,
+    e: Option<Buf<L, R>>,
+    acc: Buf<L, [R; 3]>,
+    zero_acc: Buf<L, [R; 3]>,
+    dedt: Option<Buf<L, R>>,
+    cells: CellBuffers<L, R>,
+    /// Kernel coupling (`idic.coupling = "kernel"`): its per-particle buffers.
+    coupling: Option<CouplingBuffers<L, R>>,
+    sums: Buf<L, u32>,
+    limits: Buf<L, u64>,
+    bounds: Buf<L, u64>,
+    bad: Buf<L, u32>,
+    dust_density_fresh: bool,
+    /// The state's step count and time (for messages).
+    step: u64,
+    t: f64,
+    /// Always use the sparse cell tables (checks that both forms give the same step).
+    pub force_sparse: bool,
+    /// The gas keeps a neighbour list per layer (`numerics.neighbour_list`).
+    lists: bool,
+    /// Variable h and IAD (`sph.variable_h`, `sph.gradient = "iad"`).
+    sm: SmoothingBuffers<L, R>,
+    /// The leapfrog (`time.integrator = "kdk"`).
+    kdk: LeapfrogBuffers<L, R>,
+    params: std::cell::RefCell<ParamSlots<L, R>>,
+    /// Over MPI ranks with a thin halo: the ghost particles and their refresh.
+    ghosts: Option<Ghosts<L>>,
+}
+
+/// Phantom's tolerance of the h solve (as the CPU path).
+const H_TOL: f64 = 1e-4;
+
+/// The dust's h solve when its density is computed only for an output: converged to
+/// round-off (a correction below 1e-8 leaves an error of order 1e-16 after Newton's quadratic
+/// step), so that it does not depend on its warm start, i.e. on when the previous output was
+/// written (at `H_TOL` the dust density moved with the output cadence by ≈3e-10; a run over MPI
+/// ranks, which refreshes it every step, then differed from one process by as much).
+const H_TOL_OUTPUT: f64 = 1e-8;
+
+/// Where an engine's first layer (densities, pressures, sound speeds) comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InitialLayer {
+    /// Computed from the positions (a run's start, a resume).
+    Compute,
+    /// The state's own: it was stepped by this code and its densities are exact (a rank's
+    /// engine rebuilt on particles their owners stepped).
+    FromState,
+}
+
+impl From<GpuError> for StepError {
+    fn from(e: GpuError) -> Self {
+        StepError::Blowup(format!("GPU: {e}"))
+    }
+}
+
+impl<L: Launcher, R: Float> Engine<L, R> {
+    /// Upload the state, sort it, and compute densities and pressures at the initial layer.
+    /// The host `state` is then sorted the same way (as the CPU engine leaves it).
+    pub fn new(phys: Physics, state: &mut State, launcher: L) -> Result<Engine<L, R>, StepError> {
+        Self::with_layer(phys, state, launcher, InitialLayer::Compute)
+    }
+
+    /// As [`Engine::new`]; with [`InitialLayer::FromState`] the state's densities, pressures and sound
+    /// speeds are its layer's (a step over MPI ranks rebuilds its engine on particles that
+    /// their owners stepped): the gas's summation density is not redone, and the dust's only
+    /// where its drag needs it each step (and then it is the state's too).
+    pub fn with_layer(
+        phys: Physics,
+        state: &mut State,
+        launcher: L,
+        layer: InitialLayer,
+    ) -> Result<Engine<L, R>, StepError> {
+        let stages = Stages::from_physics(&phys);
+        let nf = state.dust.len();
+        if nf > MAX_FRACTIONS {
+            return Err(StepError::Unsupported(format!(
+                "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
+            )));
+        }
+        let d = Device {
+            launcher,
+            allocated: std::cell::Cell::new(0),
+        };
+        let (eos_kind, eos_value) = match phys.eos {
+            Eos::Isothermal { cs } => (0, cs),
+            Eos::Adiabatic { gamma } => (1, gamma),
+        };
+        let mut laws = [LawParam::default(); MAX_FRACTIONS];
+        for (l, p) in laws.iter_mut().zip(&phys.laws) {
+            *l = LawParam::from_law(p);
+        }
+        let grid = Grid::build(&phys.domain, phys.cell_size, phys.support(), &[])?;
+        let base = StepParams {
+            geom: grid.geom,
+            total: 0,
+            h: phys.h,
+            tau: 0.0,
+            dim: phys.dim,
+            eos_kind,
+            eos_value,
+            av: phys.av.is_some() as u32,
+            alpha: phys.av.map_or(0.0, |a| a.alpha),
+            beta: phys.av.map_or(0.0, |a| a.beta),
+            nu2_factor: phys.av.map_or(0.0, |a| a.nu2_factor),
+            nf: nf as u32,
+            needs_gas_state: phys.laws.iter().any(|l| l.needs_gas_state()) as u32,
+            laws,
+            ext_gas: phys.ext_gas,
+            ext_dust: phys.ext_dust,
+            explicit_drag: stages.explicit_drag as u32,
+        };
+        let heating = stages.heating;
+        let gas = PhaseBuffers::new(&d, &[&state.gas.ph], heating)?;
+        let dust_refs: Vec<&Phase> = state.dust.iter().collect();
+        let dust = PhaseBuffers::new(&d, &dust_refs, heating)?;
+        let ng = gas.n;
+        let cap = (gas.n + dust.n).max(1);
+        let g = &state.gas;
+        // A resumed leapfrog run carries its closing forces: the first step starts from them.
+        let rows = g
+            .next_forces
+            .as_deref()
+            .filter(|r| stages.kdk && r.len() == ng);
+        let col = |k: usize| rows.map(|r| r.iter().map(|x| x[k]).collect::<Vec<f64>>());
+        let mut eng = Engine {
+            pres: d.upload_f64(&fill(&g.p, ng))?,
+            cs: d.upload_f64(&fill(&g.c, ng))?,
+            e: g.e.as_deref().map(|e| d.upload_f64(e)).transpose()?,
+            acc: match rows {
+                Some(r) => {
+                    d.upload_v3(&r.iter().map(|x| [x[0], x[1], x[2]]).collect::<Vec<V3>>())?
+                }
+                None => d.buf(ng)?,
+            },
+            zero_acc: d.buf(ng)?,
+            dedt: match (stages.energy, col(3)) {
+                (false, _) => None,
+                (true, Some(c)) => Some(d.upload_f64(&c)?),
+                (true, None) => Some(d.buf(ng)?),
+            },
+            cells: CellBuffers {
+                uidx: d.buf(1)?,
+                ukey: d.buf(cap)?,
+                gas_mass: d.buf(cap)?,
+                v_new: d.buf(cap)?,
+                eps: d.buf(cap * nf.max(1))?,
+                beta: d.buf(cap * nf.max(1))?,
+                t_stop: d.buf(cap * nf.max(1))?,
+                u_new: d.buf(cap * nf.max(1))?,
+                heat: d.buf(cap)?,
+                sparse: None,
+                union_fresh: false,
+            },
+            coupling: if stages.kernel_coupling {
+                Some(CouplingBuffers {
+                    sums: if phys.deposit_scatter {
+                        Some(d.buf((ng * (1 + nf) * th::DEPOSIT_SLOTS).max(1))?)
+                    } else {
+                        None
+                    },
+                    s_gas: d.buf(ng.max(1))?,
+                    s_dust: d.buf(dust.n.max(1))?,
+                    dv: d.buf(ng.max(1))?,
+                    du: d.buf((ng * nf).max(1))?,
+                    t_stop: d.buf((ng * nf).max(1))?,
+                    heat: if stages.heating {
+                        Some(d.buf(ng.max(1))?)
+                    } else {
+                        None
+                    },
+                    per_particle_kernels: stages.variable_h,
+                })
+            } else {
+                None
+            },
+            sums: d.buf(1)?,
+            limits: d.buf(2)?,
+            bounds: d.buf(6)?,
+            bad: d.buf(1)?,
+            step: state.step,
+            t: state.t,
+            force_sparse: false,
+            lists: match phys.neighbour_list {
+                ListChoice::On => true,
+                ListChoice::Off => false,
+                ListChoice::Auto => d.launcher.lists_by_default(),
+            },
+            kdk: {
+                let k = stages.kdk;
+                let save = k || phys.position_update == PositionUpdate::Old;
+                let closing = rows.map(|r| {
+                    let f = Forces::from_rows(r, true);
+                    (f.vsig_max, f.acc_max)
+                });
+                LeapfrogBuffers {
+                    closing,
+                    vsig: if k {
+                        Some(match col(4) {
+                            Some(c) => d.upload_f64(&c)?,
+                            None => d.buf(ng.max(1))?,
+                        })
+                    } else {
+                        None
+                    },
+                    v_save: d.buf(if save { ng.max(1) } else { 1 })?,
+                    u_save: d.buf(if save { dust.n.max(1) } else { 1 })?,
+                    e_save: if k && stages.energy {
+                        Some(d.buf(ng.max(1))?)
+                    } else {
+                        None
+                    },
+                }
+            },
+            sm: {
+                let vh = stages.variable_h;
+                // On resume the state carries h and Ω of the last step: kept as they are.
+                let resumed = vh && g.h.is_some() && g.omega.is_some();
+                let per_gas = if vh || stages.iad { ng.max(1) } else { 1 };
+                let solve = if vh { ng.max(dust.n).max(1) } else { 1 };
+                SmoothingBuffers {
+                    gas_h: if resumed {
+                        Some(d.upload_f64(g.h.as_deref().unwrap_or(&[]))?)
+                    } else {
+                        None
+                    },
+                    gas_omega: if resumed {
+                        Some(d.upload_f64(g.omega.as_deref().unwrap_or(&[]))?)
+                    } else {
+                        None
+                    },
+                    h_new: d.buf(solve)?,
+                    omega_new: d.buf(solve)?,
+                    iters: d.buf(solve)?,
+                    kernel_at: d.buf(per_gas)?,
+                    pt: d.buf(per_gas)?,
+                    iad: d.buf(if stages.iad { ng.max(1) } else { 1 })?,
+                    hmax: d.buf(1)?,
+                }
+            },
+            phys,
+            stages,
+            timers: Timers::default(),
+            d,
+            base,
+            grid,
+            gas,
+            dust,
+            dust_density_fresh: false,
+            params: std::cell::RefCell::new(ParamSlots {
+                mem: Vec::new(),
+                recent: Vec::new(),
+                uploads: 0,
+            }),
+            ghosts: None,
+        };
+        eng.regrid()?;
+        let given = layer == InitialLayer::FromState;
+        if given && !eng.stages.variable_h {
+            // Summation or continuity density: ρ is the state's; only p and c_s from it.
+            eng.eos()?;
+        } else {
+            eng.gas_density_eos(None)?;
+        }
+        // A resumed variable-h run keeps its dust densities too: the next solve starts from
+        // them (as the uninterrupted run's does), so the resume stays bit-identical.
+        let g = &state.gas;
+        let dust_rho_valid = state
+            .dust
+            .iter()
+            .all(|d| d.rho.len() == d.len() && d.rho.iter().all(|r| *r > 0.0 && r.is_finite()));
+        eng.dust_density_fresh = if given {
+            eng.stages.dust_density_each_step && dust_rho_valid
+        } else {
+            eng.stages.variable_h && g.h.is_some() && g.omega.is_some() && dust_rho_valid
+        };
+        if !given || eng.stages.dust_density_each_step {
+            eng.dust_density()?;
+        }
+        eng.sync(state)?;
+        eng.check(state)?;
+        Ok(eng)
+    }
+
+    pub fn describe(&self) -> String {
+        self.d.launcher.describe()
+    }
+
+    /// Bytes of device memory the engine has allocated (buffers grown and replaced count
+    /// again: an upper bound of what it holds).
+    pub fn device_bytes(&self) -> usize {
+        self.d.allocated.get()
+    }
+
+    /// The particle farthest from the origin (or with a non-finite position): phase, id and
+    /// position, for the message of a grid that cannot be built.
+    fn farthest_particle(&self) -> Result<String, GpuError> {
+        let d = &self.d;
+        let mut best: Option<(f64, String)> = None;
+        for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
+            if ph.n == 0 {
+                continue;
+            }
+            let x = d.get(&ph.x, ph.n)?;
+            let id = d.get(&ph.id, ph.n)?;
+            for (i, p) in x.iter().enumerate() {
+                let r = p.iter().map(|c| c.abs()).fold(0.0, f64::max);
+                let r = if r.is_finite() { r } else { f64::INFINITY };
+                if best.as_ref().is_none_or(|b| r > b.0) {
+                    let what = ph.phase_name(gas, i);
+                    best = Some((r, format!("{what} particle id {} at {:?}", id[i], p)));
+                }
+            }
+        }
+        Ok(best.map_or_else(|| "none".into(), |b| b.1))
+    }
+
+    /// Use the sparse cell tables from the next grid rebuild on (and rebuild now).
+    pub fn force_sparse_tables(&mut self) -> Result<(), StepError> {
+        self.force_sparse = true;
+        self.regrid()?;
+        // The densities of this layer are kept (variable h: the gas's h and the dust's
+        // densities seed the next solves; re-solving from them would not be the dense run).
+        self.gas_density_eos(None)?;
+        self.dust_density()
+    }
+
+    /// The step's parameters at time step τ, on the host and in device memory.
+    fn params(&self, tau: f64) -> Result<LaunchParams<R>, GpuError> {
+        let host: StepParams<R> = self.host_params(tau);
+        let mut slots = self.params.borrow_mut();
+        let i = match slots.recent.iter().rev().find(|q| q.0 == host) {
+            Some(&(_, i)) => i,
+            None => {
+                let i = slots.uploads % PARAM_SLOTS;
+                slots.uploads += 1;
+                if slots.mem.len() <= i {
+                    let m = self
+                        .d
+                        .launcher
+                        .alloc(std::mem::size_of::<StepParams<R>>())?;
+                    slots.mem.push(m);
+                }
+                self.d.launcher.upload_value(&mut slots.mem[i], &host)?;
+                if slots.recent.len() == PARAM_RECENT {
+                    slots.recent.remove(0);
+                }
+                slots.recent.push((host, i));
+                i
+            }
+        };
+        let dev = th::Params(self.d.launcher.addr(&slots.mem[i]) as *const StepParams<R>);
+        Ok(LaunchParams { host, dev })
+    }
+
+    /// The host's copy of the step's parameters at time step τ.
+    fn host_params(&self, tau: f64) -> StepParams<R> {
+        StepParams {
+            geom: self.grid.geom,
+            total: self.grid.total_cells(),
+            tau,
+            ..self.base
+        }
+        .cast()
+    }
+
+    /// Copy the particle state back to the host (snapshots, checkpoints, the summary).
+    pub fn sync(&self, state: &mut State) -> Result<(), GpuError> {
+        let d = &self.d;
+        self.gas.download(d, &mut [&mut state.gas.ph])?;
+        let ng = self.gas.n;
+        state.gas.p = d.get_f64(&self.pres, ng)?;
+        state.gas.c = d.get_f64(&self.cs, ng)?;
+        if let Some(e) = &self.e {
+            state.gas.e = Some(d.get_f64(e, ng)?);
+        }
+        if let (Some(h), Some(o)) = (&self.sm.gas_h, &self.sm.gas_omega) {
+            state.gas.h = Some(d.get_f64(h, ng)?);
+            state.gas.omega = Some(d.get_f64(o, ng)?);
+        }
+        if let (Some(_), Some(vsig)) = (self.kdk.closing, &self.kdk.vsig) {
+            let acc = d.get_v3(&self.acc, ng)?;
+            let dedt = match &self.dedt {
+                Some(b) => d.get_f64(b, ng)?,
+                None => vec![0.0; ng],
+            };
+            let vsig = d.get_f64(vsig, ng)?;
+            state.gas.next_forces = Some(
+                (0..ng)
+                    .map(|i| [acc[i][0], acc[i][1], acc[i][2], dedt[i], vsig[i]])
+                    .collect(),
+            );
+        }
+        let mut dust: Vec<&mut Phase> = state.dust.iter_mut().collect();
+        self.dust.download(d, &mut dust)
+    }
+
+    /// The dust densities as after a step: fresh only where the drag needs them each step. An
+    /// engine built on a gathered state (rank 0's for an output over ranks) whose dust
+    /// densities the ranks did not refresh then computes them before it writes them.
+    pub fn dust_density_as_after_step(&mut self) {
+        self.dust_density_fresh &= self.stages.dust_density_each_step;
+    }
+
+    /// Dust densities for output (kept fresh every step only when the drag law needs them).
+    pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
+        self.dust_density()?;
+        Ok(self.sync(state)?)
+    }
+
+    /// Stop on NaN/Inf or a non-positive density, naming step, phase, particle and field:
+    /// the device flags the first bad particle; the host then reads the state back and
+    /// words the message exactly as the CPU path does.
+    fn check(&mut self, state: &mut State) -> Result<(), StepError> {
+        let mut any = false;
+        for (gas, rho) in [(true, true), (false, self.dust_density_fresh)] {
+            let d = &self.d;
+            let ph = if gas { &self.gas } else { &self.dust };
+            if ph.n == 0 {
+                continue;
+            }
+            d.put(&mut self.bad, &[u32::MAX])?;
+            let a = th::CheckArgs {
+                ph: ph.bufs(d),
+                e: if gas {
+                    d.opt(&self.e)
+                } else {
+                    std::ptr::null_mut()
+                },
+                check_rho: rho as u32,
+                bad: d.ptr(&self.bad),
+            };
+            d.run(R::CHECK, ph.n, &a)?;
+            any |= d.get(&self.bad, 1)?[0] != u32::MAX;
+        }
+        if any {
+            self.sync(state)?;
+            super::check_state(state, self.dust_density_fresh)?;
+            return Err(StepError::Blowup(format!(
+                "step {}: the GPU flagged a particle with a bad value",
+                state.step
+            )));
+        }
+        Ok(())
+    }
+}
