@@ -86,7 +86,7 @@ impl Grid {
         Grid::from_bounds(domain, cell_size, support, b)
     }
 
-    /// The grid over given particle bounds (the GPU path reduces them on the device).
+    /// The grid over given particle bounds (the engine reduces them with a kernel).
     pub fn from_bounds(
         domain: &Domain,
         cell_size: f64,

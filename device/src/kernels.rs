@@ -654,7 +654,7 @@ pub fn from_ordered_bits(k: u64) -> f64 {
 }
 
 /// Insertion sort of one search cell's particles (old indices) by (combined key, old index):
-/// the CPU's sort order, restored after the GPU's counting sort by search cell.
+/// the stable sort order by cell, restored after the counting sort by search cell.
 #[inline(always)]
 pub fn sort_segment_by_key(perm: &mut [u32], keys: &[u64]) {
     let at = |p: u32| (keys[p as usize], p);

@@ -7,7 +7,7 @@
 //! panics on a hot path, allocates, or touches `std`.
 //!
 //! Functions are generic over [`Real`] so the GPU precision (f32 or f64) can be chosen by
-//! measurement; the CPU path always uses `f64`.
+//! measurement (`numerics.precision`, docs/accuracy.md).
 #![no_std]
 // Raw-pointer code is confined to `threads` (kernel entry bodies) and `ptx` (GPU entry points).
 #![deny(unsafe_code)]

@@ -2,9 +2,9 @@
 //!
 //! Each kernel takes one `#[repr(C)]` argument struct of pointers and parameters. On the GPU the
 //! `extern "ptx-kernel"` entry points of [`crate::ptx`] compute the global thread index and call
-//! these functions; on the host, the emulated backend calls the very same functions for every
+//! these functions; on the host, the rayon launcher calls the very same functions for every
 //! thread index, so the kernel code itself — not a model of it — runs in CI. The bodies they call
-//! ([`crate::kernels`]) are the ones the rayon CPU path uses.
+//! ([`crate::kernels`]) hold the physics; [`crate::kernel_table`] pairs each with its entry point.
 //!
 //! Layout: a phase buffer holds one or more groups (gas: one; dust: one per fraction, stored one
 //! after another). Particles are sorted by a combined key `group · (T + 1) + cell key` (T cells in
@@ -206,7 +206,7 @@ pub fn union_index(ubidx: &[u32], ukey: &[u64], sub_cells: usize, k: u64) -> Opt
     (i < run.len() && run[i] == k).then_some(lo + i)
 }
 
-/// One phase buffer on the device (or in host memory, for the emulated backend).
+/// One phase buffer on the device (or in host memory, for the rayon launcher).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct PhaseBufs<R> {
@@ -531,7 +531,7 @@ pub struct SegmentArgs {
     pub n: u32,
 }
 
-/// Thread t sorts the segment of search cell t by (key, old index): the CPU's order.
+/// Thread t sorts the segment of search cell t by (key, old index): the order of a stable sort by cell.
 pub unsafe fn sort_segments(t: usize, a: &SegmentArgs) {
     if t >= a.nkeys as usize {
         return;
@@ -723,7 +723,7 @@ pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
 
 // ---------------------------------------------------------------------------------------------
 // Variable smoothing lengths and the IAD gradient (docs/method.md; Price 2012, Garcia-Senz et
-// al. 2012): the CPU's per-particle functions, one thread per particle.
+// al. 2012): the per-particle functions of `kernels`, one thread per particle.
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
@@ -1162,7 +1162,7 @@ pub struct HeatArgs<R> {
 }
 
 /// Drag heat of union cell t: the kinetic energy its particles lost, per unit gas mass. Summed
-/// gas first, then fraction by fraction, in particle order: the CPU's order.
+/// gas first, then fraction by fraction, in particle order: a fixed order, so the sums are deterministic.
 pub unsafe fn heat<R: Real>(t: usize, a: &HeatArgs<R>) {
     let p = &a.p;
     if t >= union_count(&a.cells, p) {
@@ -1250,7 +1250,7 @@ pub struct CheckArgs<R> {
 }
 
 /// Flags a particle with a non-finite position or velocity, a non-positive density, or a
-/// negative or non-finite energy (the CPU path's check).
+/// negative or non-finite energy (as `check_state` words it).
 pub unsafe fn check<R: Real>(t: usize, a: &CheckArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() {
@@ -1460,7 +1460,7 @@ unsafe fn coupling_finish<R: Real>(
 /// Σ w m ṽ (3), Σ w m ρ, Σ w m sqrt(p/ρ).
 pub const DEPOSIT_SLOTS: usize = 6;
 
-/// Atomic f64 add (compare-and-swap on the bits: the same code for the GPU and its emulation).
+/// Atomic f64 add (compare-and-swap on the bits: the same code on the GPU and on the CPU's cores).
 /// The scatter sums stay f64 in every precision: their order is the hardware's anyway.
 #[inline(always)]
 unsafe fn atomic_add_f64(p: *mut f64, v: f64) {
@@ -1639,7 +1639,7 @@ pub struct CouplingHeatArgs<R> {
 
 /// Drag heat of gas particle t under the kernel coupling: Σ_q w_qt ΔE_q / m_t, every particle's
 /// loss spread with its own weights (Σ_a w_qa = 1: the gas gains what the particles lose), as
-/// the CPU's deposit of the losses as masses.
+/// the deposit of the losses as masses (method.md §K).
 pub unsafe fn coupling_heat<R: Real>(t: usize, a: &CouplingHeatArgs<R>) {
     let c = &a.couple;
     let g = &c.gas;

@@ -203,7 +203,7 @@ pub fn compare_scenes(
     let dust_rho = cpu.stages().dust_density_each_step;
     let mut acc = Comparison(Vec::new());
     acc.state(&s_cpu, &s_dev, dust_rho);
-    // Both step with the CPU's plan (never landing), so a difference in the forces cannot
+    // Both step with the reference's plan (never landing), so a difference in the forces cannot
     // change the step size and hide itself.
     let driver = StepPlanner::new(&scene.time, phys.h);
     for step in 1..=steps {

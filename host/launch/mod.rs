@@ -28,7 +28,7 @@ impl From<::cudarc::driver::DriverError> for GpuError {
     }
 }
 
-/// What the GPU engine needs from a device: zeroed memory, copies, launches.
+/// What the engine needs from where it runs: zeroed memory, copies, launches.
 pub trait Launcher {
     type Mem;
     /// Device name for the summary.

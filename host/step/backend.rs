@@ -68,7 +68,7 @@ pub fn select(choice: DeviceChoice) -> Result<(DeviceChoice, Option<String>), St
     }
 }
 
-/// [`Backend::start`] after `select`, with the GPU engine's constructor given (tests pass one
+/// [`Backend::start`] after `select`, with the CUDA engine's constructor given (tests pass one
 /// that fails).
 fn start_resolved(
     asked: DeviceChoice,
@@ -140,7 +140,7 @@ pub enum StartError {
 
 impl Backend {
     /// The engine for what the user asked, and a one-line note when `auto` did not use the
-    /// GPU. `auto` falls back to the CPU when no GPU is usable, when the GPU path refuses the
+    /// GPU. `auto` falls back to the CPU when no GPU is usable, when the CUDA engine refuses the
     /// scene, or when CUDA fails to initialise or to run the set-up launches (sort, densities);
     /// all of that happens before any output is written. The state is restored before the CPU
     /// starts, so a failed GPU attempt leaves no trace.
@@ -193,7 +193,7 @@ impl Backend {
         })
     }
 
-    /// The CPU engine (rayon) taking the state's layer as given or not ([`InitialLayer`]).
+    /// The engine on the CPU's cores (rayon) taking the state's layer as given or not ([`InitialLayer`]).
     pub fn on_cpu_at(
         phys: Physics,
         state: &mut State,

@@ -107,7 +107,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
 
     /// Gas density at the current (new) positions, then the EOS: variable h, summation, or the
     /// continuity equation ρ += τ dρ/dt. `tau` is `None` at start-up and on resume, where a
-    /// resumed variable-h state and a continuity density are kept as they are (the CPU's rule).
+    /// resumed variable-h state and a continuity density are kept as they are (a resume continues bit for bit).
     pub(super) fn gas_density_eos(&mut self, tau: Option<f64>) -> Result<(), StepError> {
         if self.stages.variable_h {
             let resumed = tau.is_none() && self.sm.gas_h.is_some();

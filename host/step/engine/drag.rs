@@ -321,7 +321,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     }
 
     /// Kernel coupling: the stopping time each dust particle feels (the CPU's
-    /// `kernel_stopping_times`, kernel for kernel).
+    /// the solve's t_s at the particle, spread back with the weights of the return).
     pub(super) fn kernel_stopping_times(&mut self) -> Result<Vec<Vec<f64>>, GpuError> {
         self.coupling_norms()?;
         let d = &self.d;

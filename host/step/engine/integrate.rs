@@ -118,7 +118,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         self.new_layer(timers, tau, |_| Ok(()))
     }
 
-    /// Kick–drift–kick leapfrog, as the CPU's `advance_kdk`: half kick (forces + drag over
+    /// Kick–drift–kick leapfrog (Phantom's): half kick (forces + drag over
     /// τ/2), drift with v^{n+1/2}, the new layer with predicted e*, predicted v*, u* (a τ/2 kick
     /// with the old forces and the drag at the new layer), forces there, then the closing half
     /// kick from v^{n+1/2} with the new forces, which are kept for the next step.

@@ -88,7 +88,7 @@ pub struct Engine<L: Launcher, R: Float> {
     ghosts: Option<Ghosts<L>>,
 }
 
-/// Phantom's tolerance of the h solve (as the CPU path).
+/// Phantom's tolerance of the h solve.
 const H_TOL: f64 = 1e-4;
 
 /// The dust's h solve when its density is computed only for an output: converged to
@@ -116,7 +116,7 @@ impl From<GpuError> for StepError {
 
 impl<L: Launcher, R: Float> Engine<L, R> {
     /// Upload the state, sort it, and compute densities and pressures at the initial layer.
-    /// The host `state` is then sorted the same way (as the CPU engine leaves it).
+    /// The host `state` is then sorted the same way (particle order is the engine's cell order).
     pub fn new(phys: Physics, state: &mut State, launcher: L) -> Result<Engine<L, R>, StepError> {
         Self::with_layer(phys, state, launcher, InitialLayer::Compute)
     }
@@ -135,7 +135,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let nf = state.dust.len();
         if nf > MAX_FRACTIONS {
             return Err(StepError::Unsupported(format!(
-                "{nf} dust fractions: the GPU path supports at most {MAX_FRACTIONS}"
+                "{nf} dust fractions: the kernels support at most {MAX_FRACTIONS}"
             )));
         }
         let d = Device {
@@ -470,7 +470,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
 
     /// Stop on NaN/Inf or a non-positive density, naming step, phase, particle and field:
     /// the device flags the first bad particle; the host then reads the state back and
-    /// words the message exactly as the CPU path does.
+    /// words the message with `check_state`.
     fn check(&mut self, state: &mut State) -> Result<(), StepError> {
         let mut any = false;
         for (gas, rho) in [(true, true), (false, self.dust_density_fresh)] {

@@ -262,7 +262,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     }
 
     /// The grid's search radius: the support 2h; with variable h, 2 max h_a plus 0.1% (the
-    /// CPU path's rule, so both build the same grid).
+    /// rule of `Grid::build`, so a restart builds the same grid).
     pub(super) fn search_support(&mut self) -> Result<f64, GpuError> {
         let base = self.phys.support();
         let (Some(h), true) = (&self.sm.gas_h, self.stages.variable_h) else {
