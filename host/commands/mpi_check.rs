@@ -13,22 +13,29 @@
 //! no rank waits forever on another).
 use crate::decomp::Partition;
 use crate::dist::comm::World;
-use crate::dist::ranks::{cut, halo_copies, migrate, records, Full, RankStepper};
+use crate::dist::ranks::{cut, halo_copies, migrate, records, ParticleRecord, RankStepper};
 use std::time::Instant;
 
-/// One particle on the wire: id, phase (0 gas, 1 + k dust fraction k), position bits.
-type Rec = [u64; 5];
+/// One particle on the wire for the exchange check: its key and position.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Rec {
+    id: u64,
+    /// 0 gas, 1 + k dust fraction k.
+    phase: u64,
+    x: [f64; 3],
+}
+
+// SAFETY: `repr(C)` of 8-byte fields (no padding); every bit pattern is valid.
+unsafe impl bytemuck::Zeroable for Rec {}
+unsafe impl bytemuck::Pod for Rec {}
 
 fn rec(id: u64, phase: u64, x: [f64; 3]) -> Rec {
-    [id, phase, x[0].to_bits(), x[1].to_bits(), x[2].to_bits()]
+    Rec { id, phase, x }
 }
 
 fn pos(r: &Rec) -> [f64; 3] {
-    [
-        f64::from_bits(r[2]),
-        f64::from_bits(r[3]),
-        f64::from_bits(r[4]),
-    ]
+    r.x
 }
 
 /// What one rank measured.
@@ -101,7 +108,7 @@ pub fn run(
     // The output's gather: every owned particle's whole record to rank 0's buffer (the same
     // volume as `dist::ranks::RankStepper::gather`).
     let t2 = Instant::now();
-    let full = vec![0u8; owned.len() * std::mem::size_of::<crate::dist::ranks::Full>()];
+    let full = vec![0u8; owned.len() * std::mem::size_of::<ParticleRecord>()];
     let gathered = world.gather_bytes(&full);
     let gather_s = t2.elapsed().as_secs_f64();
     drop(gathered);
@@ -153,7 +160,7 @@ fn check(
         if o != me {
             return format!(
                 "particle id {} (phase {}) is owned here, its cell by rank {o}",
-                r[0], r[1]
+                r.id, r.phase
             );
         }
     }
@@ -167,7 +174,7 @@ fn check(
             part.halo[me as usize]
         );
     }
-    let key = |r: &Rec| (r[0], r[1]);
+    let key = |r: &Rec| (r.id, r.phase);
     let mut have: Vec<(u64, u64)> = owned.iter().chain(halo).map(key).collect();
     have.sort_unstable();
     if have.windows(2).any(|w| w[0] == w[1]) {
@@ -185,7 +192,7 @@ fn check(
             return format!(
                 "particle id {} (phase {}) lies within {reach:e} of owned particle id {} but is \
                  neither owned nor halo here",
-                p[0], p[1], o[0]
+                p.id, p.phase, o.id
             );
         }
     }
@@ -278,14 +285,14 @@ pub fn step_over_ranks(
         eng.dust_density_as_after_step();
         eng.refresh_dust_density(&mut out)
             .map_err(|e| e.to_string())?;
-        let fresh: std::collections::HashMap<(u64, u64), u64> = records(&out)
+        let fresh: std::collections::HashMap<(u64, u64), f64> = records(&out)
             .iter()
-            .filter(|r| r[1] > 0)
-            .map(|r| ((r[1], r[0]), r[9]))
+            .filter(|r| r.phase > 0)
+            .map(|r| (r.key(), r.rho))
             .collect();
         for (k, d) in dist.dust.iter_mut().enumerate() {
             for (i, rho) in d.rho.iter_mut().enumerate() {
-                *rho = f64::from_bits(fresh[&(k as u64 + 1, d.id[i])]);
+                *rho = fresh[&(k as u64 + 1, d.id[i])];
             }
         }
     }
@@ -304,7 +311,7 @@ pub fn step_over_ranks(
     let mut reference = records(&one);
     let mut dist_recs = records(&dist);
     dist.gas.c.clear();
-    let key = |r: &Full| (r[1], r[0]);
+    let key = |r: &ParticleRecord| r.key();
     dist_recs.sort_unstable_by_key(key);
     reference.sort_unstable_by_key(key);
     if dist_recs.len() != reference.len()
@@ -319,14 +326,15 @@ pub fn step_over_ranks(
             reference.len()
         ));
     }
-    let fields: [(&'static str, &[usize]); 5] = [
-        ("x", &[2, 3, 4]),
-        ("v", &[5, 6, 7]),
-        ("m", &[8]),
-        ("rho", &[9]),
-        ("e", &[10]),
+    // Each field as its components.
+    type Columns = fn(&ParticleRecord) -> Vec<f64>;
+    let fields: [(&'static str, Columns); 5] = [
+        ("x", |r| r.x.to_vec()),
+        ("v", |r| r.v.to_vec()),
+        ("m", |r| vec![r.m]),
+        ("rho", |r| vec![r.rho]),
+        ("e", |r| vec![r.e]),
     ];
-    let f = |r: &Full, j: usize| f64::from_bits(r[j]);
     // A velocity is measured against the flow's own scale, at least the sound speed (a
     // linear wave's velocities are 1e-4 of it, and round-off follows the sound speed).
     let out = fields
@@ -334,12 +342,12 @@ pub fn step_over_ranks(
         .map(|&(name, cols)| {
             let scale = reference
                 .iter()
-                .flat_map(|r| cols.iter().map(move |&j| f(r, j).abs()))
+                .flat_map(|r| cols(r).into_iter().map(f64::abs))
                 .fold(0.0f64, f64::max);
             let diff = dist_recs
                 .iter()
                 .zip(&reference)
-                .flat_map(|(a, b)| cols.iter().map(move |&j| (f(a, j) - f(b, j)).abs()))
+                .flat_map(|(a, b)| cols(a).into_iter().zip(cols(b)).map(|(x, y)| (x - y).abs()))
                 .fold(0.0f64, f64::max);
             let scale = if name == "v" { scale.max(c_max) } else { scale };
             (name, if scale > 0.0 { diff / scale } else { diff })

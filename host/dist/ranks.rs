@@ -36,62 +36,103 @@ pub fn depth_for(phys: &Physics) -> f64 {
     chain + cell.max(1.0)
 }
 
-/// A particle's whole state for the stepping check, as bits: id, phase, x, v, m, ρ, e, fixed,
-/// flags (1: h and Ω, 2: the leapfrog's closing forces), h, Ω, the closing forces (5), and the
-/// gas's pressure and sound speed.
-pub type Full = [u64; 22];
-
-pub(crate) fn pack(id: u64, phase: usize, ph: &crate::particles::Phase, i: usize) -> Full {
-    let b = |v: f64| v.to_bits();
-    let mut r = [0u64; 22];
-    r[0] = id;
-    r[1] = phase as u64;
-    for k in 0..3 {
-        r[2 + k] = b(ph.x[i][k]);
-        r[5 + k] = b(ph.v[i][k]);
-    }
-    r[8] = b(ph.m[i]);
-    r[9] = b(ph.rho.get(i).copied().unwrap_or(0.0));
-    r[11] = ph.is_fixed(i) as u64;
-    r
+/// A particle's whole state as it travels between ranks (migration, the halo, the gather for
+/// output): everything a rank's engine needs to step it, as plain data (`Pod`: sent as bytes,
+/// read back to the bit).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ParticleRecord {
+    pub id: u64,
+    /// 0 gas, 1 + k dust fraction k.
+    pub phase: u64,
+    pub x: [f64; 3],
+    pub v: [f64; 3],
+    pub m: f64,
+    pub rho: f64,
+    /// Gas: the internal energy (0 without an energy equation).
+    pub e: f64,
+    /// 1: held fixed (a wall of the scene, or the deep halo's outer shell).
+    pub fixed: u64,
+    /// [`ParticleRecord::HAS_H`] | [`ParticleRecord::HAS_CLOSING_FORCES`].
+    pub flags: u64,
+    /// Gas with variable h: h and Ω of its last solve.
+    pub h: f64,
+    pub omega: f64,
+    /// Gas under the leapfrog: the closing forces (A, ė, v_sig) the next step starts from.
+    pub closing_forces: [f64; 5],
+    /// Gas: pressure and sound speed of its layer.
+    pub p: f64,
+    pub c: f64,
 }
 
-pub(crate) fn full_pos(r: &Full) -> [f64; 3] {
-    [
-        f64::from_bits(r[2]),
-        f64::from_bits(r[3]),
-        f64::from_bits(r[4]),
-    ]
+// SAFETY: `repr(C)` of 8-byte fields only (no padding), and every bit pattern is a valid
+// u64 or f64.
+unsafe impl bytemuck::Zeroable for ParticleRecord {}
+unsafe impl bytemuck::Pod for ParticleRecord {}
+
+impl ParticleRecord {
+    pub const HAS_H: u64 = 1;
+    pub const HAS_CLOSING_FORCES: u64 = 2;
+
+    /// Particle i of phase `phase` (position, velocity, mass, density, fixed).
+    pub(crate) fn of(phase: usize, ph: &crate::particles::Phase, i: usize) -> ParticleRecord {
+        ParticleRecord {
+            id: ph.id[i],
+            phase: phase as u64,
+            x: ph.x[i],
+            v: ph.v[i],
+            m: ph.m[i],
+            rho: ph.rho.get(i).copied().unwrap_or(0.0),
+            fixed: ph.is_fixed(i) as u64,
+            ..Default::default()
+        }
+    }
+
+    /// (phase, id): a particle's key over the ranks.
+    pub fn key(&self) -> (u64, u64) {
+        (self.phase, self.id)
+    }
+
+    /// h where it was solved (variable h), else 0.
+    pub fn solved_h(&self) -> f64 {
+        if self.flags & Self::HAS_H != 0 {
+            self.h
+        } else {
+            0.0
+        }
+    }
+}
+
+pub(crate) fn full_pos(r: &ParticleRecord) -> [f64; 3] {
+    r.x
 }
 
 /// Every particle of a state as records.
-pub fn records(st: &crate::particles::State) -> Vec<Full> {
+pub fn records(st: &crate::particles::State) -> Vec<ParticleRecord> {
     let mut out = Vec::new();
     for (k, ph) in std::iter::once(&st.gas.ph)
         .chain(st.dust.iter())
         .enumerate()
     {
         for i in 0..ph.len() {
-            let mut r = pack(ph.id[i], k, ph, i);
+            let mut r = ParticleRecord::of(k, ph, i);
             if k == 0 {
                 let g = &st.gas;
                 if let Some(e) = &g.e {
-                    r[10] = e[i].to_bits();
+                    r.e = e[i];
                 }
                 if let (Some(h), Some(o)) = (&g.h, &g.omega) {
-                    r[12] |= 1;
-                    r[13] = h[i].to_bits();
-                    r[14] = o[i].to_bits();
+                    r.flags |= ParticleRecord::HAS_H;
+                    r.h = h[i];
+                    r.omega = o[i];
                 }
                 if g.p.len() == ph.len() && g.c.len() == ph.len() {
-                    r[20] = g.p[i].to_bits();
-                    r[21] = g.c[i].to_bits();
+                    r.p = g.p[i];
+                    r.c = g.c[i];
                 }
                 if let Some(f) = &g.next_forces {
-                    r[12] |= 2;
-                    for (j, v) in f[i].iter().enumerate() {
-                        r[15 + j] = v.to_bits();
-                    }
+                    r.flags |= ParticleRecord::HAS_CLOSING_FORCES;
+                    r.closing_forces = f[i];
                 }
             }
             out.push(r);
@@ -102,7 +143,10 @@ pub fn records(st: &crate::particles::State) -> Vec<Full> {
 
 /// A state from records (phases in order; `template` gives the phase count and whether the
 /// gas has an energy or fixed particles).
-pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::particles::State {
+pub fn state_of(
+    recs: &[ParticleRecord],
+    template: &crate::particles::State,
+) -> crate::particles::State {
     use crate::particles::{Gas, Phase, State};
     let nph = 1 + template.dust.len();
     let mut phases: Vec<Phase> = (0..nph).map(|_| Phase::default()).collect();
@@ -112,27 +156,26 @@ pub fn state_of(recs: &[Full], template: &crate::particles::State) -> crate::par
     let (mut pres, mut cs) = (Vec::new(), Vec::new());
     let (mut all_h, mut all_nf) = (true, true);
     for r in recs {
-        let k = r[1] as usize;
-        let f = |j: usize| f64::from_bits(r[j]);
+        let k = r.phase as usize;
         let ph = &mut phases[k];
-        ph.id.push(r[0]);
-        ph.x.push([f(2), f(3), f(4)]);
-        ph.v.push([f(5), f(6), f(7)]);
-        ph.m.push(f(8));
-        ph.rho.push(f(9));
-        fixed[k].push(r[11] != 0);
+        ph.id.push(r.id);
+        ph.x.push(r.x);
+        ph.v.push(r.v);
+        ph.m.push(r.m);
+        ph.rho.push(r.rho);
+        fixed[k].push(r.fixed != 0);
         if k == 0 {
-            e.push(f(10));
-            all_h &= r[12] & 1 != 0;
-            all_nf &= r[12] & 2 != 0;
-            h.push(f(13));
-            omega.push(f(14));
-            nf.push([f(15), f(16), f(17), f(18), f(19)]);
-            pres.push(f(20));
-            cs.push(f(21));
+            e.push(r.e);
+            all_h &= r.flags & ParticleRecord::HAS_H != 0;
+            all_nf &= r.flags & ParticleRecord::HAS_CLOSING_FORCES != 0;
+            h.push(r.h);
+            omega.push(r.omega);
+            nf.push(r.closing_forces);
+            pres.push(r.p);
+            cs.push(r.c);
         }
     }
-    let some_gas = recs.iter().any(|r| r[1] == 0);
+    let some_gas = recs.iter().any(|r| r.phase == 0);
     // Fixed particles: the scene's walls, and the halo's outer shell.
     let with_fixed = |k: usize, t: &Phase| {
         (t.fixed.is_some() || fixed[k].iter().any(|&f| f)).then(|| fixed[k].clone())
@@ -361,7 +404,7 @@ pub struct RankStepper {
     pub world: World,
     phys: Physics,
     template: State,
-    owned: Vec<Full>,
+    owned: Vec<ParticleRecord>,
     depth: f64,
     /// Where this rank steps: its own GPU (rank r on device r mod count), or the CPU.
     dev: RankDevice,
@@ -458,9 +501,9 @@ impl RankStepper {
         let (me, ranks) = (world.rank(), world.size());
         // By particle key, not position: rank 0's copy of the scene is sorted by its engine,
         // the others' are not.
-        let owned: Vec<Full> = records(full)
+        let owned: Vec<ParticleRecord> = records(full)
             .into_iter()
-            .filter(|r| (r[0].wrapping_add(r[1]) % ranks as u64) as u32 == me)
+            .filter(|r| (r.id.wrapping_add(r.phase) % ranks as u64) as u32 == me)
             .collect();
         // The shape of the state (phases, energy, fixed particles), without its particles.
         let template = full.shape();
@@ -607,13 +650,7 @@ impl RankStepper {
         let domain = self.phys.domain;
         // The support: of the largest h over all ranks where h varies (the reference h at
         // least), so that the halo holds every neighbour of its stepped particles.
-        let h_of = |r: &Full| {
-            if r[12] & 1 != 0 {
-                f64::from_bits(r[13])
-            } else {
-                0.0
-            }
-        };
+        let h_of = |r: &ParticleRecord| r.solved_h();
         let mut h_max = [self.owned.iter().fold(self.phys.h, |a, r| a.max(h_of(r)))];
         world.max_f64(&mut h_max);
         let support = crate::step::SUPPORT * h_max[0];
@@ -630,17 +667,17 @@ impl RankStepper {
         let part = cut(world, &xs, &domain, reach);
         let (owned, _) = migrate(world, &part, &self.owned, full_pos)?;
         let to = halo_sends(world.size(), &part, &owned, full_pos);
-        let sends: Vec<Vec<Full>> = (to.iter())
+        let sends: Vec<Vec<ParticleRecord>> = (to.iter())
             .map(|ix| ix.iter().map(|&i| owned[i]).collect())
             .collect();
         let halo = world.exchange(&sends)?;
-        let mine: KeySet = owned.iter().map(|r| (r[0], r[1])).collect();
+        let mine: KeySet = owned.iter().map(|r| r.key()).collect();
         let mut local_recs = owned.clone();
         let kept = shell(&owned, &halo, inner, reach, &domain);
-        let ghost_keys: KeySet = kept.iter().map(|r| (r[1], r[0])).collect();
+        let ghost_keys: KeySet = kept.iter().map(|r| r.key()).collect();
         local_recs.extend(kept);
         // The ghosts' refresh is collective inside the step: every rank steps an engine.
-        if thin && world.any(!local_recs.iter().any(|r| r[1] == 0)) {
+        if thin && world.any(!local_recs.iter().any(|r| r.phase == 0)) {
             return Ok(Tried::NoGasOnARank);
         }
         let mut local = state_of(&local_recs, &self.template);
@@ -671,7 +708,7 @@ impl RankStepper {
         };
         if thin {
             let keys: Vec<Vec<(u64, u64)>> = (to.iter())
-                .map(|ix| ix.iter().map(|&i| (owned[i][1], owned[i][0])).collect())
+                .map(|ix| ix.iter().map(|&i| owned[i].key()).collect())
                 .collect();
             let sync = Box::new(RankGhosts {
                 comm: world.dup(),
@@ -745,7 +782,7 @@ impl RankStepper {
             }
             next = records(&local)
                 .into_iter()
-                .filter(|r| mine.contains(&(r[0], r[1])))
+                .filter(|r| mine.contains(&r.key()))
                 .collect();
         }
         if world.any(!err.is_empty()) {
@@ -754,14 +791,14 @@ impl RankStepper {
         if thin {
             // Did every neighbour and cell-mate of an owned particle at the new layer lie in
             // the halo? Two particles close in by at most twice the largest displacement.
-            let old: KeyMap<[f64; 3]> = owned.iter().map(|r| ((r[1], r[0]), full_pos(r))).collect();
+            let old: KeyMap<[f64; 3]> = owned.iter().map(|r| (r.key(), full_pos(r))).collect();
             let mut worst = [
                 0.0f64,
                 0.0,
                 (local_recs.len() - owned.len()) as f64 / owned.len().max(1) as f64,
             ];
             for r in &next {
-                let d2 = domain.distance2(old[&(r[1], r[0])], full_pos(r));
+                let d2 = domain.distance2(old[&r.key()], full_pos(r));
                 worst[0] = worst[0].max(d2.sqrt());
                 worst[1] = worst[1].max(h_of(r));
             }
@@ -801,12 +838,12 @@ impl RankStepper {
         let Some(parts) = self.world.gather_bytes(&bytes) else {
             return Ok(None);
         };
-        let mut all: Vec<Full> = parts
+        let mut all: Vec<ParticleRecord> = parts
             .iter()
-            .flat_map(|b| b.chunks_exact(std::mem::size_of::<Full>()))
-            .map(bytemuck::pod_read_unaligned::<Full>)
+            .flat_map(|b| b.chunks_exact(std::mem::size_of::<ParticleRecord>()))
+            .map(bytemuck::pod_read_unaligned::<ParticleRecord>)
             .collect();
-        all.sort_unstable_by_key(|r| (r[1], r[0]));
+        all.sort_unstable_by_key(|r| r.key());
         let mut st = state_of(&all, &self.template);
         st.t = t;
         st.step = step;
@@ -829,12 +866,12 @@ fn failure(_world: &World, step: u64, me: u32, err: &str) -> String {
 /// stepped halo's forces are too, and no particle with an incomplete neighbourhood enters the
 /// step's maxima); the rest, which no stepped particle reaches, are left out.
 fn shell(
-    owned: &[Full],
-    halo: &[Full],
+    owned: &[ParticleRecord],
+    halo: &[ParticleRecord],
     inner: f64,
     outer: f64,
     domain: &crate::grid::Domain,
-) -> Vec<Full> {
+) -> Vec<ParticleRecord> {
     use std::collections::HashMap;
     // Cells of about half the test radius (on a periodic axis a whole number per period, the
     // indices wrapping): a halo particle scans only the cells across the edge of its sphere.
@@ -915,7 +952,7 @@ fn shell(
             }
             within(x, outer).then(|| {
                 let mut r = *h;
-                r[11] = 1;
+                r.fixed = 1;
                 r
             })
         })

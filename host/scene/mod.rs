@@ -67,6 +67,20 @@ impl LoadedScene {
 /// TOML floats are written in their shortest round-trip form). Parsing it without overrides
 /// gives the same scene as parsing `text` with them.
 pub fn effective_text(text: &str, file: &Path, overrides: &[String]) -> Result<String, SceneError> {
+    let table = overridden_table(text, file, overrides)?;
+    toml::to_string(&table).map_err(|e| SceneError {
+        file: file.to_path_buf(),
+        key: None,
+        msg: format!("cannot be written back as TOML: {e}"),
+    })
+}
+
+/// The scene text's TOML table with the `--set` overrides applied.
+fn overridden_table(
+    text: &str,
+    file: &Path,
+    overrides: &[String],
+) -> Result<toml::Table, SceneError> {
     let err = |key: Option<String>, msg: String| SceneError {
         file: file.to_path_buf(),
         key,
@@ -78,7 +92,7 @@ pub fn effective_text(text: &str, file: &Path, overrides: &[String]) -> Result<S
     for ov in overrides {
         apply_override(&mut table, ov).map_err(|(key, msg)| err(key, msg))?;
     }
-    toml::to_string(&table).map_err(|e| err(None, format!("cannot be written back as TOML: {e}")))
+    Ok(table)
 }
 
 /// Every section of a scene is a table, and so is every `[[dust.fractions]]` entry: serde would
@@ -189,12 +203,7 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         key,
         msg,
     };
-    let mut table: toml::Table = text
-        .parse()
-        .map_err(|e: toml::de::Error| err(None, format!("not valid TOML: {e}")))?;
-    for ov in overrides {
-        apply_override(&mut table, ov).map_err(|(key, msg)| err(key, msg))?;
-    }
+    let table = overridden_table(text, file, overrides)?;
     check_tables(&table).map_err(|(key, msg)| err(Some(key), msg))?;
     // Another problem's section (a stray `--set dustybox.length=1` on a wave): said before the
     // section's own missing keys would be.
