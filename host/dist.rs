@@ -103,6 +103,12 @@ pub mod comm {
         }
 
         /// Element-wise sum over ranks.
+        pub fn sum_f64(&self, v: &mut [f64]) {
+            let send = v.to_vec();
+            self.world
+                .all_reduce_into(&send[..], v, SystemOperation::sum());
+        }
+
         pub fn sum_u64(&self, v: &mut [u64]) {
             let send = v.to_vec();
             self.world

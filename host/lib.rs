@@ -16,6 +16,7 @@ pub mod particles;
 pub mod plot;
 pub mod scene;
 pub mod setup;
+pub mod sim;
 pub mod step;
 
 // The commands' modules under their former paths (tests and scripts use them).

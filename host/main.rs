@@ -1,7 +1,9 @@
 //! `dustsph` command line.
 use clap::{Parser, Subcommand};
-use dustsph::run::{RunError, RunOptions, Runner, Stop, Summary};
+use dustsph::commands::run::{Run, RunOptions};
 use dustsph::scene::{ListChoice, Precision};
+use dustsph::sim::summary::Summary;
+use dustsph::sim::{RunError, Stop};
 use dustsph::step::backend::DeviceChoice;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -264,7 +266,7 @@ fn print_field(f: &dustsph::analysis::FieldError) {
 /// caught from before the start: pressed during the set-up, the run stops at its first step
 /// with a checkpoint (exit 130), as later.
 fn drive(
-    start: impl FnOnce() -> Result<Runner, RunError>,
+    start: impl FnOnce() -> Result<Run, RunError>,
     checkpoint_every: Option<u64>,
     stop_after: Option<u64>,
 ) -> ExitCode {
@@ -295,14 +297,18 @@ fn drive(
     };
     match r.advance(stop_after, checkpoint_every, Some(&stop)) {
         Ok(Stop::Finished) => {}
-        Ok(Stop::Interrupted) if !r.is_root() => return ExitCode::from(130),
-        Ok(Stop::Interrupted) => {
-            eprintln!(
-                "interrupted at step {}, t = {}: checkpoint written; continue with `dustsph resume {}`",
-                r.state.step,
-                r.state.t,
-                r.out_dir().display()
-            );
+        Ok(Stop::Interrupted { .. }) if !r.is_root() => return ExitCode::from(130),
+        Ok(Stop::Interrupted { .. }) => {
+            let (step, t) = (r.sim.state.step, r.sim.state.t);
+            if r.checkpointed_now() {
+                eprintln!(
+                    "interrupted at step {step}, t = {t}: checkpoint written; continue with \
+                     `dustsph resume {}`",
+                    r.out_dir().display()
+                );
+            } else {
+                eprintln!("stopped at step {step}, t = {t}, without a checkpoint of this state");
+            }
             return ExitCode::from(130);
         }
         Err(e) => return fail(e),
@@ -383,14 +389,10 @@ fn run(a: RunArgs) -> ExitCode {
     // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
     #[cfg(feature = "mpi")]
     if let Some(world) = ranks_world() {
-        let start = || world.and_then(|w| Runner::start_over_ranks(&loaded, &opts, w));
+        let start = || world.and_then(|w| Run::start_over_ranks(&loaded, &opts, w));
         return drive(start, checkpoint_every, stop_after);
     }
-    drive(
-        || Runner::start(&loaded, &opts),
-        checkpoint_every,
-        stop_after,
-    )
+    drive(|| Run::start(&loaded, &opts), checkpoint_every, stop_after)
 }
 
 fn bench(a: BenchArgs) -> ExitCode {
@@ -705,14 +707,10 @@ fn resume(a: ResumeArgs) -> ExitCode {
     // Started as one of several MPI ranks: the rest of the run is split over them.
     #[cfg(feature = "mpi")]
     if let Some(world) = ranks_world() {
-        let start = || world.and_then(|w| Runner::resume_over_ranks(&dir, !quiet, device, w));
+        let start = || world.and_then(|w| Run::resume_over_ranks(&dir, !quiet, device, w));
         return drive(start, checkpoint_every, None);
     }
-    drive(
-        || Runner::resume(&dir, !quiet, device),
-        checkpoint_every,
-        None,
-    )
+    drive(|| Run::resume(&dir, !quiet, device), checkpoint_every, None)
 }
 
 fn parity(a: ParityArgs) -> ExitCode {

@@ -352,8 +352,7 @@ fn f32_step_follows_the_f64_step_to_single_precision() {
 /// launcher allocates the very buffers a GPU does.
 #[test]
 fn device_memory_estimate_bounds_what_the_engine_allocates() {
-    use dustsph::step::backend::Backend;
-    use dustsph::step::timestep::StepPlanner;
+    use dustsph::sim::Simulation;
     let mut worst = [0.0f64; 2];
     for (label, file, sets, _) in CASES {
         for (k, prec) in ["f64", "f32"].iter().enumerate() {
@@ -365,17 +364,15 @@ fn device_memory_estimate_bounds_what_the_engine_allocates() {
                 let loaded = dustsph::scene::load(&path, &sets).unwrap();
                 let su = dustsph::setup::build(&loaded.scene).unwrap();
                 let phys = dustsph::step::Physics::from_scene(&loaded.scene, su.h, su.domain);
-                let mut state = su.state;
+                let state = su.state;
                 let ng = state.gas.ph.x.len();
                 let n = ng + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
-                let h = phys.h;
-                let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut state).unwrap();
-                let drv = StepPlanner::new(&loaded.scene.time, h);
+                let time = &loaded.scene.time;
+                let (mut sim, _) = Simulation::local(phys, time, state, DeviceChoice::Cpu).unwrap();
                 for _ in 0..3 {
-                    drv.step(&mut eng, &mut state, loaded.scene.time.t_end)
-                        .unwrap();
+                    sim.step(time.t_end).unwrap();
                 }
-                let bytes = eng.device_bytes() as f64;
+                let bytes = sim.local_engine().unwrap().device_bytes() as f64;
                 if lists == "off" {
                     let per = bytes / n as f64;
                     eprintln!("{label} ({prec}): {per:.0} B per particle ({n} particles)");

@@ -13,7 +13,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
     SERIAL.lock().unwrap_or_else(|e| e.into_inner())
 }
 use dustsph::particles::{Phase, State};
-use dustsph::run::{RunOptions, Runner};
+use dustsph::run::{Run as Runner, RunOptions};
 use std::process::Command;
 
 fn bits(ph: &Phase) -> Vec<u64> {
@@ -262,7 +262,7 @@ fn resume_refuses_a_foreign_altered_or_inconsistent_checkpoint() {
         }
     }
     let mut prog: serde_json::Value = serde_json::from_str(&other.progress_json).unwrap();
-    prog["snapshots"] = serde_json::json!([]);
+    prog["outputs"]["snapshots"] = serde_json::json!([]);
     other.progress_json = prog.to_string();
     dustsph::io::checkpoint::write_checkpoint(&b.join(ck), &state, &other).unwrap();
     resume_refused(&b, "do not match its own scene");

@@ -75,6 +75,7 @@ macro_rules! kernel_table {
                 COUPLING_RETURN: coupling_return(ReturnArgs),
                 COUPLING_TSTOP: coupling_tstop(ReturnArgs),
                 COUPLING_HEAT: coupling_heat(CouplingHeatArgs),
+                MOMENTUM: momentum(MomentumArgs),
             }
         }
     };

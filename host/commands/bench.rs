@@ -2,8 +2,8 @@
 //! CPU or on a device.
 use crate::scene::Scene;
 use crate::setup;
-use crate::step::backend::{self, Backend, DeviceChoice};
-use crate::step::timestep::StepPlanner;
+use crate::sim::Simulation;
+use crate::step::backend::{self, DeviceChoice};
 use crate::step::Physics;
 use std::time::Instant;
 
@@ -49,13 +49,12 @@ pub fn bench(
         .map_err(|e| e.to_string())?;
     pool.install(|| {
         let su = setup::build(scene).map_err(|e| e.to_string())?;
-        let mut state = su.state;
         let phys = Physics::from_scene(scene, su.h, su.domain);
-        let nb = mean_gas_neighbours(&phys, &state).map_err(|e| e.to_string())?;
+        let nb = mean_gas_neighbours(&phys, &su.state).map_err(|e| e.to_string())?;
         let (resolved, _) = backend::select(device)?;
         let used0 = backend::device_memory_used(resolved);
-        let (mut eng, note) =
-            Backend::start(device, phys.clone(), &mut state).map_err(|e| match e {
+        let (mut sim, note) =
+            Simulation::local(phys, &scene.time, su.state, device).map_err(|e| match e {
                 backend::StartError::Device(m) => m,
                 backend::StartError::Step(e) => e.to_string(),
             })?;
@@ -63,25 +62,27 @@ pub fn bench(
             eprintln!("dustsph: {n}");
         }
         let used1 = backend::device_memory_used(resolved);
-        let n = state.gas.ph.len() + state.dust.iter().map(|d| d.len()).sum::<usize>();
+        let state = &sim.state;
+        let (gas, dust) = (
+            state.gas.ph.len(),
+            state.dust.iter().map(|d| d.len()).sum::<usize>(),
+        );
+        let n = gas + dust;
         let t0 = Instant::now();
-        let driver = StepPlanner::new(&scene.time, phys.h);
         for _ in 0..steps {
             // No output times: the bench never lands.
-            driver
-                .step(&mut eng, &mut state, f64::INFINITY)
-                .map_err(|e| e.to_string())?;
+            sim.step(f64::INFINITY).map_err(|e| e.to_string())?;
         }
         let seconds = t0.elapsed().as_secs_f64();
         Ok(BenchResult {
             case: case.to_string(),
             threads,
-            gas: state.gas.ph.len(),
-            dust: state.dust.iter().map(|d| d.len()).sum(),
+            gas,
+            dust,
             mean_neighbours: nb,
             steps,
             seconds,
-            device: eng.describe(),
+            device: sim.stepper.describe(),
             bytes_per_particle: match (used0, used1) {
                 (Some(a), Some(b)) => Some(b.saturating_sub(a) as f64 / n.max(1) as f64),
                 _ => None,

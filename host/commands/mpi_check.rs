@@ -253,11 +253,10 @@ pub fn step_over_ranks(
     depth: Option<f64>,
     steps: u64,
 ) -> Result<Option<StepReport>, String> {
+    use crate::sim::{Simulation, Stepper};
     use crate::step::backend::{Backend, DeviceChoice};
-    use crate::step::timestep::StepPlanner;
     let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
     let phys = crate::step::Physics::from_scene(scene, su.h, su.domain);
-    let drv = StepPlanner::new(&scene.time, phys.h);
     let mut ranks = RankStepper::new(
         world,
         phys.clone(),
@@ -269,13 +268,24 @@ pub fn step_over_ranks(
     if depth.is_some() {
         ranks.use_deep_halo();
     }
-    let mut t = su.state.t;
-    for step in 0..steps {
-        t = ranks.step(&drv, t, step, scene.time.t_end)?.1;
-    }
-    let Some(mut dist) = ranks.gather(t, steps)? else {
-        return Ok(None);
+    let err = |e: crate::step::StepError| e.to_string();
+    let output =
+        Backend::new(DeviceChoice::Cpu, phys.clone(), &mut su.state.shape()).map_err(err)?;
+    let stepper = Stepper::Ranks {
+        ranks: Box::new(ranks),
+        output,
+        stale: false,
     };
+    let mut over =
+        Simulation::new(phys.clone(), &scene.time, su.state.shape(), stepper).map_err(err)?;
+    for _ in 0..steps {
+        over.step(scene.time.t_end).map_err(err)?;
+    }
+    over.sync().map_err(err)?;
+    if !over.is_root() {
+        return Ok(None);
+    }
+    let mut dist = over.state.clone();
     // The dust densities as an output over ranks has them: computed by rank 0 on the gathered
     // state (the ranks leave them as a step does); the ranks' own gas densities are kept.
     {
@@ -296,17 +306,16 @@ pub fn step_over_ranks(
             }
         }
     }
-    let mut one = su.state;
-    {
-        let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut one).map_err(|e| e.to_string())?;
-        for _ in 0..steps {
-            drv.step(&mut eng, &mut one, scene.time.t_end)
-                .map_err(|e| e.to_string())?;
-        }
-        eng.refresh_dust_density(&mut one)
-            .map_err(|e| e.to_string())?;
-        eng.sync(&mut one).map_err(|e| e.to_string())?;
+    let (mut sim, _) =
+        Simulation::local(phys, &scene.time, su.state, DeviceChoice::Cpu).map_err(|e| match e {
+            crate::step::backend::StartError::Device(m) => m,
+            crate::step::backend::StartError::Step(e) => e.to_string(),
+        })?;
+    for _ in 0..steps {
+        sim.step(scene.time.t_end).map_err(err)?;
     }
+    sim.refresh_dust_density().map_err(err)?;
+    let one = sim.state;
     let c_max = one.gas.c.iter().fold(0.0f64, |a, &c| a.max(c));
     let mut reference = records(&one);
     let mut dist_recs = records(&dist);

@@ -5,8 +5,8 @@
 use crate::particles::{Phase, State};
 use crate::scene::LoadedScene;
 use crate::setup;
-use crate::step::backend::{self, Backend, DeviceChoice};
-use crate::step::timestep::{StepPlanner, Taken};
+use crate::sim::Simulation;
+use crate::step::backend::{self, DeviceChoice};
 use crate::step::Physics;
 
 /// The largest difference found in one field over all steps.
@@ -190,54 +190,66 @@ pub fn compare_scenes(
         .num_threads(1)
         .build()
         .map_err(|e| e.to_string())?;
-    let mut s_cpu = su.state.clone();
-    let mut s_dev = su.state;
     let err = |e: crate::step::StepError| e.to_string();
-    let mut cpu = one
-        .install(|| Backend::new(DeviceChoice::Cpu, phys.clone(), &mut s_cpu))
-        .map_err(err)?;
-    let mut dev = Backend::new(device, phys_dev, &mut s_dev).map_err(err)?;
+    let start = |e: backend::StartError| match e {
+        backend::StartError::Device(m) => m,
+        backend::StartError::Step(e) => e.to_string(),
+    };
+    let time = &scene.time;
+    let (mut cpu, _) = one
+        .install(|| Simulation::local(phys, time, su.state.clone(), DeviceChoice::Cpu))
+        .map_err(start)?;
+    let (mut dev, _) = Simulation::local(phys_dev, time, su.state, device).map_err(start)?;
     if sparse {
-        dev.force_sparse_tables(&mut s_dev).map_err(err)?;
+        let Simulation { stepper, state, .. } = &mut dev;
+        (stepper
+            .local()
+            .expect("one process")
+            .force_sparse_tables(state))
+        .map_err(err)?;
     }
-    let dust_rho = cpu.stages().dust_density_each_step;
+    let dust_rho = cpu
+        .local_engine()
+        .map_err(err)?
+        .stages()
+        .dust_density_each_step;
     let mut acc = Comparison(Vec::new());
-    acc.state(&s_cpu, &s_dev, dust_rho);
-    // Both step with the reference's plan (never landing), so a difference in the forces cannot
-    // change the step size and hide itself.
-    let driver = StepPlanner::new(&scene.time, phys.h);
+    acc.state(&cpu.state, &dev.state, dust_rho);
+    // Both step with the reference's plan (never landing), so a difference in the forces
+    // cannot change the step size and hide itself.
     for step in 1..=steps {
-        if cpu.stages().explicit_drag {
-            let a = one.install(|| cpu.drag_dt_limit(&s_cpu)).map_err(err)?;
-            let b = dev.drag_dt_limit(&s_dev).map_err(err)?;
+        if cpu.local_engine().map_err(err)?.stages().explicit_drag {
+            let a = one
+                .install(|| cpu.local_engine()?.drag_dt_limit())
+                .map_err(err)?;
+            let b = dev
+                .local_engine()
+                .map_err(err)?
+                .drag_dt_limit()
+                .map_err(err)?;
             acc.add("explicit drag step limit".into(), &[a], &[b]);
         }
-        let sc = one
-            .install(|| driver.prepare(&mut cpu, &s_cpu, f64::INFINITY))
+        let tc = one
+            .install(|| {
+                let t = cpu.step(f64::INFINITY)?;
+                cpu.sync()?;
+                Ok::<_, crate::step::StepError>(t)
+            })
             .map_err(|e| format!("cpu step {step}: {e}"))?;
-        let fd = dev.forces(&s_dev).map_err(err)?;
-        let (fc, plan) = (&sc.forces, sc.plan);
+        let td = dev
+            .step_with(&tc.plan)
+            .map_err(|e| format!("device step {step}: {e}"))?;
+        dev.sync().map_err(err)?;
+        let (fc, fd) = (tc.forces, td.forces);
         acc.add("max signal speed".into(), &[fc.vsig_max], &[fd.vsig_max]);
         acc.add("max |A|".into(), &[fc.acc_max], &[fd.acc_max]);
-        one.install(|| {
-            driver.take(&mut cpu, &mut s_cpu, &sc)?;
-            cpu.sync(&mut s_cpu)
-        })
-        .map_err(|e| format!("cpu step {step}: {e}"))?;
-        let sd = Taken { plan, forces: fd };
-        driver
-            .take(&mut dev, &mut s_dev, &sd)
-            .map_err(|e| format!("device step {step}: {e}"))?;
-        dev.sync(&mut s_dev).map_err(err)?;
-        acc.state(&s_cpu, &s_dev, dust_rho);
+        acc.state(&cpu.state, &dev.state, dust_rho);
     }
-    let tc = one
-        .install(|| cpu.dust_stopping_times(&mut s_cpu))
-        .map_err(err)?;
-    let td = dev.dust_stopping_times(&mut s_dev).map_err(err)?;
+    let tc = one.install(|| cpu.dust_stopping_times()).map_err(err)?;
+    let td = dev.dust_stopping_times().map_err(err)?;
     for (k, (a, b)) in tc.iter().zip(&td).enumerate() {
         // Matched by particle id (see `Comparison::state`).
-        let perm = id_order(&s_cpu.dust[k], &s_dev.dust[k]);
+        let perm = id_order(&cpu.state.dust[k], &dev.state.dust[k]);
         let in_order = |v: &[f64]| match &perm {
             Some(p) => p.iter().map(|&i| v[i as usize]).collect(),
             None => v.to_vec(),
@@ -246,12 +258,12 @@ pub fn compare_scenes(
         acc.add(format!("dust{k} t_stop"), a, &in_order(b));
         acc.add(
             format!("dust{k} rho (output)"),
-            &s_cpu.dust[k].rho,
-            &in_order(&s_dev.dust[k].rho),
+            &cpu.state.dust[k].rho,
+            &in_order(&dev.state.dust[k].rho),
         );
     }
     Ok(Parity {
-        device: dev.describe(),
+        device: dev.stepper.describe(),
         steps,
         fields: acc.0,
     })

@@ -14,8 +14,8 @@ use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
 use crate::scene::{self, DensityMethod, DragMethod, PositionUpdate, Scene};
 use crate::setup::{self, dustywave};
+use crate::sim::Simulation;
 use crate::step::backend::{Backend, DeviceChoice};
-use crate::step::timestep::StepPlanner;
 use crate::step::{Physics, StepError};
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -429,19 +429,18 @@ pub fn run_case(case: &Case) -> CaseReport {
         l1_max: None,
         failures: Vec::new(),
     };
-    let Some((phys, mut state, time, scene)) = prepare_case(case, &mut rep) else {
+    let Some((phys, state, time, scene)) = prepare_case(case, &mut rep) else {
         return rep;
     };
     let (explicit_limit, t_min) = explicit_reference(&phys, &state);
-    let Some(mut eng) = run_checked(&mut rep, phys, &mut state, &time, (explicit_limit, t_min))
-    else {
+    let Some(mut sim) = run_checked(&mut rep, phys, state, &time, (explicit_limit, t_min)) else {
         return rep;
     };
-    if check_final_state(&mut rep, &mut eng, &mut state).is_none() {
+    if check_final_state(&mut rep, &mut sim).is_none() {
         return rep;
     }
     if let Some(sc) = scene {
-        check_exact(&mut rep, &sc, &state);
+        check_exact(&mut rep, &sc, &sim.state);
     }
     rep
 }
@@ -490,13 +489,12 @@ fn prepare_case(
 
 /// The explicit baseline's limit on the initial state, and the smallest cell stopping time.
 fn explicit_reference(phys: &Physics, state: &State) -> (f64, f64) {
-    // The explicit baseline's limit on the initial state, and the cell stopping times.
     let mut st = state.clone();
     let mut p = phys.clone();
     p.drag = DragMethod::Explicit;
     let limits = |st: &mut crate::particles::State| -> Result<(f64, f64), StepError> {
         let mut e = Backend::new(DeviceChoice::Cpu, p, st)?;
-        let lim = e.drag_dt_limit(st)?;
+        let lim = e.drag_dt_limit()?;
         let ts = e.dust_stopping_times(st)?;
         let t_min = ts.iter().flatten().copied().fold(f64::INFINITY, f64::min);
         Ok((lim, t_min))
@@ -504,74 +502,50 @@ fn explicit_reference(phys: &Physics, state: &State) -> (f64, f64) {
     limits(&mut st).unwrap_or((f64::NAN, f64::NAN))
 }
 
-/// Run to the end, checking momentum every step (drift relative to the largest Σ m|v|, or
-/// to Σ m c_s for systems at rest); a step that fails is recorded in `rep`.
+/// Run to the end with the run's diagnostics (the momentum drift after every step); a step
+/// that fails is recorded in `rep`.
 fn run_checked(
     rep: &mut CaseReport,
     phys: Physics,
-    state: &mut State,
+    state: State,
     time: &crate::scene::TimeCfg,
     (explicit_limit, t_min): (f64, f64),
-) -> Option<Backend> {
+) -> Option<Simulation> {
     let t_end = time.t_end;
-    let driver = StepPlanner::new(time, phys.h);
-    let mut eng = match Backend::new(DeviceChoice::Cpu, phys, state) {
-        Ok(e) => e,
+    let mut sim = match Simulation::local(phys, time, state, DeviceChoice::Cpu) {
+        Ok((s, _)) => s,
         Err(e) => {
             rep.failures.push(format!("initial state: {e}"));
             return None;
         }
     };
-    let p0 = state.total_momentum();
-    let mut pscale = state.momentum_scale();
-    let mass: f64 =
-        state.gas.ph.total_mass() + state.dust.iter().map(|d| d.total_mass()).sum::<f64>();
-    let cs = state.gas.c.iter().copied().fold(0.0, f64::max);
-    let rest_scale = mass * cs;
-    let mut dp_max: f64 = 0.0;
-    while state.t < t_end {
-        let step = match driver.step(&mut eng, state, t_end) {
-            Ok(s) => s,
-            Err(e) => {
-                rep.failures.push(format!("not finite or density ≤ 0: {e}"));
-                return None;
-            }
-        };
-        if rep.steps == 0 {
-            let tau = step.plan.dt_free;
-            rep.explicit_steps = (t_end / tau.min(explicit_limit)).ceil();
-            rep.max_beta = tau / t_min;
-        }
-        // The momentum check reads every step's state.
-        if let Err(e) = eng.sync(state) {
-            rep.failures.push(format!("sync: {e}"));
-            return None;
-        }
-        rep.steps += 1;
-        pscale = pscale.max(state.momentum_scale());
-        let p = state.total_momentum();
-        dp_max = dp_max.max(((0..3).map(|d| (p[d] - p0[d]).powi(2)).sum::<f64>()).sqrt());
+    let ran = sim.run(t_end, &mut [], None);
+    let d = &sim.diagnostics;
+    rep.steps = d.steps;
+    if let Some(tau) = d.first_dt_free {
+        rep.explicit_steps = (t_end / tau.min(explicit_limit)).ceil();
+        rep.max_beta = tau / t_min;
     }
-    let scale = if pscale < 1e-8 * rest_scale {
-        rest_scale
-    } else {
-        pscale
-    };
-    let drift = if scale > 0.0 { dp_max / scale } else { dp_max };
+    if let Err(e) = ran {
+        rep.failures.push(format!("not finite or density ≤ 0: {e}"));
+        return None;
+    }
+    let drift = d.momentum_drift();
     rep.momentum_drift = drift;
     if drift.is_nan() || drift > MOMENTUM_TOL {
         rep.failures
             .push(format!("momentum drift {drift:.2e} > {MOMENTUM_TOL:e}"));
     }
-    Some(eng)
+    Some(sim)
 }
 
 /// Densities positive, positions and velocities finite at the end.
-fn check_final_state(rep: &mut CaseReport, eng: &mut Backend, state: &mut State) -> Option<()> {
-    if let Err(e) = eng.refresh_dust_density(state) {
+fn check_final_state(rep: &mut CaseReport, sim: &mut Simulation) -> Option<()> {
+    if let Err(e) = sim.refresh_dust_density() {
         rep.failures.push(format!("dust density: {e}"));
         return None;
     }
+    let state = &sim.state;
     let min_rho = state
         .dust
         .iter()

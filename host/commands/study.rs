@@ -29,8 +29,8 @@ use crate::io::{self, IoError};
 use crate::plot::{fig_loglog, LogLogSeries};
 use crate::scene::{self, Scene};
 use crate::setup;
-use crate::step::backend::{Backend, DeviceChoice};
-use crate::step::timestep::StepPlanner;
+use crate::sim::{Flow, Observer, RunError, Simulation};
+use crate::step::backend::DeviceChoice;
 use crate::step::Physics;
 use serde::Deserialize;
 use std::fmt::Write as _;
@@ -670,60 +670,60 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
         Ok(s) => s,
         Err(e) => return fail(out, e.to_string()),
     };
-    let mut state = su.state;
     let phys = Physics::from_scene(scene, su.h, su.domain);
-    let driver = StepPlanner::new(&scene.time, phys.h);
-    let mut eng = match Backend::new(DeviceChoice::Cpu, phys, &mut state) {
-        Ok(e) => e,
+    let mut sim = match Simulation::local(phys, &scene.time, su.state, DeviceChoice::Cpu) {
+        Ok((s, _)) => s,
         Err(e) => return fail(out, e.to_string()),
     };
     let t_end = scene.time.t_end;
-    let p0 = state.total_momentum();
-    let mut pscale = state.momentum_scale();
-    let ts = Instant::now();
-    let cpu0 = thread_cpu_seconds();
-    while state.t < t_end {
-        let step = match driver.prepare(&mut eng, &state, t_end) {
-            Ok(s) => s,
-            Err(e) => return fail(out, e.to_string()),
-        };
-        if out.steps == 0 {
-            let need = (t_end / step.plan.dt_free).ceil();
+    // A point whose first step says it needs more than max_steps steps is skipped unrun.
+    match sim.plan_next(t_end) {
+        Ok(first) => {
+            let need = (t_end / first.plan.dt_free).ceil();
             if need > max_steps as f64 {
                 out.status = Status::Skipped(need as u64);
                 out.total_s = t0.elapsed().as_secs_f64();
                 return out;
             }
         }
-        if out.steps >= max_steps {
-            return fail(out, format!("more than max_steps = {max_steps} steps"));
-        }
-        if let Err(e) = driver.take(&mut eng, &mut state, &step) {
-            return fail(out, e.to_string());
-        }
-        // The momentum check reads every step's state.
-        if let Err(e) = eng.sync(&mut state) {
-            return fail(out, e.to_string());
-        }
-        let dt = step.plan.dt;
-        out.steps += 1;
-        out.drag_limited += u64::from(step.plan.by_drag);
-        out.dt = (out.dt.0.min(dt), out.dt.1.max(dt));
-        pscale = pscale.max(state.momentum_scale());
+        Err(e) => return fail(out, e.to_string()),
     }
+    let ts = Instant::now();
+    let cpu0 = thread_cpu_seconds();
+    let ran = sim.run(t_end, &mut [&mut StepBudget(max_steps)], None);
     out.step_s = ts.elapsed().as_secs_f64();
     if let (Some(a), Some(b)) = (cpu0, thread_cpu_seconds()) {
         out.step_cpu = b - a;
     }
-    if let Err(e) = eng.refresh_dust_density(&mut state) {
+    let d = &sim.diagnostics;
+    out.steps = d.steps;
+    out.drag_limited = d.drag_limited_steps;
+    out.dt = (d.dt_min, d.dt_max);
+    if let Err(e) = ran {
         return fail(out, e.to_string());
     }
-    out.errors = analysis::exact_errors(scene, &state, scene.time.dt);
-    let p1 = state.total_momentum();
-    let dp = ((0..3).map(|d| (p1[d] - p0[d]).powi(2)).sum::<f64>()).sqrt();
-    out.momentum_drift = if pscale > 0.0 { dp / pscale } else { dp };
+    if let Err(e) = sim.refresh_dust_density() {
+        return fail(out, e.to_string());
+    }
+    out.errors = analysis::exact_errors(scene, &sim.state, scene.time.dt);
+    out.momentum_drift = sim.diagnostics.momentum_drift();
     out.total_s = t0.elapsed().as_secs_f64();
     out
+}
+
+/// Stops a point that would take more than its study's `max_steps` steps.
+struct StepBudget(u64);
+
+impl Observer for StepBudget {
+    fn before_step(&mut self, sim: &mut Simulation) -> Result<Flow, RunError> {
+        if sim.diagnostics.steps >= self.0 {
+            return Err(RunError::Step(format!(
+                "more than max_steps = {} steps",
+                self.0
+            )));
+        }
+        Ok(Flow::Continue)
+    }
 }
 
 /// CPU time of the calling thread (Linux: /proc/thread-self/schedstat, nanoseconds).

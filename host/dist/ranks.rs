@@ -15,7 +15,7 @@ use crate::decomp::{CellBox, Cells, Partition};
 use crate::particles::{IntHasher, KeyMap, KeySet, State};
 use crate::step::backend::{Backend, DeviceChoice};
 use crate::step::engine::{GhostRows, GhostSync, InitialLayer};
-use crate::step::timestep::{Plan, StepPlanner, Taken};
+use crate::step::timestep::{Plan, PlanError, StepPlanner};
 use crate::step::{Forces, Physics};
 
 /// Halo depth in kernel supports that a run over ranks needs for its step's chain of
@@ -723,7 +723,7 @@ impl RankStepper {
         }
         let mut forces = None;
         if let Some(e) = &mut eng {
-            match e.forces(&local) {
+            match e.forces() {
                 Ok(f) => forces = Some(f),
                 Err(x) if thin => stop(&x),
                 Err(x) => err = x.to_string(),
@@ -738,8 +738,6 @@ impl RankStepper {
         ];
         world.max_f64(&mut most);
         let global = Forces {
-            acc: Vec::new(),
-            dedt: None,
             vsig_max: most[0],
             acc_max: most[1],
         };
@@ -754,7 +752,7 @@ impl RankStepper {
         }
         let mut drag = [f64::INFINITY];
         if let (true, Some(e)) = (explicit, &mut eng) {
-            match e.drag_dt_limit(&local) {
+            match e.timed_drag_limit() {
                 Ok(d) => drag[0] = d,
                 Err(x) => err = x.to_string(),
             }
@@ -768,8 +766,17 @@ impl RankStepper {
         let mut next = Vec::new();
         if let (Some(e), Some(f)) = (&mut eng, forces) {
             let r = (|| -> Result<Plan, crate::step::StepError> {
-                let p = drv.plan_with(e, &local, &global, t_target, drag)?;
-                drv.take(e, &mut local, &Taken { plan: p, forces: f })?;
+                let _ = f;
+                let drag = drag.unwrap_or(f64::INFINITY);
+                let p = match drv.plan(&global, drag, t, step, t_target) {
+                    Ok(p) => p,
+                    Err(PlanError::NoLimit(m)) => return Err(crate::step::StepError::Blowup(m)),
+                    Err(PlanError::Collapsed(m)) => {
+                        let why = format!("{m}; {}", e.dt_culprits()?);
+                        return Err(crate::step::StepError::Blowup(why));
+                    }
+                };
+                e.take(&mut local, &p)?;
                 // The dust densities stay as a step leaves them (fresh only where the drag
                 // needs them each step): rank 0 computes them for an output.
                 e.sync(&mut local)?;
@@ -829,6 +836,23 @@ impl RankStepper {
         self.owned = next;
         self.layer_given = true;
         Ok(Tried::Done((plan, tt[0], most[0])))
+    }
+
+    /// The momentum and its scale Σ m|v| of every rank's own particles, summed over the ranks
+    /// (collective).
+    pub fn momentum(&self) -> crate::step::Momentum {
+        let mut s = [0.0f64; 4];
+        for r in &self.owned {
+            for (sk, vk) in s.iter_mut().zip(r.v) {
+                *sk += r.m * vk;
+            }
+            s[3] += r.m * dustsph_device::dot(r.v, r.v).sqrt();
+        }
+        self.world.sum_f64(&mut s);
+        crate::step::Momentum {
+            p: [s[0], s[1], s[2]],
+            scale: s[3],
+        }
     }
 
     /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),

@@ -2,6 +2,8 @@
 //! CPU's rayon pool, or a CUDA device. Chosen by `--device auto|cpu|cuda`.
 use super::engine::{self, Engine, GhostSync, InitialLayer};
 use super::timers::Timers;
+use super::timestep::{Plan, PlanError, StepPlanner, Taken};
+use super::Momentum;
 use super::{Forces, Physics, Stages, StepError};
 use crate::launch::{self, Cuda, Launcher, Rayon};
 use crate::particles::State;
@@ -138,6 +140,15 @@ pub enum StartError {
     Step(StepError),
 }
 
+impl std::fmt::Display for StartError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StartError::Device(m) => f.write_str(m),
+            StartError::Step(e) => write!(f, "{e}"),
+        }
+    }
+}
+
 impl Backend {
     /// The engine for what the user asked, and a one-line note when `auto` did not use the
     /// GPU. `auto` falls back to the CPU when no GPU is usable, when the CUDA engine refuses the
@@ -258,12 +269,67 @@ impl Backend {
 
     /// The time-step maxima of the forces at the current layer (the accelerations stay with
     /// the engine; see [`Backend::accelerations`]).
-    pub fn forces(&mut self, _state: &State) -> Result<Forces, StepError> {
+    pub fn forces(&mut self) -> Result<Forces, StepError> {
         each!(self, e => e.forces())
     }
 
-    pub fn advance(&mut self, state: &mut State, _f: &Forces, tau: f64) -> Result<(), StepError> {
+    /// Advance by τ from the current layer (its forces computed by [`Backend::forces`]).
+    pub fn advance(&mut self, state: &mut State, tau: f64) -> Result<(), StepError> {
         each!(self, e => e.advance(state, tau))
+    }
+
+    /// The forces at the current layer and the step toward `t_target` (nothing is advanced):
+    /// the planner's rule on this engine's maxima and, for the explicit drag, its limit.
+    pub fn plan(
+        &mut self,
+        planner: &StepPlanner,
+        state: &State,
+        t_target: f64,
+    ) -> Result<Taken, StepError> {
+        let forces = self.forces()?;
+        let drag = self.timed_drag_limit()?;
+        match planner.plan(&forces, drag, state.t, state.step, t_target) {
+            Ok(plan) => Ok(Taken { plan, forces }),
+            Err(PlanError::NoLimit(m)) => Err(StepError::Blowup(m)),
+            Err(PlanError::Collapsed(m)) => {
+                Err(StepError::Blowup(format!("{m}; {}", self.dt_culprits()?)))
+            }
+        }
+    }
+
+    /// Take a planned step; on landing the time is set to the target exactly.
+    pub fn take(&mut self, state: &mut State, plan: &Plan) -> Result<(), StepError> {
+        self.advance(state, plan.dt)?;
+        if plan.landing {
+            state.t = plan.t_target;
+        }
+        Ok(())
+    }
+
+    /// One step toward `t_target`: forces, plan, advance.
+    pub fn step(
+        &mut self,
+        planner: &StepPlanner,
+        state: &mut State,
+        t_target: f64,
+    ) -> Result<Taken, StepError> {
+        let taken = self.plan(planner, state, t_target)?;
+        self.take(state, &taken.plan)?;
+        Ok(taken)
+    }
+
+    /// The explicit drag's step limit, timed as a stage of the run (+∞ with IDIC).
+    pub fn timed_drag_limit(&mut self) -> Result<f64, StepError> {
+        if !self.stages().explicit_drag {
+            return Ok(f64::INFINITY);
+        }
+        let t0 = std::time::Instant::now();
+        let d = self.drag_dt_limit()?;
+        self.timers_mut().add(
+            "explicit drag time-step limit (τ ≤ 0.9/Λ)",
+            t0.elapsed().as_secs_f64(),
+        );
+        Ok(d)
     }
 
     /// The gas accelerations A (pressure + viscosity) at the current layer, per particle in the
@@ -296,11 +362,15 @@ impl Backend {
     }
 
     /// The explicit drag baseline's step limit (+∞ for IDIC, which never limits the step).
-    pub fn drag_dt_limit(&mut self, _state: &State) -> Result<f64, StepError> {
+    pub fn drag_dt_limit(&mut self) -> Result<f64, StepError> {
         each!(self, e => e.drag_dt_limit())
     }
 
     /// Bring the host state up to date with the engine.
+    pub fn momentum(&mut self) -> Result<Momentum, StepError> {
+        each!(self, e => Ok(e.momentum()?))
+    }
+
     pub fn sync(&mut self, state: &mut State) -> Result<(), StepError> {
         each!(self, e => Ok(e.sync(state)?))
     }

@@ -1,15 +1,14 @@
 //! What a step hands back: the forces' time-step maxima, the errors that stop a run, and the
-//! host-side check of a state (used to word the message when the device flags a particle).
+//! host-side check of a state (used to word the message when the engine flags a particle).
 use crate::grid::GridError;
 use crate::particles::{Phase, State};
 use dustsph_device::dot;
 use rayon::prelude::*;
 
-/// Non-drag gas accelerations and energy rates at layer n.
-#[derive(Debug, Clone)]
+/// The time-step maxima of the gas forces at a layer (the accelerations themselves stay on the
+/// engine's launcher).
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Forces {
-    pub acc: Vec<[f64; 3]>,
-    pub dedt: Option<Vec<f64>>,
     /// Largest signal speed (for the CFL limit).
     pub vsig_max: f64,
     /// Largest |A| (for the force limit).
@@ -17,12 +16,9 @@ pub struct Forces {
 }
 
 impl Forces {
-    /// From per-particle rows (A_x, A_y, A_z, ė, v_sig); ė is dropped without an energy
-    /// equation.
-    pub fn from_rows(rows: &[[f64; 5]], energy: bool) -> Forces {
+    /// From per-particle rows (A_x, A_y, A_z, ė, v_sig).
+    pub fn from_rows(rows: &[[f64; 5]]) -> Forces {
         let mut f = Forces {
-            acc: Vec::with_capacity(rows.len()),
-            dedt: energy.then(|| Vec::with_capacity(rows.len())),
             vsig_max: 0.0,
             acc_max: 0.0,
         };
@@ -30,13 +26,18 @@ impl Forces {
             let a = [r[0], r[1], r[2]];
             f.acc_max = f.acc_max.max(dot(a, a).sqrt());
             f.vsig_max = f.vsig_max.max(r[4]);
-            f.acc.push(a);
-            if let Some(d) = &mut f.dedt {
-                d.push(r[3]);
-            }
         }
         f
     }
+}
+
+/// The total momentum of every particle (gas and dust, walls included) and its scale Σ m|v|,
+/// summed on the engine's launcher: what the run's momentum drift is measured from after every
+/// step (docs/outputs.md, "Conservation").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Momentum {
+    pub p: [f64; 3],
+    pub scale: f64,
 }
 
 #[derive(Debug)]

@@ -12,12 +12,12 @@ pub mod engine;
 pub mod timers;
 pub mod timestep;
 
-pub use check::{check_state, Forces, StepError, SUPPORT};
+pub use check::{check_state, Forces, Momentum, StepError, SUPPORT};
 
 use crate::grid::Domain;
 use crate::scene::{
     Coupling, DensityMethod, DragMethod, EosKind, GradientMethod, Integrator, LawKind,
-    PositionUpdate, Precision, Scene, TimeCfg,
+    PositionUpdate, Precision, Scene,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -149,38 +149,6 @@ pub fn dust_without_gas_in_cell(phys: &Physics, state: &crate::particles::State)
         }
     }
     (total > 0).then(|| alone as f64 / total as f64)
-}
-
-/// Time-step limits from the forces: (CFL with factor 1, force limit with factor 1).
-/// dt = cfl · min(both); the drag never limits the step.
-pub fn dt_limits(h: f64, f: &Forces) -> (f64, f64) {
-    let dt_cfl = if f.vsig_max > 0.0 {
-        h / f.vsig_max
-    } else {
-        f64::INFINITY
-    };
-    let dt_force = if f.acc_max > 0.0 {
-        (h / f.acc_max).sqrt()
-    } else {
-        f64::INFINITY
-    };
-    (dt_cfl, dt_force)
-}
-
-/// The step size τ: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit), and in
-/// either case no more than the drag limit `dt_drag` (finite only for the explicit drag).
-/// Returns (τ, whether the drag limit set it).
-pub fn step_size(time: &TimeCfg, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f64, bool) {
-    let base = match (time.dt, time.cfl) {
-        (Some(dt), _) => dt,
-        (None, Some(c)) => c * dt_cfl.min(dt_force),
-        (None, None) => f64::NAN,
-    };
-    if dt_drag < base {
-        (dt_drag, true)
-    } else {
-        (base, false)
-    }
 }
 
 /// Which stages a step runs; derived from [`Physics`], never set by hand.

@@ -1,14 +1,11 @@
-//! The one step loop's step: forces, the step size (fixed `time.dt` or CFL, the explicit
-//! drag's limit), landing exactly on a target time, and the advance. `run`, `resume`, `study`,
-//! `stiffness`, `parity` and `bench` all step through [`StepPlanner`], so they choose the same τ
-//! for the same state.
-use super::backend::Backend;
-use super::{dt_limits, step_size};
-use super::{Forces, StepError};
-use crate::particles::State;
+//! The size of each step: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit),
+//! never above the explicit drag's limit (finite only for the explicit baseline; IDIC never
+//! limits the step), shortened to land exactly on a target time (an output, t_end). One rule
+//! for every way of stepping: one process, MPI ranks (with the maxima over the ranks), parity.
+use super::Forces;
 use crate::scene::{TimeCfg, MAX_FIXED_STEPS};
 
-/// What the driver chose for one step.
+/// What the planner chose for one step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Plan {
     /// The step size taken.
@@ -23,19 +20,60 @@ pub struct Plan {
     pub t_target: f64,
 }
 
-/// One step taken: the plan and the forces it started from.
-#[derive(Debug, Clone)]
+/// A planned step and the forces' maxima it was planned from.
+#[derive(Debug, Clone, Copy)]
 pub struct Taken {
     pub plan: Plan,
     pub forces: Forces,
 }
 
-/// Chooses and takes steps for one scene's time settings.
+/// Why no step can be planned.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PlanError {
+    /// Nothing sets the step (no signal speed, no force, no fixed `time.dt`).
+    NoLimit(String),
+    /// The CFL step has collapsed: t_end is more steps away than allowed. The message lacks the
+    /// particles that set the step; the engine adds them (`Backend::dt_culprits`).
+    Collapsed(String),
+}
+
+/// Chooses steps for one scene's time settings.
 #[derive(Debug, Clone)]
 pub struct StepPlanner {
     pub time: TimeCfg,
     /// Reference smoothing length (the CFL length).
     pub h: f64,
+}
+
+/// Time-step limits from the forces: (CFL with factor 1, force limit with factor 1).
+pub fn dt_limits(h: f64, f: &Forces) -> (f64, f64) {
+    let dt_cfl = if f.vsig_max > 0.0 {
+        h / f.vsig_max
+    } else {
+        f64::INFINITY
+    };
+    let dt_force = if f.acc_max > 0.0 {
+        (h / f.acc_max).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    (dt_cfl, dt_force)
+}
+
+/// The step size τ: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit), and in
+/// either case no more than the drag limit `dt_drag`. Returns (τ, whether the drag limit set
+/// it).
+pub fn step_size(time: &TimeCfg, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f64, bool) {
+    let base = match (time.dt, time.cfl) {
+        (Some(dt), _) => dt,
+        (None, Some(c)) => c * dt_cfl.min(dt_force),
+        (None, None) => f64::NAN,
+    };
+    if dt_drag < base {
+        (dt_drag, true)
+    } else {
+        (base, false)
+    }
 }
 
 impl StepPlanner {
@@ -46,71 +84,43 @@ impl StepPlanner {
         }
     }
 
-    /// The step from `state` toward `t_target` (never past it) given the forces at `state`.
+    /// The step from time `t` (step count `step`) toward `t_target` (never past it), given the
+    /// forces' maxima at the current layer and the explicit drag's limit (+∞ for IDIC).
     pub fn plan(
         &self,
-        eng: &mut Backend,
-        state: &State,
         forces: &Forces,
+        dt_drag: f64,
+        t: f64,
+        step: u64,
         t_target: f64,
-    ) -> Result<Plan, StepError> {
-        self.plan_with(eng, state, forces, t_target, None)
-    }
-
-    /// As [`StepPlanner::plan`], with the explicit drag's step limit given (over MPI ranks: the
-    /// least of every rank's) instead of computed here.
-    pub fn plan_with(
-        &self,
-        eng: &mut Backend,
-        state: &State,
-        forces: &Forces,
-        t_target: f64,
-        drag_limit: Option<f64>,
-    ) -> Result<Plan, StepError> {
+    ) -> Result<Plan, PlanError> {
         let (dt_cfl, dt_force) = dt_limits(self.h, forces);
-        let dt_drag = if let Some(d) = drag_limit {
-            d
-        } else if eng.stages().explicit_drag {
-            let t0 = std::time::Instant::now();
-            let d = eng.drag_dt_limit(state)?;
-            eng.timers_mut().add(
-                "explicit drag time-step limit (τ ≤ 0.9/Λ)",
-                t0.elapsed().as_secs_f64(),
-            );
-            d
-        } else {
-            f64::INFINITY
-        };
         let (dt_free, by_drag) = step_size(&self.time, dt_cfl, dt_force, dt_drag);
         if !(dt_free.is_finite() && dt_free > 0.0) {
-            return Err(StepError::Blowup(format!(
-                "step {}, t = {:e}: time step is {dt_free} (no signal speed or force to set it); \
-                 give time.dt",
-                state.step, state.t
+            return Err(PlanError::NoLimit(format!(
+                "step {step}, t = {t:e}: time step is {dt_free} (no signal speed or force to set \
+                 it); give time.dt"
             )));
         }
         // A CFL step that has collapsed would never reach the end: stop with a diagnosis (the
         // fixed time.dt has the same bound at validation).
-        let left = self.time.t_end - state.t;
+        let left = self.time.t_end - t;
         if self.time.dt.is_none() && left > 0.0 && left / dt_free > MAX_FIXED_STEPS {
             let (limit, value) = if dt_cfl <= dt_force {
                 ("CFL (h / max signal speed)", forces.vsig_max)
             } else {
                 ("force (sqrt(h / max |A|))", forces.acc_max)
             };
-            return Err(StepError::Blowup(format!(
-                "step {}, t = {:e}: at the time step {dt_free:e} ({limit}; max = {value:e}), \
-                 t_end = {} is {:.1e} steps away, more than the {MAX_FIXED_STEPS:.0e} allowed: the \
-                 step has collapsed or time.t_end is too far; {}",
-                state.step,
-                state.t,
+            return Err(PlanError::Collapsed(format!(
+                "step {step}, t = {t:e}: at the time step {dt_free:e} ({limit}; max = {value:e}), \
+                 t_end = {} is {:.1e} steps away, more than the {MAX_FIXED_STEPS:.0e} allowed: \
+                 the step has collapsed or time.t_end is too far",
                 self.time.t_end,
                 left / dt_free,
-                eng.dt_culprits()?
             )));
         }
-        let landing = state.t + dt_free >= t_target - 1e-9 * dt_free;
-        let dt = if landing { t_target - state.t } else { dt_free };
+        let landing = t + dt_free >= t_target - 1e-9 * dt_free;
+        let dt = if landing { t_target - t } else { dt_free };
         Ok(Plan {
             dt,
             dt_free,
@@ -118,38 +128,5 @@ impl StepPlanner {
             landing,
             t_target,
         })
-    }
-
-    /// The forces at `state` and the step toward `t_target` (nothing is advanced yet).
-    pub fn prepare(
-        &self,
-        eng: &mut Backend,
-        state: &State,
-        t_target: f64,
-    ) -> Result<Taken, StepError> {
-        let forces = eng.forces(state)?;
-        let plan = self.plan(eng, state, &forces, t_target)?;
-        Ok(Taken { plan, forces })
-    }
-
-    /// Advance by a prepared step; on landing the time is set to the target exactly.
-    pub fn take(&self, eng: &mut Backend, state: &mut State, s: &Taken) -> Result<(), StepError> {
-        eng.advance(state, &s.forces, s.plan.dt)?;
-        if s.plan.landing {
-            state.t = s.plan.t_target;
-        }
-        Ok(())
-    }
-
-    /// Take one step toward `t_target`.
-    pub fn step(
-        &self,
-        eng: &mut Backend,
-        state: &mut State,
-        t_target: f64,
-    ) -> Result<Taken, StepError> {
-        let s = self.prepare(eng, state, t_target)?;
-        self.take(eng, state, &s)?;
-        Ok(s)
     }
 }

@@ -7,12 +7,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     /// leapfrog, the previous step's closing forces (already on the device).
     pub fn forces(&mut self) -> Result<Forces, StepError> {
         if let (true, Some((vsig_max, acc_max))) = (self.stages.kdk, self.kdk.closing) {
-            return Ok(Forces {
-                acc: Vec::new(),
-                dedt: None,
-                vsig_max,
-                acc_max,
-            });
+            return Ok(Forces { vsig_max, acc_max });
         }
         let mut timers = std::mem::take(&mut self.timers);
         let f = self.compute_forces(&mut timers);
@@ -141,8 +136,6 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let l = self.d.get(&self.limits, 2)?;
         let dec = |b: u64| if b == 0 { 0.0 } else { from_ordered_bits(b) };
         Ok(Forces {
-            acc: Vec::new(),
-            dedt: None,
             vsig_max: dec(l[0]),
             acc_max: dec(l[1]),
         })

@@ -17,7 +17,7 @@ mod integrate;
 mod sort;
 
 use super::timers::Timers;
-use super::{Forces, Physics, Stages, StepError};
+use super::{Forces, Momentum, Physics, Stages, StepError};
 use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
 use crate::launch::{GpuError, Launcher};
 use crate::particles::{Phase, State};
@@ -71,6 +71,8 @@ pub struct Engine<L: Launcher, R: Float> {
     limits: Buf<L, u64>,
     bounds: Buf<L, u64>,
     bad: Buf<L, u32>,
+    /// The momentum sums of each chunk of particles ([`Engine::momentum`]).
+    chunk_sums: Buf<L, f64>,
     dust_density_fresh: bool,
     /// The state's step count and time (for messages).
     step: u64,
@@ -238,6 +240,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             limits: d.buf(2)?,
             bounds: d.buf(6)?,
             bad: d.buf(1)?,
+            chunk_sums: d.buf(1)?,
             step: state.step,
             t: state.t,
             force_sparse: false,
@@ -250,7 +253,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 let k = stages.kdk;
                 let save = k || phys.position_update == PositionUpdate::Old;
                 let closing = rows.map(|r| {
-                    let f = Forces::from_rows(r, true);
+                    let f = Forces::from_rows(r);
                     (f.vsig_max, f.acc_max)
                 });
                 LeapfrogBuffers {
@@ -425,6 +428,41 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     }
 
     /// Copy the particle state back to the host (snapshots, checkpoints, the summary).
+    /// The total momentum and its scale Σ m|v| of every particle, by a reduction on the
+    /// launcher (per chunk in particle order, the chunks added here in order: the same sums on
+    /// every launcher and thread count), without downloading the particles.
+    pub fn momentum(&mut self) -> Result<Momentum, GpuError> {
+        /// Particles per thread of the reduction.
+        const CHUNK: usize = 256;
+        let mut m = Momentum {
+            p: [0.0; 3],
+            scale: 0.0,
+        };
+        for gas in [true, false] {
+            let ph = if gas { &self.gas } else { &self.dust };
+            if ph.n == 0 {
+                continue;
+            }
+            let threads = ph.n.div_ceil(CHUNK);
+            let d = &self.d;
+            d.zeroed(&mut self.chunk_sums, 4 * threads)?;
+            let ph = if gas { &self.gas } else { &self.dust };
+            let a = th::MomentumArgs {
+                ph: ph.bufs(d),
+                chunk: CHUNK as u32,
+                out: d.ptr(&self.chunk_sums),
+            };
+            d.run(R::MOMENTUM, threads, &a)?;
+            for c in d.get(&self.chunk_sums, 4 * threads)?.chunks_exact(4) {
+                for (pk, ck) in m.p.iter_mut().zip(c) {
+                    *pk += ck;
+                }
+                m.scale += c[3];
+            }
+        }
+        Ok(m)
+    }
+
     pub fn sync(&self, state: &mut State) -> Result<(), GpuError> {
         let d = &self.d;
         self.gas.download(d, &mut [&mut state.gas.ph])?;

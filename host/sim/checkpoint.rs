@@ -1,0 +1,218 @@
+//! Checkpoints of a run (`DIR/checkpoint.h5`: the whole state, the scene as run and the run's
+//! progress) and what resume checks before it continues one.
+use super::output::{output_times, BallRecord, OutputRecord};
+use super::{Checkpointer, Diagnostics, RunError, Simulation};
+use crate::io;
+use crate::particles::State;
+use crate::scene::LoadedScene;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Everything besides the particles that a resumed run must know.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Progress {
+    pub diagnostics: Diagnostics,
+    pub outputs: OutputRecord,
+    #[serde(default)]
+    pub ball: BallRecord,
+    /// Wall seconds of the run's earlier sessions.
+    pub wall_before: f64,
+}
+
+/// Writes the run's checkpoint into its output directory (rank 0 over ranks).
+pub struct RunCheckpoints {
+    pub loaded: LoadedScene,
+    pub dir: PathBuf,
+    /// Wall seconds of earlier sessions, and when this one started.
+    pub wall_before: f64,
+    pub started: Instant,
+    /// The step count of the last checkpoint written in this session.
+    pub last_step: Option<u64>,
+}
+
+impl Checkpointer for RunCheckpoints {
+    fn write(
+        &mut self,
+        sim: &mut Simulation,
+        parts: Vec<(&'static str, serde_json::Value)>,
+    ) -> Result<(), RunError> {
+        sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
+        let part = |name: &str| {
+            parts
+                .iter()
+                .find(|p| p.0 == name)
+                .map_or(serde_json::Value::Null, |p| p.1.clone())
+        };
+        let io_err = |e: serde_json::Error| RunError::Io(e.to_string());
+        let progress = Progress {
+            diagnostics: sim.diagnostics.clone(),
+            outputs: serde_json::from_value(part("outputs")).map_err(io_err)?,
+            ball: serde_json::from_value(part("ball")).unwrap_or_default(),
+            wall_before: self.wall_before + self.started.elapsed().as_secs_f64(),
+        };
+        let meta = io::checkpoint::CheckpointMeta {
+            scene_text: self.loaded.text.clone(),
+            scene_file: self.loaded.path.display().to_string(),
+            overrides_json: serde_json::to_string(&self.loaded.overrides).map_err(io_err)?,
+            progress_json: serde_json::to_string(&progress).map_err(io_err)?,
+        };
+        let written = if sim.is_root() {
+            io::checkpoint::write_checkpoint(
+                &self.dir.join(io::checkpoint::CHECKPOINT_NAME),
+                &sim.state,
+                &meta,
+            )
+            .map_err(|e| RunError::Io(e.to_string()))
+        } else {
+            Ok(())
+        };
+        if sim.any(written.is_err()) {
+            written.clone()?;
+            return Err(RunError::Io("rank 0 could not write the checkpoint".into()));
+        }
+        self.last_step = Some(sim.state.step);
+        written
+    }
+}
+
+/// A checkpoint read back: its state, its scene as run, its progress. Everything wrong with it
+/// is input (resume exits 2 and changes nothing).
+pub fn read(dir: &Path) -> Result<(State, LoadedScene, Progress), RunError> {
+    let ck = dir.join(io::checkpoint::CHECKPOINT_NAME);
+    let (state, meta) =
+        io::checkpoint::read_checkpoint(&ck).map_err(|e| RunError::Input(e.to_string()))?;
+    let bad = |e: String| RunError::Input(format!("{}: {e}", ck.display()));
+    let overrides: Vec<String> =
+        serde_json::from_str(&meta.overrides_json).map_err(|e| bad(e.to_string()))?;
+    let file = PathBuf::from(&meta.scene_file);
+    let loaded = LoadedScene::from_text(&meta.scene_text, &file, &overrides)
+        .map_err(|e| bad(e.to_string()))?;
+    let progress: Progress = serde_json::from_str(&meta.progress_json).map_err(|e| {
+        bad(format!(
+            "its progress does not read ({e}): a checkpoint of an older dustsph?"
+        ))
+    })?;
+    verify_resume(dir, &state, &loaded, &progress.outputs).map_err(bad)?;
+    Ok((state, loaded, progress))
+}
+
+/// A checkpoint may continue only the run it was written by, in its own directory: its
+/// particles agree with its own scene (counts per phase, unused coordinates zero), every
+/// snapshot its progress lists is there and was written by the same effective scene with the
+/// same particle counts no later than the checkpoint, and no other snapshot would be
+/// overwritten.
+fn verify_resume(
+    dir: &Path,
+    state: &State,
+    loaded: &LoadedScene,
+    outputs: &OutputRecord,
+) -> Result<(), String> {
+    let scene = &loaded.scene;
+    let su = crate::setup::build(scene).map_err(|e| format!("its scene cannot be set up: {e}"))?;
+    let counts = |s: &State| -> (usize, Vec<usize>) {
+        (s.gas.ph.len(), s.dust.iter().map(|d| d.len()).collect())
+    };
+    let (want, have) = (counts(&su.state), counts(state));
+    if want != have {
+        return Err(format!(
+            "its particles (gas {}, dust {:?}) do not match its own scene (gas {}, dust {:?})",
+            have.0, have.1, want.0, want.1
+        ));
+    }
+    let dim = scene.dim() as usize;
+    let phases = std::iter::once(&state.gas.ph).chain(&state.dust);
+    if dim < 3
+        && phases
+            .flat_map(|p| &p.x)
+            .any(|x| x[dim..].iter().any(|c| *c != 0.0))
+    {
+        return Err(format!(
+            "its particles are not {dim}-dimensional as its scene (scene.dim = {dim}) says"
+        ));
+    }
+    if let Some(&t_end) = output_times(loaded).last() {
+        if state.t >= t_end {
+            return Err(format!(
+                "its run already reached t_end = {t_end} (t = {}): nothing to resume, and the \
+                 output stays as it is (to run further, start a new run with a later \
+                 time.t_end)",
+                state.t
+            ));
+        }
+    }
+    let n_dust: usize = have.1.iter().sum();
+    for (k, name) in outputs.snapshots.iter().enumerate() {
+        let p = dir.join(name);
+        let h = io::snapshot::read_header(&p).map_err(|e| {
+            format!("the snapshot {name} its run wrote is missing or unreadable ({e})")
+        })?;
+        let same_scene = same_run_scene(&h, loaded);
+        let same_counts = h.num_part[io::snapshot::GAS_TYPE] as usize == have.0
+            && h.num_part[io::snapshot::DUST_TYPE] as usize == n_dust;
+        if !same_scene || !same_counts || h.dim as usize != dim {
+            return Err(format!(
+                "{name} in {} was written by another run (scene {}, particles {:?}): the \
+                 checkpoint belongs elsewhere",
+                dir.display(),
+                if same_scene { "the same" } else { "different" },
+                h.num_part
+            ));
+        }
+        if h.time > state.t {
+            return Err(format!(
+                "{name} is at t = {} after the checkpoint's t = {}: the checkpoint is older \
+                 than the run's output",
+                h.time, state.t
+            ));
+        }
+        // The run wrote this snapshot at a known time: another one copied over it is not it.
+        if let Some(&t) = outputs.snapshot_times.get(k) {
+            if h.time != t {
+                return Err(format!(
+                    "{name} in {} is at t = {}, but the checkpoint's run wrote it at t = {t}: \
+                     it was replaced; put the run's own file back",
+                    dir.display(),
+                    h.time
+                ));
+            }
+        }
+    }
+    let listed: std::collections::HashSet<&str> =
+        outputs.snapshots.iter().map(|s| s.as_str()).collect();
+    let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        if io::output_dir::is_snapshot_name(&name) && !listed.contains(name.as_str()) {
+            // The same run, written after the checkpoint was: say so.
+            if let Ok(h) = io::snapshot::read_header(&e.path()) {
+                if same_run_scene(&h, loaded) && h.time > state.t {
+                    return Err(format!(
+                        "{name} in {} (t = {}) was written after the checkpoint (t = {}); \
+                         resuming would overwrite it (move it and the later snapshots away \
+                         to continue from the checkpoint)",
+                        dir.display(),
+                        h.time,
+                        state.t
+                    ));
+                }
+            }
+            return Err(format!(
+                "{name} in {} is not one the checkpoint's run wrote; resuming would overwrite \
+                 it (move it away, or resume in the run's own directory)",
+                dir.display()
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Whether a snapshot was written from the scene a run is made of: the same effective scene
+/// (file and overrides). A snapshot from before the Header recorded the effective scene holds
+/// the file's text alone, which is the run's only if it had no overrides.
+fn same_run_scene(h: &io::snapshot::SnapshotHeader, loaded: &LoadedScene) -> bool {
+    match &h.source_text {
+        Some(_) => h.scene_text == loaded.effective,
+        None => loaded.overrides.is_empty() && h.scene_text == loaded.text,
+    }
+}

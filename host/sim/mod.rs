@@ -1,0 +1,338 @@
+//! A simulation: the physics, the state, what steps it ([`Stepper`]: one process or MPI
+//! ranks) and its diagnostics, and the one step loop. Every command that steps a scene (run,
+//! resume, study, stiffness, bench, parity, mpi-check) steps through [`Simulation::step`], so
+//! they choose the same τ for the same state and report the same diagnostics; what a command
+//! does around the steps (snapshots, checkpoints, the progress bar, its checks) are
+//! [`Observer`]s of [`Simulation::run`].
+pub mod checkpoint;
+pub mod diagnostics;
+pub mod output;
+pub mod progress;
+pub mod start;
+pub mod stepper;
+pub mod summary;
+
+use crate::particles::State;
+use crate::scene::TimeCfg;
+use crate::step::backend::{Backend, DeviceChoice, StartError};
+use crate::step::timestep::{Plan, StepPlanner, Taken};
+use crate::step::{Physics, StepError};
+pub use diagnostics::{Diagnostics, ParticleCounts};
+pub use stepper::Stepper;
+
+/// Why a command stopped short, or could not start.
+#[derive(Debug, Clone)]
+pub enum RunError {
+    /// Bad input (scene key at fault); nothing was written.
+    Input(String),
+    /// Bad input already reported (over MPI ranks rank 0 says it, once, before any rank
+    /// leaves); exit 2 without a further message.
+    InputReported,
+    Io(String),
+    Step(String),
+}
+
+impl std::fmt::Display for RunError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RunError::Input(s) | RunError::Io(s) | RunError::Step(s) => f.write_str(s),
+            RunError::InputReported => f.write_str("bad input (reported above)"),
+        }
+    }
+}
+impl std::error::Error for RunError {}
+
+impl RunError {
+    /// The exit code the command line gives it (README, "Exit codes").
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            RunError::Input(_) | RunError::InputReported => 2,
+            _ => 1,
+        }
+    }
+}
+
+fn step_err(e: StepError) -> RunError {
+    RunError::Step(e.to_string())
+}
+
+/// What an observer asks of the loop after it has seen a step (or before the next one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Flow {
+    Continue,
+    /// Write a checkpoint, then go on.
+    Checkpoint,
+    /// Stop here (Ctrl-C, a step budget), with a checkpoint first if asked.
+    Stop {
+        checkpoint: bool,
+    },
+}
+
+/// Why [`Simulation::run`] returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stop {
+    Finished,
+    /// Stopped by an observer; `checkpointed`: a checkpoint was written to resume from.
+    Interrupted {
+        checkpointed: bool,
+    },
+}
+
+/// Something a command does around the steps: write outputs, checkpoints, show progress,
+/// record a check. Observers see the simulation after every step; the host state is up to
+/// date then when any observer asks for it every step, and at every time an observer must
+/// land on (its `next_time`).
+pub trait Observer {
+    /// The next time after `t` the run must land on exactly (an output), if any.
+    fn next_time(&self, _t: f64) -> Option<f64> {
+        None
+    }
+    /// Whether this observer reads the host state after every step (costs a download).
+    fn needs_state_every_step(&self) -> bool {
+        false
+    }
+    fn before_step(&mut self, _sim: &mut Simulation) -> Result<Flow, RunError> {
+        Ok(Flow::Continue)
+    }
+    fn after_step(&mut self, _sim: &mut Simulation, _taken: &Taken) -> Result<Flow, RunError> {
+        Ok(Flow::Continue)
+    }
+    /// What a checkpoint keeps of this observer, as (name, JSON), to be restored on resume.
+    fn save(&self) -> Option<(&'static str, serde_json::Value)> {
+        None
+    }
+}
+
+/// Writes a checkpoint of the simulation and its observers' saved parts.
+pub trait Checkpointer {
+    fn write(
+        &mut self,
+        sim: &mut Simulation,
+        parts: Vec<(&'static str, serde_json::Value)>,
+    ) -> Result<(), RunError>;
+}
+
+pub struct Simulation {
+    pub phys: Physics,
+    pub planner: StepPlanner,
+    /// The host copy of the state: up to date after [`Simulation::sync`] (over ranks, the
+    /// whole state on rank 0 only).
+    pub state: State,
+    pub stepper: Stepper,
+    pub diagnostics: Diagnostics,
+}
+
+impl Simulation {
+    /// A simulation of `state` stepped by `stepper` (the engine built on it, which left the
+    /// state up to date), its diagnostics starting here.
+    pub fn new(
+        phys: Physics,
+        time: &TimeCfg,
+        state: State,
+        mut stepper: Stepper,
+    ) -> Result<Simulation, StepError> {
+        let m = stepper.momentum()?;
+        Ok(Simulation {
+            planner: StepPlanner::new(time, phys.h),
+            diagnostics: Diagnostics::start(&state, m),
+            phys,
+            state,
+            stepper,
+        })
+    }
+
+    /// The dust stopping times of the current (synced) state, per fraction (+∞ where a
+    /// particle's drag is off).
+    pub fn dust_stopping_times(&mut self) -> Result<Vec<Vec<f64>>, StepError> {
+        let Simulation { stepper, state, .. } = self;
+        stepper.engine(state)?.dust_stopping_times(state)
+    }
+
+    /// A simulation continuing from a checkpoint's diagnostics.
+    pub fn resumed(
+        phys: Physics,
+        time: &TimeCfg,
+        state: State,
+        stepper: Stepper,
+        diagnostics: Diagnostics,
+    ) -> Simulation {
+        Simulation {
+            planner: StepPlanner::new(time, phys.h),
+            phys,
+            state,
+            stepper,
+            diagnostics,
+        }
+    }
+
+    /// One process on `device` (the state sorted in place by the engine): a note when `auto`
+    /// did not use the GPU.
+    pub fn local(
+        phys: Physics,
+        time: &TimeCfg,
+        mut state: State,
+        device: DeviceChoice,
+    ) -> Result<(Simulation, Option<String>), StartError> {
+        let (eng, note) = Backend::start(device, phys.clone(), &mut state)?;
+        let sim =
+            Simulation::new(phys, time, state, Stepper::Local(eng)).map_err(StartError::Step)?;
+        Ok((sim, note))
+    }
+
+    /// One step toward `t_target` (never past it); the diagnostics follow it.
+    pub fn step(&mut self, t_target: f64) -> Result<Taken, StepError> {
+        let taken = self
+            .stepper
+            .step(&self.planner, &mut self.state, t_target)?;
+        self.record(&taken)?;
+        Ok(taken)
+    }
+
+    /// One process: a step of the size `plan` gives (another run's plan: parity compares two
+    /// launchers on the same steps), from the forces of this engine.
+    pub fn step_with(&mut self, plan: &Plan) -> Result<Taken, StepError> {
+        let Simulation { stepper, state, .. } = self;
+        let eng = stepper
+            .local()
+            .ok_or_else(|| StepError::Unsupported("this runs on one process only".into()))?;
+        let forces = eng.forces()?;
+        eng.take(state, plan)?;
+        let taken = Taken {
+            plan: *plan,
+            forces,
+        };
+        self.record(&taken)?;
+        Ok(taken)
+    }
+
+    fn record(&mut self, taken: &Taken) -> Result<(), StepError> {
+        let m = self.stepper.momentum()?;
+        self.diagnostics.after_step(taken, m, self.phys.h);
+        Ok(())
+    }
+
+    /// One process: the forces and the step the planner would take toward `t_target` now
+    /// (nothing is advanced; the next step computes the same forces again).
+    pub fn plan_next(&mut self, t_target: f64) -> Result<Taken, StepError> {
+        let planner = self.planner.clone();
+        let state = &self.state;
+        match &mut self.stepper {
+            Stepper::Local(eng) => eng.plan(&planner, state, t_target),
+            #[allow(unreachable_patterns)]
+            _ => Err(StepError::Unsupported(
+                "planning a step without taking it runs on one process".into(),
+            )),
+        }
+    }
+
+    /// The engine of one process (an error over ranks).
+    pub fn local_engine(&mut self) -> Result<&mut Backend, StepError> {
+        self.stepper
+            .local()
+            .ok_or_else(|| StepError::Unsupported("this runs on one process only".into()))
+    }
+
+    /// Bring the host state up to date (over ranks: gathered on rank 0; collective).
+    pub fn sync(&mut self) -> Result<(), StepError> {
+        self.stepper.sync(&mut self.state)
+    }
+
+    /// The engine on the whole state, for what an output computes (after [`Simulation::sync`]).
+    pub fn engine(&mut self) -> Result<&mut Backend, StepError> {
+        self.stepper.engine(&mut self.state)
+    }
+
+    /// The dust densities of the current state (computed where the step does not keep them
+    /// fresh), the host state brought up to date.
+    pub fn refresh_dust_density(&mut self) -> Result<(), StepError> {
+        self.sync()?;
+        let Simulation { stepper, state, .. } = self;
+        stepper.engine(state)?.refresh_dust_density(state)
+    }
+
+    /// This process writes the outputs (one process, or rank 0).
+    pub fn is_root(&self) -> bool {
+        self.stepper.is_root()
+    }
+
+    /// Whether any process says so (collective over ranks).
+    pub fn any(&self, flag: bool) -> bool {
+        self.stepper.any(flag)
+    }
+
+    /// Step until `t_end` (landing on every observer's times), or until an observer stops the
+    /// run. Checkpoints that observers ask for are written by `checkpoints`.
+    pub fn run(
+        &mut self,
+        t_end: f64,
+        observers: &mut [&mut dyn Observer],
+        checkpoints: Option<&mut dyn Checkpointer>,
+    ) -> Result<Stop, RunError> {
+        let mut checkpoints = checkpoints;
+        let every_step = observers.iter().any(|o| o.needs_state_every_step());
+        while self.state.t < t_end {
+            let mut flow = Flow::Continue;
+            for o in observers.iter_mut() {
+                flow = most(flow, o.before_step(self)?);
+            }
+            if let Some(stop) = self.obey(flow, observers, &mut checkpoints)? {
+                return Ok(stop);
+            }
+            let target = observers
+                .iter()
+                .filter_map(|o| o.next_time(self.state.t))
+                .fold(t_end, f64::min);
+            let taken = self.step(target).map_err(step_err)?;
+            if every_step || taken.plan.landing {
+                self.sync().map_err(step_err)?;
+            }
+            let mut flow = Flow::Continue;
+            for o in observers.iter_mut() {
+                flow = most(flow, o.after_step(self, &taken)?);
+            }
+            if let Some(stop) = self.obey(flow, observers, &mut checkpoints)? {
+                return Ok(stop);
+            }
+        }
+        Ok(Stop::Finished)
+    }
+
+    /// Carry out what the observers asked: a checkpoint, a stop.
+    fn obey(
+        &mut self,
+        flow: Flow,
+        observers: &[&mut dyn Observer],
+        checkpoints: &mut Option<&mut dyn Checkpointer>,
+    ) -> Result<Option<Stop>, RunError> {
+        let checkpoint = matches!(flow, Flow::Checkpoint | Flow::Stop { checkpoint: true });
+        let written = match (checkpoint, checkpoints.as_mut()) {
+            (true, Some(c)) => {
+                let parts = observers.iter().filter_map(|o| o.save()).collect();
+                c.write(self, parts)?;
+                true
+            }
+            _ => false,
+        };
+        Ok(match flow {
+            Flow::Stop { .. } => Some(Stop::Interrupted {
+                checkpointed: written,
+            }),
+            _ => None,
+        })
+    }
+}
+
+/// The stronger of two requests (stop over checkpoint over continue; a checkpoint asked by
+/// either is kept).
+fn most(a: Flow, b: Flow) -> Flow {
+    match (a, b) {
+        (Flow::Stop { checkpoint: x }, Flow::Stop { checkpoint: y }) => {
+            Flow::Stop { checkpoint: x || y }
+        }
+        (Flow::Stop { checkpoint }, f) | (f, Flow::Stop { checkpoint }) => Flow::Stop {
+            checkpoint: checkpoint || f == Flow::Checkpoint,
+        },
+        (Flow::Checkpoint, _) | (_, Flow::Checkpoint) => Flow::Checkpoint,
+        _ => Flow::Continue,
+    }
+}

@@ -1,0 +1,294 @@
+//! The run's outputs: a snapshot (HDF5, with its XDMF sidecar) at every output time, the error
+//! norms against the exact solution at each, the XDMF time series; and for the ball the checks
+//! of docs/method.md §6.1 (the undisturbed core at each output, the Lagrange–Jacobi identity
+//! after every step).
+use super::{Flow, Observer, RunError, Simulation};
+use crate::analysis::{self, ExactErrors};
+use crate::io::{self, PhaseView, SnapshotView};
+use crate::scene::{LoadedScene, Problem};
+use crate::step::timestep::Taken;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The times a scene writes snapshots at: t = 0, every `output_dt` or the `output_times`, and
+/// t_end.
+pub fn output_times(loaded: &LoadedScene) -> Vec<f64> {
+    let t = &loaded.scene.time;
+    let mut v = vec![0.0];
+    if let Some(dt) = t.output_dt {
+        let n = (t.t_end / dt + 1e-9).floor() as usize;
+        v.extend((1..=n).map(|i| i as f64 * dt));
+    }
+    if let Some(ts) = &t.output_times {
+        v.extend(ts.iter().copied());
+    }
+    v.push(t.t_end);
+    v.sort_by(|a, b| a.total_cmp(b));
+    v.dedup_by(|a, b| (*a - *b).abs() <= 1e-12 * t.t_end);
+    v
+}
+
+/// What the outputs have written so far (a checkpoint keeps it).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct OutputRecord {
+    /// Index into the output times of the next snapshot.
+    pub next_output: usize,
+    pub snapshots: Vec<String>,
+    /// Time of each snapshot (for the XDMF time series).
+    pub snapshot_times: Vec<f64>,
+    /// Error norms at every snapshot time (scenes with an exact solution).
+    pub errors: Vec<ExactErrors>,
+    /// The ball: the undisturbed core at each snapshot time (docs/method.md §6.1).
+    #[serde(default)]
+    pub ball_core: Vec<analysis::ball::CoreCheck>,
+}
+
+/// Writes the snapshots of a run (rank 0 over MPI ranks).
+pub struct Outputs {
+    pub loaded: LoadedScene,
+    pub dir: PathBuf,
+    times: Vec<f64>,
+    pub record: OutputRecord,
+    verbose: bool,
+}
+
+impl Outputs {
+    pub fn new(loaded: &LoadedScene, dir: &Path, record: OutputRecord, verbose: bool) -> Outputs {
+        Outputs {
+            times: output_times(loaded),
+            loaded: loaded.clone(),
+            dir: dir.to_path_buf(),
+            record,
+            verbose,
+        }
+    }
+
+    /// Write the next snapshot from the simulation's (synced) state: its file, its errors, the
+    /// series. Over ranks every rank goes on, or none.
+    pub fn write_next(&mut self, sim: &mut Simulation) -> Result<(), RunError> {
+        let name = io::snapshot_name(self.record.snapshots.len());
+        let written = if sim.is_root() {
+            self.write_files(sim, &name)
+        } else {
+            Ok(())
+        };
+        // No rank may wait on one that stopped.
+        if sim.any(written.is_err()) {
+            written.clone()?;
+            return Err(RunError::Io("rank 0 could not write the output".into()));
+        }
+        self.record.snapshots.push(name);
+        self.record.snapshot_times.push(sim.state.t);
+        self.record.next_output += 1;
+        Ok(())
+    }
+
+    fn write_files(&mut self, sim: &mut Simulation, name: &str) -> Result<(), RunError> {
+        write_snapshot(&self.dir.join(name), &self.loaded, sim)?;
+        let fixed_dt = self.loaded.scene.time.dt;
+        self.record.errors.extend(analysis::exact_errors(
+            &self.loaded.scene,
+            &sim.state,
+            fixed_dt,
+        ));
+        if let Some(c) = ball_core(&self.loaded, sim) {
+            self.record.ball_core.push(c);
+        }
+        if self.verbose {
+            eprintln!(
+                "  t = {:.6}  step {:>7}  → {}",
+                sim.state.t, sim.state.step, name
+            );
+        }
+        let series: Vec<(f64, String)> = (self.record.snapshot_times.iter().copied())
+            .chain([sim.state.t])
+            .zip(
+                self.record
+                    .snapshots
+                    .iter()
+                    .cloned()
+                    .chain([name.to_string()]),
+            )
+            .collect();
+        io::write_xdmf_series(&self.dir, &series).map_err(|e| RunError::Io(e.to_string()))
+    }
+
+    /// Whether every output time has been written.
+    pub fn done(&self) -> bool {
+        self.record.next_output >= self.times.len()
+    }
+}
+
+impl Observer for Outputs {
+    fn next_time(&self, _t: f64) -> Option<f64> {
+        self.times.get(self.record.next_output).copied()
+    }
+
+    fn after_step(&mut self, sim: &mut Simulation, taken: &Taken) -> Result<Flow, RunError> {
+        if taken.plan.landing && Some(taken.plan.t_target) == self.next_time(sim.state.t) {
+            self.write_next(sim)?;
+        }
+        Ok(Flow::Continue)
+    }
+
+    fn save(&self) -> Option<(&'static str, serde_json::Value)> {
+        Some(("outputs", serde_json::to_value(&self.record).ok()?))
+    }
+}
+
+/// Write one snapshot of the simulation's (synced) state: the dust densities and stopping
+/// times computed for it, variable h's per-particle h, the effective scene and its provenance.
+pub fn write_snapshot(
+    path: &Path,
+    loaded: &LoadedScene,
+    sim: &mut Simulation,
+) -> Result<(), RunError> {
+    let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
+    // The state is synced (the loop syncs every process at a landing; over ranks this runs on
+    // rank 0 alone, so nothing here may be collective).
+    let Simulation { stepper, state, .. } = sim;
+    let eng = stepper.engine(state).map_err(step_err)?;
+    eng.refresh_dust_density(state).map_err(step_err)?;
+    let t_stop = eng.dust_stopping_times(state).map_err(step_err)?;
+    let phys = eng.phys();
+    let h = phys.h;
+    let g = &state.gas;
+    // Variable h: the gas's own h; the dust's from its density (h = hfact (m/ρ)^(1/d), the
+    // relation its solve satisfies); the box margin is the largest support.
+    let dim = loaded.scene.dim();
+    let dust_h: Vec<Option<Vec<f64>>> = state
+        .dust
+        .iter()
+        .map(|d| {
+            phys.variable_h.map(|hf| {
+                d.m.iter()
+                    .zip(&d.rho)
+                    .map(|(&m, &r)| dustsph_device::kernel::h_of_density(m, r, hf, dim, h))
+                    .collect()
+            })
+        })
+        .collect();
+    let gas_h = g.h.as_deref().filter(|_| phys.variable_h.is_some());
+    let h_max = gas_h
+        .iter()
+        .flat_map(|v| v.iter())
+        .chain(dust_h.iter().flatten().flatten())
+        .fold(h, |a, &b| if b.is_finite() { a.max(b) } else { a });
+    // The snapshot contract has InternalEnergy for every gas; isothermal gas solves no energy
+    // equation, so it gets p/ρ (= c_s²), made here for output only.
+    let e_iso: Option<Vec<f64>> =
+        g.e.is_none()
+            .then(|| g.p.iter().zip(&g.ph.rho).map(|(p, r)| p / r).collect());
+    let scene_file = loaded.path.display().to_string();
+    let view = SnapshotView {
+        time: state.t,
+        dim,
+        periodic: phys.domain.periodic,
+        pad: dustsph_device::kernel::SUPPORT * h_max,
+        scene_text: &loaded.effective,
+        source: io::SceneSource {
+            file: &scene_file,
+            text: &loaded.text,
+            overrides: &loaded.overrides,
+        },
+        gas: Some(PhaseView {
+            x: &g.ph.x,
+            v: &g.ph.v,
+            m: &g.ph.m,
+            rho: &g.ph.rho,
+            h,
+            h_each: gas_h,
+            id: &g.ph.id,
+            e: g.e.as_deref().or(e_iso.as_deref()),
+            p: Some(&g.p),
+            t_stop: None,
+        }),
+        dust: state
+            .dust
+            .iter()
+            .zip(&t_stop)
+            .zip(&dust_h)
+            .map(|((d, ts), dh)| PhaseView {
+                x: &d.x,
+                v: &d.v,
+                m: &d.m,
+                rho: &d.rho,
+                h,
+                h_each: dh.as_deref(),
+                id: &d.id,
+                e: None,
+                p: None,
+                t_stop: Some(ts),
+            })
+            .collect(),
+    };
+    io::write_snapshot(path, &view).map_err(|e| RunError::Io(e.to_string()))?;
+    // ParaView sidecar: gas and dust as two point sets.
+    io::write_xdmf_view(path, &view).map_err(|e| RunError::Io(e.to_string()))
+}
+
+/// The ball's undisturbed core (docs/method.md §6.1) against the initial state, for a ball
+/// scene (`None` otherwise).
+fn ball_core(loaded: &LoadedScene, sim: &Simulation) -> Option<analysis::ball::CoreCheck> {
+    let sc = &loaded.scene;
+    let b = sc.ball()?;
+    let rho = sc.gas.rho?;
+    let p = match sc.gas.eos {
+        crate::scene::EosKind::Adiabatic => sc.gas.p?,
+        crate::scene::EosKind::Isothermal => sc.gas.cs? * sc.gas.cs? * rho,
+    };
+    let cs = sim.phys.eos.sound_speed(rho, p);
+    let eps: f64 = sc
+        .dust
+        .as_ref()
+        .map_or(0.0, |d| d.fractions.iter().map(|f| f.eps).sum());
+    analysis::ball::core_check(&sim.state, b.radius, rho, eps * rho, p, cs, sim.phys.h)
+}
+
+/// The ball's Lagrange–Jacobi terms while it runs (a checkpoint keeps them).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct BallRecord {
+    /// (t, I, 2Σm|v|² + 2dΣm p/ρ) after every step.
+    pub lagrange_jacobi: Vec<(f64, f64, f64)>,
+}
+
+/// The ball's Lagrange–Jacobi identity (docs/method.md §6.1): its terms after every step, from
+/// the state as the step left it (before an output's engine reorders it).
+pub struct BallChecks {
+    loaded: LoadedScene,
+    pub record: BallRecord,
+}
+
+impl BallChecks {
+    /// For the ball only (`None` for other scenes).
+    pub fn of(loaded: &LoadedScene, record: BallRecord) -> Option<BallChecks> {
+        (loaded.scene.scene.problem == Problem::Dustyball).then(|| BallChecks {
+            loaded: loaded.clone(),
+            record,
+        })
+    }
+
+    /// Record the state as it stands. Root only.
+    pub fn record_now(&mut self, sim: &Simulation) {
+        if !sim.is_root() {
+            return;
+        }
+        let (i, rhs) = analysis::ball::lagrange_jacobi_terms(&sim.state, self.loaded.scene.dim());
+        self.record.lagrange_jacobi.push((sim.state.t, i, rhs));
+    }
+}
+
+impl Observer for BallChecks {
+    fn needs_state_every_step(&self) -> bool {
+        true
+    }
+
+    fn after_step(&mut self, sim: &mut Simulation, _: &Taken) -> Result<Flow, RunError> {
+        self.record_now(sim);
+        Ok(Flow::Continue)
+    }
+
+    fn save(&self) -> Option<(&'static str, serde_json::Value)> {
+        Some(("ball", serde_json::to_value(&self.record).ok()?))
+    }
+}

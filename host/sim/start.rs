@@ -1,0 +1,125 @@
+//! The start of a run (or of a resumed one): the scene's physics and initial state, the engine on
+//! the device asked for, and the checks and warnings said before anything is written.
+use super::RunError;
+use crate::particles::State;
+use crate::scene::LoadedScene;
+use crate::step::backend::{Backend, DeviceChoice, StartError};
+use crate::step::timestep::{dt_limits, StepPlanner};
+use crate::step::{Forces, Physics, StepError};
+
+/// Share of dust particles without gas in their IDIC cell above which a run with the
+/// nearest-cell coupling warns (their drag is off).
+const UNCOUPLED_WARNING: f64 = 0.05;
+
+/// The scene's physics and its initial state (or a given, checkpointed one); `warn`: say
+/// what the set-up found worth a warning (one process, or rank 0 only).
+pub fn prepare(
+    loaded: &LoadedScene,
+    state: Option<State>,
+    warn: bool,
+) -> Result<(Physics, State), RunError> {
+    let file = loaded.path.display().to_string();
+    let su =
+        crate::setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
+    let state = state.unwrap_or(su.state);
+    let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
+    if warn && phys.coupling == crate::scene::Coupling::Cell {
+        if let Some(f) = crate::step::dust_without_gas_in_cell(&phys, &state) {
+            if f > UNCOUPLED_WARNING {
+                eprintln!(
+                    "dustsph: warning: {:.0}% of the dust particles share no IDIC cell with a \
+                     gas particle, so the nearest-cell coupling (idic.coupling = \"cell\") \
+                     leaves their drag off; idic.coupling = \"kernel\" couples them wherever \
+                     they sit (docs/method.md §K)",
+                    100.0 * f
+                );
+            }
+        }
+    }
+    Ok((phys, state))
+}
+
+/// The engine on a scene's state (sorted in place). Sorting an already sorted state is the
+/// identity and densities are recomputed by the same code in the same order, so a resumed
+/// run continues bit for bit. A failure here is bad input: the initial grid and densities
+/// come from the scene alone.
+pub fn engine(
+    loaded: &LoadedScene,
+    phys: Physics,
+    state: &mut State,
+    device: DeviceChoice,
+    verbose: bool,
+) -> Result<Backend, RunError> {
+    let file = loaded.path.display().to_string();
+    let (eng, note) = Backend::start(device, phys, state).map_err(|e| match e {
+        StartError::Device(m) => RunError::Input(m),
+        StartError::Step(StepError::Unsupported(m)) => RunError::Input(format!("{file}: {m}")),
+        StartError::Step(e) => RunError::Input(format!(
+            "{file}: the initial state cannot be set up (check idic.cell, sph.h/hfact, sph.n): {e}"
+        )),
+    })?;
+    if let (Some(n), true) = (note, verbose) {
+        eprintln!("dustsph: {n}");
+    }
+    Ok(eng)
+}
+
+/// The first step's size, before anything is written (with --force the old run's files
+/// would already be gone): a CFL step that has collapsed at t = 0, or a t_end beyond the
+/// step count allowed, is bad input, not a run to start. The forces are computed again by
+/// the first step (the same ones: the engine's forces are a pure function of its state).
+/// Warnings on the start are printed here.
+pub fn check_first_step(
+    loaded: &LoadedScene,
+    eng: &mut Backend,
+    state: &State,
+) -> Result<(), RunError> {
+    let Some(&t1) = super::output::output_times(loaded).get(1) else {
+        return Ok(());
+    };
+    let planner = StepPlanner::new(&loaded.scene.time, eng.phys().h);
+    match eng.plan(&planner, state, t1) {
+        Err(e) => Err(RunError::Input(format!(
+            "{}: the first step cannot be taken: {e}",
+            loaded.path.display()
+        ))),
+        Ok(taken) => {
+            for w in start_warnings(loaded, eng.phys(), state, &taken.forces) {
+                eprintln!("dustsph: warning: {w}");
+            }
+            Ok(())
+        }
+    }
+}
+
+/// What a physicist should hear before a run that will likely be noise or unstable: a fixed
+/// step above the CFL/force limit of the initial state, and kernels holding too few
+/// neighbours to be SPH sums (method.md §2).
+fn start_warnings(loaded: &LoadedScene, phys: &Physics, state: &State, f: &Forces) -> Vec<String> {
+    let mut out = Vec::new();
+    if let Some(dt) = loaded.scene.time.dt {
+        let (dt_cfl, dt_force) = dt_limits(phys.h, f);
+        let limit = dt_cfl.min(dt_force);
+        if dt > limit {
+            out.push(format!(
+                "time.dt = {dt} is {:.2}× the step limit min(h/v_sig, √(h/|A|)) = {limit:.3e} of \
+                 the initial state: explicit SPH is stable only below ≈0.3–0.5 of it (lower \
+                 time.dt, or use time.cfl)",
+                dt / limit
+            ));
+        }
+    }
+    // Fewer neighbours than a kernel of half the usual width would hold (hfact ≈ 0.6).
+    let least = [2.0, 5.0, 12.0][(phys.domain.dim as usize).clamp(1, 3) - 1];
+    if let Ok(nb) = crate::commands::bench::mean_gas_neighbours(phys, state) {
+        if !state.gas.ph.x.is_empty() && nb < least {
+            out.push(format!(
+                "the gas particles have {nb:.1} neighbours each within 2h on average (fewer than \
+                 {least} in {}D): the SPH sums are noise at this resolution; raise sph.hfact (or \
+                 sph.h)",
+                phys.domain.dim
+            ));
+        }
+    }
+    out
+}

@@ -1,0 +1,220 @@
+//! `summary.json`: what a run did, how it was made, and its diagnostics (docs/outputs.md).
+use super::output::{BallRecord, OutputRecord};
+use super::{Diagnostics, ParticleCounts, RunError, Simulation};
+use crate::analysis::{self, ExactErrors};
+use crate::io;
+use crate::scene::LoadedScene;
+use serde::Serialize;
+use std::path::Path;
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Drift {
+    pub initial: f64,
+    pub r#final: f64,
+    /// (final − initial)/|initial|.
+    pub relative: f64,
+}
+
+impl Drift {
+    fn new(a: f64, b: f64) -> Drift {
+        Drift {
+            initial: a,
+            r#final: b,
+            relative: if a != 0.0 { (b - a) / a.abs() } else { b - a },
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Conservation {
+    pub mass_gas: Drift,
+    pub mass_dust: Vec<Drift>,
+    pub momentum_initial: [f64; 3],
+    pub momentum_final: [f64; 3],
+    /// The largest |P(t) − P(0)| after any step, relative to the largest Σ m|v| of the run
+    /// (M·c_s for a system at rest): `Diagnostics::momentum_drift`.
+    pub momentum_drift_relative: f64,
+    /// Kinetic (+ thermal for adiabatic gas). Drag without heating dissipates it.
+    pub energy: Drift,
+}
+
+/// Exact checks of the ball into vacuum (method.md §6.1).
+#[derive(Debug, Clone, Serialize)]
+pub struct BallReport {
+    /// Undisturbed core at each output time: largest relative deviations from the initial state.
+    pub core: Vec<analysis::ball::CoreCheck>,
+    /// Largest |d²I/dt² − (2Σm|v|² + 6Σ_gas m p/ρ)| / rhs over the run (central differences).
+    pub lagrange_jacobi_max_relative: Option<f64>,
+    /// R_est = sqrt(5 Σm r² / (3 Σm)) of gas and of all dust at the end (the radius of a
+    /// uniform ball with that moment of inertia).
+    pub radius_estimate_gas: f64,
+    pub radius_estimate_dust: f64,
+    /// Axis vs diagonal profiles at the end.
+    pub symmetry: Option<crate::commands::profile::Symmetry>,
+    /// Profiles CSV and figures of the last snapshot.
+    pub figures: Vec<String>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub code: &'static str,
+    pub version: &'static str,
+    pub git: &'static str,
+    pub scene: String,
+    pub problem: &'static str,
+    pub scene_file: String,
+    pub overrides: Vec<String>,
+    /// The scene as run: the file with the overrides applied, as TOML (what the snapshots'
+    /// `Scene` attribute holds).
+    pub scene_effective: String,
+    pub dimension: u32,
+    pub backend: String,
+    pub precision: &'static str,
+    pub particles: ParticleCounts,
+    pub h: f64,
+    pub idic_cell: f64,
+    pub position_update: String,
+    /// `first_order` (the report's step) or `kdk` (leapfrog).
+    pub integrator: &'static str,
+    /// `standard` kernel gradient or `iad`.
+    pub gradient: &'static str,
+    /// `idic`, or `explicit` (the baseline: τ ≤ 0.9 t_s).
+    pub drag_method: &'static str,
+    /// Steps whose size the explicit drag's limit set (always 0 with IDIC).
+    pub drag_limited_steps: u64,
+    pub pipeline: Vec<&'static str>,
+    pub steps: u64,
+    pub t_final: f64,
+    pub dt_min: f64,
+    pub dt_max: f64,
+    /// Largest τ·v_sig/h of the run.
+    pub cfl_max: f64,
+    pub wall_seconds: f64,
+    pub particle_steps_per_second: f64,
+    pub conservation: Conservation,
+    /// Error norms at every snapshot time (scenes with an exact solution).
+    pub errors: Vec<ExactErrors>,
+    pub snapshots: Vec<String>,
+    pub stage_seconds: Vec<(&'static str, f64)>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ball: Option<BallReport>,
+}
+
+/// The conservation of a run from its diagnostics and its final (synced) state.
+pub fn conservation(d: &Diagnostics, state: &crate::particles::State) -> Conservation {
+    Conservation {
+        mass_gas: Drift::new(d.mass0.0, state.gas.ph.total_mass()),
+        mass_dust: state
+            .dust
+            .iter()
+            .zip(&d.mass0.1)
+            .map(|(p, &m)| Drift::new(m, p.total_mass()))
+            .collect(),
+        momentum_initial: d.momentum0,
+        momentum_final: state.total_momentum(),
+        momentum_drift_relative: d.momentum_drift(),
+        energy: Drift::new(d.energy0, state.total_energy()),
+    }
+}
+
+/// R_est = sqrt(5 Σm r² / (3 Σm)) of the phases.
+fn radius_estimate(phs: &[&crate::particles::Phase]) -> f64 {
+    let (mut mr2, mut m) = (0.0, 0.0);
+    for ph in phs {
+        for (mi, x) in ph.m.iter().zip(&ph.x) {
+            mr2 += mi * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+            m += mi;
+        }
+    }
+    if m > 0.0 {
+        (5.0 * mr2 / (3.0 * m)).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// The run's summary from the simulation (synced), its outputs and its ball checks; for the
+/// ball the profiles and figures of the last snapshot are made here. Written to
+/// `DIR/summary.json` by rank 0.
+pub fn finish(
+    sim: &mut Simulation,
+    loaded: &LoadedScene,
+    dir: &Path,
+    outputs: OutputRecord,
+    ball: Option<BallRecord>,
+    wall: f64,
+) -> Result<Summary, RunError> {
+    sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
+    let scene = &loaded.scene;
+    let state = &sim.state;
+    let root = sim.is_root();
+    let post = match (scene.ball(), outputs.snapshots.last()) {
+        (Some(_), Some(last)) if root => Some(
+            crate::commands::profile::post_process(&dir.join(last), 100)
+                .map_err(|e| RunError::Io(e.to_string()))?,
+        ),
+        _ => None,
+    };
+    let ball = ball.map(|b| BallReport {
+        symmetry: post.as_ref().and_then(|p| p.symmetry.clone()),
+        figures: post.as_ref().map_or(Vec::new(), |p| {
+            p.files
+                .iter()
+                .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+                .collect()
+        }),
+        lagrange_jacobi_max_relative: analysis::ball::lagrange_jacobi_deviation(&b.lagrange_jacobi),
+        core: outputs.ball_core.clone(),
+        radius_estimate_gas: radius_estimate(&[&state.gas.ph]),
+        radius_estimate_dust: radius_estimate(&state.dust.iter().collect::<Vec<_>>()),
+    });
+    let d = &sim.diagnostics;
+    let eng = sim.stepper.backend();
+    let phys = eng.phys();
+    let summary = Summary {
+        code: "dustsph",
+        version: env!("CARGO_PKG_VERSION"),
+        git: env!("DUSTSPH_GIT"),
+        scene: scene.scene.name.clone(),
+        problem: scene.scene.problem.name(),
+        scene_file: loaded.path.display().to_string(),
+        overrides: loaded.overrides.clone(),
+        scene_effective: loaded.effective.clone(),
+        dimension: scene.dim(),
+        backend: sim.stepper.describe(),
+        precision: phys.precision.name(),
+        particles: d.counts.clone(),
+        h: phys.h,
+        idic_cell: phys.cell_size,
+        position_update: format!("{:?}", phys.position_update).to_lowercase(),
+        integrator: match phys.integrator {
+            crate::scene::Integrator::FirstOrder => "first_order",
+            crate::scene::Integrator::Kdk => "kdk",
+        },
+        gradient: match phys.gradient {
+            crate::scene::GradientMethod::Standard => "standard",
+            crate::scene::GradientMethod::Iad => "iad",
+        },
+        // The stages that ran, in the order they first ran (from the timers).
+        pipeline: eng.timers().entries().iter().map(|e| e.0).collect(),
+        drag_method: phys.drag.name(),
+        drag_limited_steps: d.drag_limited_steps,
+        steps: state.step,
+        t_final: state.t,
+        dt_min: d.dt_min,
+        dt_max: d.dt_max,
+        cfl_max: d.cfl_max,
+        wall_seconds: wall,
+        particle_steps_per_second: d.counts.total() as f64 * state.step as f64 / wall.max(1e-12),
+        conservation: conservation(d, state),
+        errors: outputs.errors,
+        snapshots: outputs.snapshots,
+        stage_seconds: eng.timers().entries().to_vec(),
+        ball,
+    };
+    if root {
+        io::write_json_atomic(&dir.join("summary.json"), &summary)
+            .map_err(|e| RunError::Io(e.to_string()))?;
+    }
+    Ok(summary)
+}
