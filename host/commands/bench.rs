@@ -1,6 +1,7 @@
 //! Speed: particle-steps/s and neighbour interactions/s of the step, without output, on the
 //! CPU or on a device.
 use crate::scene::Scene;
+use crate::scene::{ListChoice, Precision};
 use crate::setup;
 use crate::sim::Simulation;
 use crate::step::backend::{self, DeviceChoice};
@@ -118,4 +119,148 @@ pub fn mean_gas_neighbours(
         })
         .sum();
     Ok(total as f64 / xs.len().max(1) as f64)
+}
+
+// ---------------------------------------------------------------------------------------------
+// The command line.
+
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    /// Steps to time per case
+    #[arg(long, default_value_t = 10)]
+    steps: u64,
+    /// Thread counts to run, e.g. 1,2
+    #[arg(long, value_delimiter = ',', default_values_t = vec![1usize, 2])]
+    threads: Vec<usize>,
+    /// Also the full seed ball (2 × 248 439 particles, ≈2000 neighbours; minutes per step count)
+    #[arg(long)]
+    full: bool,
+    /// Particles per side of the uniform 3D box (per phase), e.g. 32,100,160,215 for
+    /// 3.3e4 … 1e7
+    #[arg(long, value_delimiter = ',', default_values_t = vec![32usize])]
+    box_n: Vec<usize>,
+    /// Where to run: cpu (default) or cuda
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Cpu)]
+    device: DeviceChoice,
+    /// The float type of the step (f64 or f32)
+    #[arg(long, value_enum, default_value_t = Precision::F64)]
+    precision: Precision,
+    /// Per-particle neighbour lists (auto: on the CPU, off on CUDA; numerics.neighbour_list)
+    #[arg(long, value_enum, default_value_t = ListChoice::Auto)]
+    neighbour_list: ListChoice,
+}
+
+pub fn execute(a: BenchArgs) -> u8 {
+    let BenchArgs {
+        steps,
+        threads,
+        full,
+        box_n,
+        device,
+        precision,
+        neighbour_list,
+    } = a;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let bad = if steps == 0 {
+        Some("--steps must be at least 1".to_string())
+    } else if let Some(t) = threads.iter().find(|&&t| t == 0 || t > 16 * cores) {
+        Some(format!(
+            "--threads {t}: each count must be between 1 and {} (16 × the {cores} cores here)",
+            16 * cores
+        ))
+    } else {
+        box_n
+            .iter()
+            .find(|&&n| n < 2)
+            .map(|n| format!("--box-n {n}: at least 2 particles per side"))
+    };
+    if let Some(m) = bad {
+        eprintln!("error: {m}");
+        return 2;
+    }
+    let mut cases: Vec<(String, &str, Vec<String>)> = box_n
+        .iter()
+        .map(|n| {
+            (
+                format!("box 3D n={n}, ~60 nb"),
+                "configs/dustybox.toml",
+                vec![
+                    "scene.dim=3".to_string(),
+                    format!("sph.n={n}"),
+                    "sph.hfact=1.215".into(),
+                    "dust.fractions=[{eps=0.5, t_stop=0.1}]".into(),
+                    "dustybox.u_dust=[1.0]".into(),
+                ],
+            )
+        })
+        .collect();
+    cases.push((
+        "ball 3D, n=20, h=0.1".into(),
+        "configs/dusty_ball.toml",
+        vec!["sph.n=20".into()],
+    ));
+    if full {
+        cases.push((
+            "ball 3D seed (n=39, h=0.1)".into(),
+            "configs/dusty_ball.toml",
+            vec![],
+        ));
+    }
+    println!(
+        "{:<28} {:>7} {:>9} {:>9} {:>10} {:>6} {:>9} {:>14} {:>14} {:>9}",
+        "case",
+        "threads",
+        "gas",
+        "dust",
+        "neighbours",
+        "steps",
+        "seconds",
+        "particle-st/s",
+        "interact./s",
+        "B/part."
+    );
+    let mut where_ = String::new();
+    for (name, file, sets) in cases {
+        let name = name.as_str();
+        let mut sets = sets;
+        sets.push(format!("numerics.precision=\"{}\"", precision.name()));
+        sets.push(format!(
+            "numerics.neighbour_list=\"{}\"",
+            neighbour_list.name()
+        ));
+        let loaded = match crate::scene::load_shipped(file, &sets) {
+            Ok(l) => l,
+            Err(e) => {
+                eprintln!("error: {e}");
+                return 2;
+            }
+        };
+        for &t in &threads {
+            match crate::bench::bench(name, &loaded.scene, steps, t, device) {
+                Ok(r) => {
+                    println!(
+                        "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e} {:>9}",
+                        r.case,
+                        r.threads,
+                        r.gas,
+                        r.dust,
+                        r.mean_neighbours,
+                        r.steps,
+                        r.seconds,
+                        r.particle_steps_per_s(),
+                        r.interactions_per_s(),
+                        r.bytes_per_particle
+                            .map_or("-".into(), |b| format!("{b:.0}"))
+                    );
+                    where_ = r.device;
+                }
+                Err(e) => {
+                    eprintln!("error: {name}: {e}");
+                    return 1;
+                }
+            }
+        }
+    }
+    println!("device: {where_}");
+    0
 }

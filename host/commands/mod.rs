@@ -3,7 +3,7 @@
 //! `parity` ([`parity`]), `profile` ([`profile`]), `scaling` ([`scaling`]). `host/main.rs` only parses arguments and
 //! calls these.
 pub mod bench;
-#[cfg(feature = "mpi")]
+pub mod gpu;
 pub mod mpi_check;
 pub mod parity;
 pub mod profile;

@@ -4,6 +4,7 @@
 //! the CPU; without one it checks that no result depends on how threads are scheduled.
 use crate::particles::{Phase, State};
 use crate::scene::LoadedScene;
+use crate::scene::Precision;
 use crate::setup;
 use crate::sim::Simulation;
 use crate::step::backend::{self, DeviceChoice};
@@ -476,3 +477,63 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         20,
     ),
 ];
+
+// ---------------------------------------------------------------------------------------------
+// The command line.
+
+#[derive(clap::Args)]
+pub struct ParityArgs {
+    /// The device to check against the one-thread CPU reference (cuda; or cpu: every core)
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Cuda)]
+    device: DeviceChoice,
+    /// Check the f32 kernels instead of the f64 ones
+    #[arg(long, value_enum, default_value_t = Precision::F64)]
+    precision: Precision,
+}
+
+pub fn execute(a: ParityArgs) -> u8 {
+    let ParityArgs { device, precision } = a;
+    // A device that is not there is bad input (exit 2), said once, before any case runs.
+    if let Err(e) = crate::step::backend::select(device) {
+        eprintln!("error: {e}");
+        return 2;
+    }
+    let mut all_ok = true;
+    for (label, file, sets, steps) in crate::parity::CASES {
+        let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        sets.push(format!("numerics.precision=\"{}\"", precision.name()));
+        let loaded = match crate::scene::load_shipped(file, &sets) {
+            Ok(l) => l,
+            Err(e) => {
+                eprintln!("error: {e}");
+                return 2;
+            }
+        };
+        match crate::parity::compare(&loaded, *steps, device) {
+            Ok(p) => {
+                let worst = p.fields.iter().filter(|f| !f.bitwise).count();
+                println!(
+                    "{label:<44} {steps:>3} steps on {}: {} of {} fields bit-identical, max relative difference {:.3e}",
+                    p.device,
+                    p.fields.len() - worst,
+                    p.fields.len(),
+                    p.max_relative()
+                );
+                for f in p.fields.iter().filter(|f| !f.bitwise) {
+                    println!("    {:<28} {:.3e}", f.field, f.max_relative);
+                }
+                all_ok &= p.max_relative() <= 1e-10;
+            }
+            Err(e) => {
+                eprintln!("error: {label}: {e}");
+                return 1;
+            }
+        }
+    }
+    if all_ok {
+        0
+    } else {
+        eprintln!("parity: some array differs by more than 1e-10 (relative)");
+        1
+    }
+}

@@ -208,3 +208,77 @@ pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
         symmetry,
     })
 }
+
+// ---------------------------------------------------------------------------------------------
+// The command line.
+
+/// One line of an error table; a constant offset (one number) reads as one.
+pub fn print_field(f: &crate::analysis::FieldError) {
+    if f.field.ends_with(" offset") {
+        println!(
+            "  {:>8}: {:.3e} (constant, removed from the errors above)",
+            f.field, f.norms.l1
+        );
+    } else {
+        println!(
+            "  {:>8}: L1 {:.3e}  L2 {:.3e}  Linf {:.3e}",
+            f.field, f.norms.l1, f.norms.l2, f.norms.linf
+        );
+    }
+}
+
+#[derive(clap::Args)]
+pub struct ProfileArgs {
+    snapshot: PathBuf,
+    /// Number of radial bins
+    #[arg(long, default_value_t = 100)]
+    bins: usize,
+}
+
+/// More radial bins than this would hold fewer than one particle each in any snapshot that fits
+/// in memory.
+const MAX_BINS: usize = 1_000_000;
+
+pub fn execute(a: ProfileArgs) -> u8 {
+    let ProfileArgs { snapshot, bins } = a;
+    if !(1..=MAX_BINS).contains(&bins) {
+        eprintln!("error: --bins must be between 1 and {MAX_BINS} (got {bins})");
+        return 2;
+    }
+    // The usual mistakes, said plainly (not as HDF5's errno text), as bad input.
+    if snapshot.is_dir() {
+        eprintln!(
+            "error: {} is a directory; give one of its snapshot_NNNN.h5 files",
+            snapshot.display()
+        );
+        return 2;
+    }
+    if !snapshot.is_file() {
+        eprintln!("error: {}: no such file", snapshot.display());
+        return 2;
+    }
+    match crate::post::post_process(&snapshot, bins) {
+        Ok(r) => {
+            for f in &r.files {
+                println!("wrote {}", f.display());
+            }
+            for e in &r.errors {
+                println!("errors against {}", e.reference);
+                for f in &e.fields {
+                    print_field(f);
+                }
+            }
+            if let Some(s) = &r.symmetry {
+                println!(
+                    "symmetry (axes vs diagonals, r < {}): rho_g {:.3e}, |v| {:.3e} (relative L1)",
+                    s.r_max, s.rho_g_relative_l1, s.speed_relative_l1
+                );
+            }
+            0
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            1
+        }
+    }
+}

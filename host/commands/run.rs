@@ -3,7 +3,7 @@
 //! One process, or MPI ranks (rank 0 writes every output).
 use crate::io;
 use crate::particles::State;
-use crate::scene::LoadedScene;
+use crate::scene::{LoadedScene, Precision};
 use crate::sim::checkpoint::{self, Progress, RunCheckpoints};
 use crate::sim::output::{BallChecks, BallRecord, OutputRecord, Outputs};
 use crate::sim::progress::{CheckpointEvery, Interrupt, ProgressBar};
@@ -14,6 +14,8 @@ use crate::step::backend::{Backend, DeviceChoice};
 use crate::step::Physics;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
 use std::time::Instant;
 
 pub use crate::sim::summary::Summary;
@@ -372,4 +374,216 @@ pub fn run(loaded: &LoadedScene, opts: &RunOptions) -> Result<(Summary, State), 
     let mut r = Run::start(loaded, opts)?;
     r.advance(None, None, None)?;
     r.finish()
+}
+
+// ---------------------------------------------------------------------------------------------
+// The command line.
+
+#[derive(clap::Args)]
+pub struct RunArgs {
+    /// Scene file (TOML), e.g. configs/dustywave.toml
+    scene: PathBuf,
+    /// Override a scene key, e.g. --set dust.fractions.0.t_stop=1e-6 (repeatable)
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Output directory (default: output/<scene name>)
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Write into a non-empty output directory (replaces only dustsph's own files)
+    #[arg(long)]
+    force: bool,
+    /// Write DIR/checkpoint.h5 every N steps (Ctrl-C always writes one)
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    checkpoint_every: Option<u64>,
+    /// Stop as if interrupted after N steps (with --checkpoint-every N: a checkpoint to resume
+    /// from; for tests)
+    #[arg(long, value_name = "N", hide = true)]
+    stop_after: Option<u64>,
+    /// No progress output
+    #[arg(long, short)]
+    quiet: bool,
+    /// Where to step: a CUDA GPU if usable, else the CPU (auto); the CPU's cores (cpu); a
+    /// CUDA GPU (cuda). The same step and kernels on either.
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
+    /// The float type of the step: f64 (the reference) or f32 (docs/accuracy.md); the
+    /// same as --set numerics.precision=…
+    #[arg(long, value_enum)]
+    precision: Option<Precision>,
+}
+
+#[derive(clap::Args)]
+pub struct ResumeArgs {
+    dir: PathBuf,
+    /// Write DIR/checkpoint.h5 every N steps (Ctrl-C always writes one)
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    checkpoint_every: Option<u64>,
+    #[arg(long, short)]
+    quiet: bool,
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
+}
+
+/// MPI for a run started as one of several ranks (`None` otherwise). A rank that panics must
+/// not finalise MPI while the others wait in a collective (that hangs the job): it prints and
+/// leaves at once, and mpirun stops the others.
+#[cfg(feature = "mpi")]
+fn ranks_world() -> Option<Result<crate::dist::comm::World, RunError>> {
+    if crate::dist::launched().is_none_or(|(_, n)| n <= 1) {
+        return None;
+    }
+    let world = crate::dist::comm::World::init().map_err(|e| RunError::Input(format!("MPI: {e}")));
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        hook(info);
+        std::process::exit(70);
+    }));
+    Some(world)
+}
+
+/// Start the run (`start`: set-up and the first snapshot) and step it to the end. Ctrl-C is
+/// caught from before the start: pressed during the set-up, the run stops at its first step
+/// with a checkpoint (exit 130), as later.
+fn drive(
+    start: impl FnOnce() -> Result<Run, RunError>,
+    checkpoint_every: Option<u64>,
+    stop_after: Option<u64>,
+) -> u8 {
+    let fail = |e: RunError| {
+        if !matches!(e, RunError::InputReported) {
+            eprintln!("error: {e}");
+        }
+        match e {
+            RunError::Input(_) | RunError::InputReported => 2,
+            _ => 1,
+        }
+    };
+    // Ctrl-C asks the loop to stop after the current step and write a checkpoint; a second one
+    // stops at once (files are written to a temporary name and renamed, so none is left torn).
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    if let Err(e) = ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::Relaxed) {
+            eprintln!("dustsph: second interrupt: stopping now, without a checkpoint");
+            std::process::exit(130);
+        }
+    }) {
+        eprintln!("warning: Ctrl-C will not checkpoint ({e})");
+    }
+    let mut r = match start() {
+        Ok(r) => r,
+        Err(e) => return fail(e),
+    };
+    match r.advance(stop_after, checkpoint_every, Some(&stop)) {
+        Ok(Stop::Finished) => {}
+        Ok(Stop::Interrupted { .. }) if !r.is_root() => return 130,
+        Ok(Stop::Interrupted { .. }) => {
+            let (step, t) = (r.sim.state.step, r.sim.state.t);
+            if r.checkpointed_now() {
+                eprintln!(
+                    "interrupted at step {step}, t = {t}: checkpoint written; continue with \
+                     `dustsph resume {}`",
+                    r.out_dir().display()
+                );
+            } else {
+                eprintln!("stopped at step {step}, t = {t}, without a checkpoint of this state");
+            }
+            return 130;
+        }
+        Err(e) => return fail(e),
+    }
+    let out = r.out_dir().to_path_buf();
+    let root = r.is_root();
+    match r.finish() {
+        Ok((s, _)) => {
+            if root {
+                report(&s, &out);
+            }
+            0
+        }
+        Err(e) => fail(e),
+    }
+}
+
+fn report(s: &Summary, out: &std::path::Path) {
+    println!(
+        "{}: {} steps to t = {} in {:.2} s ({:.3e} particle-steps/s); summary: {}",
+        s.scene,
+        s.steps,
+        s.t_final,
+        s.wall_seconds,
+        s.particle_steps_per_second,
+        out.join("summary.json").display()
+    );
+    for last in s.errors.iter().filter(|e| e.t == s.t_final) {
+        let r = &last.reference;
+        println!("  vs {}", r.split(';').next().unwrap_or(r));
+        for f in &last.fields {
+            super::profile::print_field(f);
+        }
+    }
+}
+
+pub fn execute(a: RunArgs) -> u8 {
+    let RunArgs {
+        scene,
+        set,
+        out,
+        force,
+        checkpoint_every,
+        stop_after,
+        quiet,
+        device,
+        precision,
+    } = a;
+    let mut set = set;
+    if let Some(p) = precision {
+        set.push(format!("numerics.precision=\"{}\"", p.name()));
+    }
+    let loaded = match crate::scene::load(&scene, &set) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return 2;
+        }
+    };
+    let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.scene.name));
+    // Over MPI ranks only rank 0 speaks (and writes).
+    let quiet = quiet || crate::dist::launched().is_some_and(|(r, _)| r != 0);
+    if !quiet {
+        eprintln!("dustsph: {} → {}", scene.display(), out.display());
+    }
+    let opts = RunOptions {
+        out,
+        force,
+        verbose: !quiet,
+        device,
+    };
+    // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
+    #[cfg(feature = "mpi")]
+    if let Some(world) = ranks_world() {
+        let start = || world.and_then(|w| Run::start_over_ranks(&loaded, &opts, w));
+        return drive(start, checkpoint_every, stop_after);
+    }
+    drive(|| Run::start(&loaded, &opts), checkpoint_every, stop_after)
+}
+
+pub fn execute_resume(a: ResumeArgs) -> u8 {
+    let ResumeArgs {
+        dir,
+        checkpoint_every,
+        quiet,
+        device,
+    } = a;
+    let quiet = quiet || crate::dist::launched().is_some_and(|(r, _)| r != 0);
+    if !quiet {
+        eprintln!("dustsph: resuming {}", dir.display());
+    }
+    // Started as one of several MPI ranks: the rest of the run is split over them.
+    #[cfg(feature = "mpi")]
+    if let Some(world) = ranks_world() {
+        let start = || world.and_then(|w| Run::resume_over_ranks(&dir, !quiet, device, w));
+        return drive(start, checkpoint_every, None);
+    }
+    drive(|| Run::resume(&dir, !quiet, device), checkpoint_every, None)
 }

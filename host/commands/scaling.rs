@@ -94,3 +94,84 @@ pub fn model(kind: &str, n: f64, ranks: &[u32], bandwidth: f64, depth: f64) -> (
         .collect();
     (cells.total, rows)
 }
+
+// ---------------------------------------------------------------------------------------------
+// The command line.
+
+#[derive(clap::Args)]
+pub struct ScalingArgs {
+    /// Particles per cloud
+    #[arg(long, default_value_t = 1e8)]
+    particles: f64,
+    /// Rank counts
+    #[arg(long, value_delimiter = ',', default_values_t = vec![1u32, 2, 4, 8, 16, 64, 256, 1024, 4096])]
+    ranks: Vec<u32>,
+    /// Interconnect bandwidth per rank, Gb/s
+    #[arg(long, default_value_t = 200.0)]
+    gbps: f64,
+    /// Measured step throughput of one rank, particle-steps/s (default: this code's CPU bench,
+    /// 3D box at 56 neighbours on 2 cores)
+    #[arg(long, default_value_t = 1.95e6)]
+    rate: f64,
+    /// Halo depth in kernel supports: 1 for an exchange before each neighbour pass; the length
+    /// of the step's chain of neighbour passes for one exchange per step (then halo/owned is
+    /// also the redundant compute)
+    #[arg(long, default_value_t = 1.0)]
+    depth: f64,
+}
+
+pub fn execute(a: ScalingArgs) -> u8 {
+    use crate::commands::scaling;
+    if !(a.particles.is_finite() && a.particles >= 1.0 && a.particles <= 2e9) {
+        eprintln!("error: --particles must be in [1, 2e9]");
+        return 2;
+    }
+    if a.ranks.is_empty()
+        || a.ranks.contains(&0)
+        || !(a.gbps > 0.0 && a.rate > 0.0 && a.depth >= 1.0 && a.depth <= 64.0)
+    {
+        eprintln!("error: --ranks must be ≥ 1, --gbps and --rate > 0, --depth in [1, 64]");
+        return 2;
+    }
+    let bw = a.gbps * 1e9 / 8.0;
+    for kind in ["ball", "slab"] {
+        let t0 = std::time::Instant::now();
+        let (n, rows) = scaling::model(kind, a.particles, &a.ranks, bw, a.depth);
+        println!(
+            "\n{kind}: {n} particles, h = 1.2 Δ, halo {} × 2h deep ({:.1} s); {} B per halo particle, \
+             {} exchanges per step, {} µs per message; compute at {:.3e} particle-steps/s per rank",
+            a.depth,
+            t0.elapsed().as_secs_f64(),
+            scaling::HALO_BYTES_F64,
+            scaling::EXCHANGES,
+            scaling::LATENCY_S * 1e6,
+            a.rate
+        );
+        println!(
+            "| ranks | particles/rank | imbalance | halo max | halo/owned | peers max | MB/step | comm ms | compute ms | comm/compute | break-even particle-steps/s |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|---|---|");
+        for r in rows {
+            let compute = r.per_rank * r.imbalance / a.rate;
+            println!(
+                "| {} | {:.3e} | {:.3} | {:.3e} | {:.3} | {} | {:.2} | {:.3} | {:.1} | {:.4} | {} |",
+                r.ranks,
+                r.per_rank,
+                r.imbalance,
+                r.halo_max as f64,
+                r.halo_max as f64 / r.per_rank,
+                r.peers_max,
+                r.halo_max as f64 * scaling::HALO_BYTES_F64 / 1e6,
+                r.comm_s * 1e3,
+                compute * 1e3,
+                r.comm_s / compute,
+                if r.comm_s > 0.0 {
+                    format!("{:.2e}", r.per_rank * r.imbalance / r.comm_s)
+                } else {
+                    "–".into()
+                }
+            );
+        }
+    }
+    0
+}
