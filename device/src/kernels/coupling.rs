@@ -1,0 +1,219 @@
+//! Kernel coupling (docs/method.md §K): the IDIC cell solve with the gas particles as the cells.
+//! Every particle q (gas or dust) spreads itself over the gas particles a around it with the
+//! weights w_qa = W(r_qa, h_a)/S_q, S_q = Σ_b W(r_qb, h_b): a partition of unity, so the deposit
+//! and the return of the increments conserve momentum exactly, and a uniform increment reaches
+//! every particle unchanged. Gas and dust are smoothed by the same operator at the same point, so
+//! the relative velocity the drag sees is a property of the flow, not of where particles sit.
+use super::*;
+
+/// The gas kernel of particle b: one shared kernel (fixed h, `k.len() == 1`) or one per particle.
+#[inline(always)]
+pub fn kernel_of<R: Real>(k: &[KernelAt<R>], b: usize) -> KernelAt<R> {
+    if k.len() == 1 {
+        k[0]
+    } else {
+        k[b]
+    }
+}
+
+/// The raw coupling weights of a particle at x: `f(a, W(|x − x_a|, h_a))` for every free gas
+/// particle a within reach. Their sum is the normaliser S of [`gas_weight_sum_at`].
+#[inline(always)]
+pub fn coupling_row_at<R: Real>(
+    gas: &Sorted<'_, R>,
+    k: &[KernelAt<R>],
+    gas_fixed: &[bool],
+    x: Vec3<f64>,
+    mut f: impl FnMut(usize, R),
+) {
+    gas.walk(x, |b, _, r2| {
+        if !is_fixed(gas_fixed, b) {
+            let w = kernel_of(k, b).w(r2.sqrt());
+            if w > R::ZERO {
+                f(b, w);
+            }
+        }
+    });
+}
+
+/// S(x) = Σ_b W(|x − x_b|, h_b) over the free gas particles b: the normaliser of the weights
+/// of a particle at x (0: no gas within reach, the particle does not couple).
+#[inline(always)]
+pub fn gas_weight_sum_at<R: Real>(
+    gas: &Sorted<'_, R>,
+    k: &[KernelAt<R>],
+    gas_fixed: &[bool],
+    x: Vec3<f64>,
+) -> R {
+    let mut s = R::ZERO;
+    coupling_row_at(gas, k, gas_fixed, x, |_, w| s += w);
+    s
+}
+
+/// What one phase deposits on gas particle a: Σ w m, Σ w m ṽ, and the mass-weighted sums of
+/// the density and of sqrt(p/ρ) (gas) that the stopping-time laws read.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Deposit<R> {
+    pub mass: R,
+    pub mom: Vec3<R>,
+    pub rho: R,
+    pub cs: R,
+}
+
+impl<R: Real> Deposit<R> {
+    /// Add one particle's share: `wm` = w_qa m_q, its velocity, density and sqrt(p/ρ).
+    #[inline(always)]
+    pub fn add(&mut self, wm: R, vel: Vec3<R>, rho: R, cs: R) {
+        self.mass += wm;
+        self.mom = axpy(self.mom, wm, vel);
+        self.rho += wm * rho;
+        self.cs += wm * cs;
+    }
+}
+
+/// The weights w_ja = W(r_ja, h_a)/S_j of the particles j of one phase (positions `q.x`,
+/// normalisers `s`) around the gas particle at `xa` with kernel `ka`: `f(j, w_ja)` in the
+/// neighbour walk's order. Particles with `s = 0` or fixed ones have none.
+#[inline(always)]
+pub fn deposit_row_at<R: Real>(
+    q: &Sorted<'_, R>,
+    s: &[R],
+    fixed: &[bool],
+    xa: Vec3<f64>,
+    ka: &KernelAt<R>,
+    mut f: impl FnMut(usize, R),
+) {
+    q.walk(xa, |j, _, r2| {
+        if is_fixed(fixed, j) || s[j] <= R::ZERO {
+            return;
+        }
+        let w = ka.w(r2.sqrt()) / s[j];
+        if w > R::ZERO {
+            f(j, w);
+        }
+    });
+}
+
+/// Deposit of one phase on the gas particle at `xa` ([`deposit_row_at`]'s weights): masses,
+/// velocities `vel(j)`, densities `rho`, sqrt(p/ρ) `cs(j)`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn deposit_at<R: Real>(
+    q: &Sorted<'_, R>,
+    s: &[R],
+    m: &[R],
+    rho: &[R],
+    fixed: &[bool],
+    xa: Vec3<f64>,
+    ka: &KernelAt<R>,
+    vel: impl Fn(usize) -> Vec3<R>,
+    cs: impl Fn(usize) -> R,
+) -> Deposit<R> {
+    let mut d = Deposit {
+        mass: R::ZERO,
+        mom: [R::ZERO; 3],
+        rho: R::ZERO,
+        cs: R::ZERO,
+    };
+    deposit_row_at(q, s, fixed, xa, ka, |j, w| {
+        d.add(w * m[j], vel(j), rho[j], cs(j))
+    });
+    d
+}
+
+/// The implicit solve on gas particle a from the deposits (method.md §3.3 closed form, with the
+/// cell means replaced by the deposit means): ε_k = M_k/M_g, t_k* from each law with the
+/// mass-weighted mean densities and sound speed (`gamma_root` · mean sqrt(p/ρ)).
+/// `CellCoupling::u_new`/`v_new` are the new means; `old` returns the old means (ũ_k).
+#[inline(always)]
+pub fn kernel_couple<R: Real>(
+    gas: &Deposit<R>,
+    dust: &[Deposit<R>],
+    laws: &[StoppingLaw<R>],
+    tau: R,
+    gamma_root: R,
+    old: &mut [Vec3<R>; MAX_FRACTIONS],
+) -> CellCoupling<R> {
+    let nf = dust.len().min(laws.len()).min(MAX_FRACTIONS);
+    if gas.mass <= R::ZERO {
+        return solve_coupling([R::ZERO; 3], &[], tau, |_| None);
+    }
+    let inv_g = R::ONE / gas.mass;
+    for k in 0..nf {
+        if dust[k].mass > R::ZERO {
+            old[k] = scale(R::ONE / dust[k].mass, dust[k].mom);
+        }
+    }
+    solve_coupling(scale(inv_g, gas.mom), &old[..nf], tau, |k| {
+        let d = &dust[k];
+        if d.mass <= R::ZERO {
+            return None;
+        }
+        let means = CellMeans {
+            rho_dust: d.rho / d.mass,
+            rho_gas: gas.rho * inv_g,
+            cs_gas: gamma_root * gas.cs * inv_g,
+        };
+        Some((drag::cell_eps(d.mass, gas.mass), laws[k].cell_time(&means)))
+    })
+}
+
+/// What the solve on one gas particle hands back under the kernel coupling: the increment
+/// (new − old mean) of its gas mean and of each fraction's mean — zero for a phase that
+/// deposited nothing there — and each fraction's t_k* (+∞ where uncoupled).
+#[derive(Clone, Copy, Debug)]
+pub struct KernelIncrements<R> {
+    pub dv: Vec3<R>,
+    pub du: [Vec3<R>; MAX_FRACTIONS],
+    pub t_stop: [R; MAX_FRACTIONS],
+}
+
+/// [`kernel_couple`] turned into the increments the particles receive (CPU and GPU alike).
+#[inline(always)]
+pub fn kernel_increments<R: Real>(
+    gas: &Deposit<R>,
+    dust: &[Deposit<R>],
+    laws: &[StoppingLaw<R>],
+    tau: R,
+    gamma_root: R,
+) -> KernelIncrements<R> {
+    let zero = [R::ZERO; 3];
+    let mut old = [zero; MAX_FRACTIONS];
+    let c = kernel_couple(gas, dust, laws, tau, gamma_root, &mut old);
+    let mut out = KernelIncrements {
+        dv: zero,
+        du: [zero; MAX_FRACTIONS],
+        t_stop: c.t_stop,
+    };
+    if gas.mass > R::ZERO {
+        out.dv = sub(c.v_new, scale(R::ONE / gas.mass, gas.mom));
+    }
+    let nf = dust.len().min(laws.len()).min(MAX_FRACTIONS);
+    for f in 0..nf {
+        if dust[f].mass > R::ZERO {
+            out.du[f] = sub(c.u_new[f], old[f]);
+        }
+    }
+    out
+}
+
+/// Σ_a w_qa Δ_a for the particle q at `x` with normaliser `s` (0 when `s` = 0): the share of
+/// the gas particles' increments `delta(a)` (new − old mean) that q receives.
+#[inline(always)]
+pub fn gather_increment_at<R: Real>(
+    gas: &Sorted<'_, R>,
+    k: &[KernelAt<R>],
+    gas_fixed: &[bool],
+    x: Vec3<f64>,
+    s: R,
+    delta: impl Fn(usize) -> Vec3<R>,
+) -> Vec3<R> {
+    let mut acc = [R::ZERO; 3];
+    if s <= R::ZERO {
+        return acc;
+    }
+    coupling_row_at(gas, k, gas_fixed, x, |a, w| {
+        acc = axpy(acc, w / s, delta(a))
+    });
+    acc
+}

@@ -1,0 +1,412 @@
+//! External dust acceleration and the kernel coupling (docs/method.md §K).
+use super::*;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct DustAccelArgs<R> {
+    pub ph: PhaseBufs<R>,
+    pub p: Params<R>,
+}
+
+/// ũ = u + τB of dust particle t (B = `ext_dust`; fixed particles keep u): the drag pass then
+/// reads the dust velocities as ũ, as on the CPU.
+pub unsafe fn dust_accel<R: Real>(t: usize, a: &DustAccelArgs<R>) {
+    let d = &a.ph;
+    if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
+        return;
+    }
+    *d.v.add(t) = crate::axpy(*d.v.add(t), a.p.tau, a.p.ext_dust);
+}
+
+/// Per-particle buffers of the kernel coupling.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CouplingBufs<R> {
+    /// S of every gas / dust particle (0: fixed or no gas within reach).
+    pub s_gas: *mut R,
+    pub s_dust: *mut R,
+    /// Per gas particle: new − old mean of the gas, and of fraction k at a·nf + k.
+    pub dv: *mut Vec3<R>,
+    pub du: *mut Vec3<R>,
+    /// Per gas particle and fraction (a·nf + k): t_k* of its means (+∞ where uncoupled).
+    pub t_stop: *mut R,
+    /// The gas kernels of the weights, one per gas particle (variable h: W(r, h_a)); null:
+    /// one shared kernel at the reference h.
+    pub kernel_at: *const KernelAt<R>,
+}
+
+/// Calls `f` with the gas kernels of the weights: one per gas particle, or one shared
+/// ([`kernels::kernel_of`] tells them apart by length, as on the CPU).
+#[inline(always)]
+unsafe fn with_gas_kernels<R: Real, T>(
+    kernel_at: *const KernelAt<R>,
+    n_gas: usize,
+    p: &StepParams<R>,
+    f: impl FnOnce(&[KernelAt<R>]) -> T,
+) -> T {
+    if kernel_at.is_null() {
+        f(&[KernelAt::new(p.h, p.dim)])
+    } else {
+        f(sl(kernel_at, n_gas))
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct NormArgs<R> {
+    pub gas: PhaseBufs<R>,
+    /// The phase whose normalisers are computed (the gas itself, or the dust).
+    pub ph: PhaseBufs<R>,
+    pub s: *mut R,
+    /// As [`CouplingBufs::kernel_at`].
+    pub kernel_at: *const KernelAt<R>,
+    pub p: Params<R>,
+}
+
+/// S_t = Σ_b W(r_tb, h) over the free gas, for particle t of `ph` (0 when fixed).
+pub unsafe fn coupling_norm<R: Real>(t: usize, a: &NormArgs<R>) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let s = if kernels::is_fixed(ph.fixed(), t) {
+        R::ZERO
+    } else {
+        with_gas_kernels(a.kernel_at, a.gas.len(), &a.p, |k| {
+            kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), k, a.gas.fixed(), ph.x()[t])
+        })
+    };
+    *a.s.add(t) = s;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CoupleArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub dust: PhaseBufs<R>,
+    /// A^n of the gas (ṽ = v + τ(A + ext_gas)).
+    pub acc: *const Vec3<R>,
+    pub pres: *const R,
+    pub cb: CouplingBufs<R>,
+    pub p: Params<R>,
+}
+
+/// Gas particle t: the deposits of the gas and of every fraction on it (gathered by walking
+/// their cells), the implicit solve, and the increments of its means (and its t_k*).
+pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
+    let g = &a.gas;
+    if t >= g.len() {
+        return;
+    }
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
+    if kernels::is_fixed(g.fixed(), t) {
+        return coupling_finish(t, a, &kernels::Deposit::default(), &dust_dep);
+    }
+    let k = with_gas_kernels(a.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
+    let xa = g.x()[t];
+    let gas_dep = kernels::deposit_at(
+        &g.sorted(p, 0),
+        sl(a.cb.s_gas, g.len()),
+        g.m(),
+        g.rho(),
+        g.fixed(),
+        xa,
+        &k,
+        |b| gas_base_velocity(a, b),
+        |b| gas_sound(a, b),
+    );
+    let d = &a.dust;
+    let s_dust = sl(a.cb.s_dust, d.len());
+    let u = d.v();
+    for (f, dep) in dust_dep.iter_mut().enumerate().take(nf) {
+        *dep = kernels::deposit_at(
+            &d.sorted(p, f),
+            s_dust,
+            d.m(),
+            d.rho(),
+            d.fixed(),
+            xa,
+            &k,
+            |j| u[j],
+            |_| R::ZERO,
+        );
+    }
+    coupling_finish(t, a, &gas_dep, &dust_dep);
+}
+
+/// ṽ_b = v_b + τ(A_b + ext_gas) of gas particle b.
+#[inline(always)]
+unsafe fn gas_base_velocity<R: Real>(a: &CoupleArgs<R>, b: usize) -> Vec3<R> {
+    crate::axpy(
+        *a.gas.v.add(b),
+        a.p.tau,
+        crate::add(*a.acc.add(b), a.p.ext_gas),
+    )
+}
+
+/// sqrt(p/ρ) of gas particle b where a stopping-time law needs it, else 0.
+#[inline(always)]
+unsafe fn gas_sound<R: Real>(a: &CoupleArgs<R>, b: usize) -> R {
+    if a.p.needs_gas_state != 0 {
+        let rho = *a.gas.rho.add(b);
+        a.p.eos().isothermal_speed(rho, *a.pres.add(b))
+    } else {
+        R::ZERO
+    }
+}
+
+/// The implicit solve of gas particle t from its deposits; writes the increments of its means
+/// and its t_k* (zeros and +∞ for a fixed particle, whose deposits are empty).
+#[inline(always)]
+unsafe fn coupling_finish<R: Real>(
+    t: usize,
+    a: &CoupleArgs<R>,
+    gas_dep: &kernels::Deposit<R>,
+    dust_dep: &[kernels::Deposit<R>; MAX_FRACTIONS],
+) {
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let laws = p.stopping_laws();
+    let inc = kernels::kernel_increments(
+        gas_dep,
+        &dust_dep[..nf],
+        &laws[..nf],
+        p.tau,
+        p.eos().gamma_root(),
+    );
+    *a.cb.dv.add(t) = inc.dv;
+    for f in 0..nf {
+        *a.cb.du.add(t * nf + f) = inc.du[f];
+        *a.cb.t_stop.add(t * nf + f) = inc.t_stop[f];
+    }
+}
+
+/// Slots of one phase's deposit on one gas particle in the scatter form's sums: Σ w m,
+/// Σ w m ṽ (3), Σ w m ρ, Σ w m sqrt(p/ρ).
+pub const DEPOSIT_SLOTS: usize = 6;
+
+/// Atomic f64 add (compare-and-swap on the bits: the same code on the GPU and on the CPU's cores).
+/// The scatter sums stay f64 in every precision: their order is the hardware's anyway.
+#[inline(always)]
+unsafe fn atomic_add_f64(p: *mut f64, v: f64) {
+    let a = AtomicU64::from_ptr(p as *mut u64);
+    let mut old = a.load(Ordering::Relaxed);
+    loop {
+        let new = (f64::from_bits(old) + v).to_bits();
+        match a.compare_exchange_weak(old, new, Ordering::Relaxed, Ordering::Relaxed) {
+            Ok(_) => return,
+            Err(x) => old = x,
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct ScatterDepositArgs<R> {
+    pub couple: CoupleArgs<R>,
+    /// The depositing phase (the gas, or the dust), and 1 when it is the gas.
+    pub ph: PhaseBufs<R>,
+    pub is_gas: u32,
+    /// Per gas particle a, phase slot s (0 gas, 1 + k fraction k): DEPOSIT_SLOTS sums at
+    /// (a·(1 + nf) + s)·DEPOSIT_SLOTS; zeroed before the launch. f64 in every precision.
+    pub sums: *mut f64,
+}
+
+/// Scatter form of the deposits (the design card's atomicAdd): particle t adds its share to
+/// each gas particle within reach. The sums' order is the hardware's: not bit-reproducible.
+pub unsafe fn coupling_scatter<R: Real>(t: usize, a: &ScatterDepositArgs<R>) {
+    let ph = &a.ph;
+    if t >= ph.len() || kernels::is_fixed(ph.fixed(), t) {
+        return;
+    }
+    let c = &a.couple;
+    let p = &c.p;
+    let gas = a.is_gas != 0;
+    let s = if gas {
+        *c.cb.s_gas.add(t)
+    } else {
+        *c.cb.s_dust.add(t)
+    };
+    if s <= R::ZERO {
+        return;
+    }
+    let (vel, cs, slot) = if gas {
+        (gas_base_velocity(c, t), gas_sound(c, t), 0)
+    } else {
+        (*ph.v.add(t), R::ZERO, 1 + ph.group_of(t))
+    };
+    let (m, rho) = (*ph.m.add(t), *ph.rho.add(t));
+    let stride = 1 + p.nf as usize;
+    with_gas_kernels(c.cb.kernel_at, c.gas.len(), p, |k| {
+        kernels::coupling_row_at(&c.gas.sorted(p, 0), k, c.gas.fixed(), ph.x()[t], |g, w| {
+            let wm = w / s * m;
+            let o = a.sums.add((g * stride + slot) * DEPOSIT_SLOTS);
+            atomic_add_f64(o, wm.to_f64());
+            for (d, v) in vel.iter().enumerate() {
+                atomic_add_f64(o.add(1 + d), (wm * *v).to_f64());
+            }
+            atomic_add_f64(o.add(4), (wm * rho).to_f64());
+            atomic_add_f64(o.add(5), (wm * cs).to_f64());
+        })
+    });
+}
+
+/// The solve of gas particle t from the scatter form's sums.
+pub unsafe fn coupling_solve_sums<R: Real>(t: usize, a: &ScatterDepositArgs<R>) {
+    let c = &a.couple;
+    if t >= c.gas.len() {
+        return;
+    }
+    let nf = c.p.nf as usize;
+    let stride = 1 + nf;
+    let dep = |slot: usize| {
+        let o = a.sums.add((t * stride + slot) * DEPOSIT_SLOTS);
+        kernels::Deposit {
+            mass: R::from_f64(*o),
+            mom: [
+                R::from_f64(*o.add(1)),
+                R::from_f64(*o.add(2)),
+                R::from_f64(*o.add(3)),
+            ],
+            rho: R::from_f64(*o.add(4)),
+            cs: R::from_f64(*o.add(5)),
+        }
+    };
+    let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
+    for (f, d) in dust_dep.iter_mut().enumerate().take(nf) {
+        *d = dep(1 + f);
+    }
+    coupling_finish(t, c, &dep(0), &dust_dep);
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct ReturnArgs<R> {
+    pub gas: PhaseBufs<R>,
+    /// The phase that receives its increments (the gas itself, or the dust).
+    pub ph: PhaseBufs<R>,
+    /// A^n for the gas (its base velocity is ṽ = v + τ(A + ext_gas)); null for the dust (ũ).
+    pub acc: *const Vec3<R>,
+    /// 1: `ph` is the gas.
+    pub is_gas: u32,
+    pub cb: CouplingBufs<R>,
+    /// For [`coupling_tstop`]: the stopping time of every particle of `ph`.
+    pub out: *mut R,
+    /// Drag heating: the kinetic energy each particle of `ph` loses; null without heating.
+    pub loss: *mut R,
+    pub p: Params<R>,
+}
+
+/// Particle t of `ph` gets its base velocity plus Σ_a w_ta Δ_a.
+pub unsafe fn coupling_return<R: Real>(t: usize, a: &ReturnArgs<R>) {
+    let ph = &a.ph;
+    if t >= ph.len() || kernels::is_fixed(ph.fixed(), t) {
+        return;
+    }
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let v = *ph.v.add(t);
+    let (base, s, f) = if a.is_gas != 0 {
+        let acc = crate::add(*a.acc.add(t), p.ext_gas);
+        (crate::axpy(v, p.tau, acc), *a.cb.s_gas.add(t), 0)
+    } else {
+        (v, *a.cb.s_dust.add(t), ph.group_of(t))
+    };
+    let is_gas = a.is_gas != 0;
+    let inc = with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
+        kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
+            if is_gas {
+                *a.cb.dv.add(g)
+            } else {
+                *a.cb.du.add(g * nf + f)
+            }
+        })
+    });
+    let new = crate::add(base, inc);
+    if !a.loss.is_null() {
+        *a.loss.add(t) = drag::kinetic_loss(*ph.m.add(t), base, new);
+    }
+    *ph.v.add(t) = new;
+}
+
+/// The stopping time dust particle t feels: Σ_a w_ta t_k,a (+∞ without gas within reach).
+pub unsafe fn coupling_tstop<R: Real>(t: usize, a: &ReturnArgs<R>) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let s = *a.cb.s_dust.add(t);
+    let out = if s <= R::ZERO {
+        R::from_f64(f64::INFINITY)
+    } else {
+        let f = ph.group_of(t);
+        with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
+            kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
+                [*a.cb.t_stop.add(g * nf + f), R::ZERO, R::ZERO]
+            })[0]
+        })
+    };
+    *a.out.add(t) = out;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct CouplingHeatArgs<R> {
+    pub couple: CoupleArgs<R>,
+    /// Kinetic energy lost per gas / dust particle in this drag pass ([`coupling_return`]).
+    pub loss_gas: *const R,
+    pub loss_dust: *const R,
+    /// Out: drag heat per unit mass of every gas particle.
+    pub heat: *mut R,
+}
+
+/// Drag heat of gas particle t under the kernel coupling: Σ_q w_qt ΔE_q / m_t, every particle's
+/// loss spread with its own weights (Σ_a w_qa = 1: the gas gains what the particles lose), as
+/// the deposit of the losses as masses (method.md §K).
+pub unsafe fn coupling_heat<R: Real>(t: usize, a: &CouplingHeatArgs<R>) {
+    let c = &a.couple;
+    let g = &c.gas;
+    if t >= g.len() {
+        return;
+    }
+    let p = &c.p;
+    if kernels::is_fixed(g.fixed(), t) {
+        *a.heat.add(t) = R::ZERO;
+        return;
+    }
+    let ka = with_gas_kernels(c.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
+    let xa = g.x()[t];
+    let zero = [R::ZERO; 3];
+    let mut q = kernels::deposit_at(
+        &g.sorted(p, 0),
+        sl(c.cb.s_gas, g.len()),
+        sl(a.loss_gas, g.len()),
+        g.rho(),
+        g.fixed(),
+        xa,
+        &ka,
+        |_| zero,
+        |_| R::ZERO,
+    )
+    .mass;
+    let d = &c.dust;
+    for f in 0..p.nf as usize {
+        q += kernels::deposit_at(
+            &d.sorted(p, f),
+            sl(c.cb.s_dust, d.len()),
+            sl(a.loss_dust, d.len()),
+            d.rho(),
+            d.fixed(),
+            xa,
+            &ka,
+            |_| zero,
+            |_| R::ZERO,
+        )
+        .mass;
+    }
+    *a.heat.add(t) = q / *g.m.add(t);
+}

@@ -1,0 +1,121 @@
+//! SPH: density, EOS, forces.
+use super::*;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct DensityArgs<R> {
+    pub ph: PhaseBufs<R>,
+    pub p: Params<R>,
+}
+
+/// Density of particle t by summation over its own group (fixed particles keep theirs).
+pub unsafe fn density<R: Real>(t: usize, a: &DensityArgs<R>) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let g = ph.group_of(t);
+    let s = ph.sorted(&a.p, g);
+    let fixed = ph.fixed();
+    let r = kernels::density_at(&s, ph.m(), fixed, *ph.rho.add(t), t, a.p.h, a.p.dim);
+    *ph.rho.add(t) = r;
+}
+
+/// Continuity equation: ρ_t ← ρ_t + τ dρ_t/dt at the current positions and velocities
+/// ([`kernels::density_rate_at`] reads only x, v and m, so the update is in place).
+pub unsafe fn density_continuity<R: Real>(t: usize, a: &DensityArgs<R>) {
+    let ph = &a.ph;
+    if t >= ph.len() {
+        return;
+    }
+    let s = ph.sorted(&a.p, ph.group_of(t));
+    let rate = kernels::density_rate_at(&s, ph.v(), ph.m(), ph.fixed(), t, a.p.h, a.p.dim);
+    let r = ph.rho.add(t);
+    *r += a.p.tau * rate;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct EosArgs<R> {
+    pub rho: *const R,
+    /// Null for isothermal gas.
+    pub e: *const R,
+    pub pres: *mut R,
+    pub c: *mut R,
+    pub n: u32,
+    pub p: Params<R>,
+}
+
+pub unsafe fn eos<R: Real>(t: usize, a: &EosArgs<R>) {
+    if t >= a.n as usize {
+        return;
+    }
+    let e = if a.e.is_null() { R::ZERO } else { *a.e.add(t) };
+    let (p, c) = kernels::eos_at(&a.p.eos(), *a.rho.add(t), e);
+    *a.pres.add(t) = p;
+    *a.c.add(t) = c;
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct ForcesArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub pres: *const R,
+    pub c: *const R,
+    pub acc: *mut Vec3<R>,
+    /// Null when there is no energy equation.
+    pub dedt: *mut R,
+    /// [max signal speed, max |A|] as [`kernels::ordered_bits`], zeroed.
+    pub limits: *mut u64,
+    /// 0: fixed h, standard gradient; 1: variable h (grad-h); 2: IAD gradient. Modes 1 and 2
+    /// read the per-particle kernels `kernel_at` and pressure terms `pt` ([`force_prep`]); 2 also
+    /// the IAD matrices `iad` ([`iad_matrix`]).
+    pub mode: u32,
+    pub kernel_at: *const KernelAt<R>,
+    pub pt: *const R,
+    pub iad: *const Sym3<R>,
+    /// Per-particle signal speed (the leapfrog keeps its closing forces whole); null: not kept.
+    pub vsig: *mut R,
+    pub p: Params<R>,
+}
+
+pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
+    let g = &a.gas;
+    if t >= g.len() {
+        return;
+    }
+    let n = g.len();
+    let view = GasView {
+        v: g.v(),
+        m: g.m(),
+        rho: g.rho(),
+        p: sl(a.pres, n),
+        c: sl(a.c, n),
+        fixed: g.fixed(),
+    };
+    let av = a.p.viscosity();
+    let s = g.sorted(&a.p, 0);
+    let r = match a.mode {
+        0 => kernels::forces_at(&s, &view, t, a.p.h, a.p.dim, av.as_ref()),
+        1 => kernels::forces_vh_at(&s, &view, sl(a.kernel_at, n), sl(a.pt, n), t, av.as_ref()),
+        _ => kernels::forces_iad_at(
+            &s,
+            &view,
+            sl(a.kernel_at, n),
+            sl(a.pt, n),
+            sl(a.iad, n),
+            t,
+            av.as_ref(),
+        ),
+    };
+    *a.acc.add(t) = r.acc;
+    if !a.dedt.is_null() {
+        *a.dedt.add(t) = r.dedt;
+    }
+    if !a.vsig.is_null() {
+        *a.vsig.add(t) = r.vsig;
+    }
+    let am = Real::sqrt(dot(r.acc, r.acc));
+    atomic_max_u64(a.limits, kernels::ordered_bits(r.vsig));
+    atomic_max_u64(a.limits.add(1), kernels::ordered_bits(am));
+}
