@@ -35,7 +35,10 @@ pub fn refuse_many_ranks(what: &str) -> Result<(), String> {
 }
 
 #[cfg(feature = "mpi")]
+pub mod halo;
+#[cfg(feature = "mpi")]
 pub mod ranks;
+pub mod records;
 
 #[cfg(feature = "mpi")]
 pub mod comm {

@@ -13,7 +13,9 @@
 //! no rank waits forever on another).
 use crate::decomp::Partition;
 use crate::dist::comm::World;
-use crate::dist::ranks::{cut, halo_copies, migrate, records, ParticleRecord, RankStepper};
+use crate::dist::halo::{cut, halo_copies, migrate};
+use crate::dist::ranks::RankStepper;
+use crate::dist::records::{records, ParticleRecord};
 use std::time::Instant;
 
 /// One particle on the wire for the exchange check: its key and position.

@@ -1,0 +1,281 @@
+//! The decomposition over ranks and the halo: the Morton cut agreed by every rank, the
+//! migration of particles to their owners, the halo's copies, the thin halo's refresh between
+//! the step's passes ([`RankGhosts`]) and the deep halo's shell.
+use super::comm::World;
+use super::records::{full_pos, ParticleRecord};
+use crate::decomp::{CellBox, Cells, Partition};
+use crate::particles::{IntHasher, KeyMap};
+use crate::step::engine::{GhostRows, GhostSync};
+
+/// Decomposition cells per halo reach: cells half the reach wide (the halo then spans the
+/// cells within three of a rank's own), so that a reach of several supports still leaves a
+/// small domain enough cells to cut evenly.
+pub const CELLS_PER_REACH: f64 = 2.0;
+
+/// The Morton cut of this step, the same on every rank (collective): global bounds (the period
+/// on periodic axes) and per-cell counts of every rank's positions `xs`, in cells
+/// `reach / CELLS_PER_REACH` wide, with a halo ring of cells that holds every particle within
+/// `reach` of a rank's own.
+pub fn cut(world: &World, xs: &[[f64; 3]], domain: &crate::grid::Domain, reach: f64) -> Partition {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for x in xs {
+        for k in 0..3 {
+            lo[k] = lo[k].min(x[k]);
+            hi[k] = hi[k].max(x[k]);
+        }
+    }
+    world.min_f64(&mut lo);
+    world.max_f64(&mut hi);
+    let mut periodic = [false; 3];
+    for k in 0..3 {
+        if let Some((p0, len)) = domain.periodic[k] {
+            (lo[k], hi[k], periodic[k]) = (p0, p0 + len, true);
+        }
+    }
+    let cbox = CellBox::new(lo, hi, reach / CELLS_PER_REACH, periodic);
+    // A particle within `reach` of one in cell i lies in cells i − ring … i + ring (one more
+    // than reach/size, whatever the rounding of a position to its cell).
+    let ring = (0..3)
+        .filter(|&k| cbox.n[k] > 1)
+        .map(|k| (reach / cbox.size[k]).floor() as u32 + 1)
+        .max()
+        .unwrap_or(1);
+    let mut counts = vec![0u64; cbox.len()];
+    for &x in xs {
+        counts[cbox.index(cbox.cell_of(x))] += 1;
+    }
+    world.sum_u64(&mut counts);
+    let cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
+    Partition::with_ring(&cells, world.size(), ring)
+}
+
+/// Every record to the rank owning its cell (collective): what this rank now owns, and the
+/// bytes it sent to other ranks.
+pub fn migrate<T: bytemuck::Pod>(
+    world: &World,
+    part: &Partition,
+    recs: &[T],
+    pos: impl Fn(&T) -> [f64; 3],
+) -> Result<(Vec<T>, usize), String> {
+    let mut sends: Vec<Vec<T>> = vec![Vec::new(); world.size() as usize];
+    for r in recs {
+        sends[part.owner_at(pos(r)) as usize].push(*r);
+    }
+    let me = world.rank() as usize;
+    let bytes = sends
+        .iter()
+        .enumerate()
+        .filter(|(q, _)| *q != me)
+        .map(|(_, s)| std::mem::size_of_val(s.as_slice()))
+        .sum();
+    Ok((world.exchange(&sends)?, bytes))
+}
+
+/// Copies of the owned records in cells next to another rank's cells, to those ranks
+/// (collective): the halo this rank receives, and the bytes it sent.
+pub fn halo_copies<T: bytemuck::Pod>(
+    world: &World,
+    part: &Partition,
+    owned: &[T],
+    pos: impl Fn(&T) -> [f64; 3],
+) -> Result<(Vec<T>, usize), String> {
+    let sends: Vec<Vec<T>> = halo_sends(world.size(), part, owned, pos)
+        .into_iter()
+        .map(|to| to.into_iter().map(|i| owned[i]).collect())
+        .collect();
+    let bytes = sends
+        .iter()
+        .map(|s| std::mem::size_of_val(s.as_slice()))
+        .sum();
+    Ok((world.exchange(&sends)?, bytes))
+}
+
+/// For each rank q, the indices of the owned records that go to q as halo (those in cells
+/// within the partition's ring of one of q's cells).
+pub fn halo_sends<T>(
+    ranks: u32,
+    part: &Partition,
+    owned: &[T],
+    pos: impl Fn(&T) -> [f64; 3],
+) -> Vec<Vec<usize>> {
+    let mut sends: Vec<Vec<usize>> = vec![Vec::new(); ranks as usize];
+    // The ranks a cell's particles go to, found once per cell.
+    let mut by_cell: std::collections::HashMap<usize, Vec<u32>> = Default::default();
+    for (i, r) in owned.iter().enumerate() {
+        let c = part.cbox.cell_of(pos(r));
+        let to = by_cell.entry(part.cbox.index(c)).or_insert_with(|| {
+            let mut to = Vec::new();
+            part.halo_ranks(c, &mut to);
+            to
+        });
+        for &q in to.iter() {
+            sends[q as usize].push(i);
+        }
+    }
+    sends
+}
+
+/// The ghost refresh of a thin halo ([`GhostSync`]): each owned particle's row to the ranks
+/// holding it as a ghost, one exchange per phase table (collective).
+pub(super) struct RankGhosts {
+    pub(super) comm: World,
+    /// Per rank, the keys (phase, id) of the owned particles it received as halo (a rank that
+    /// left one out, being beyond its reach, ignores its row).
+    pub(super) sends: Vec<Vec<(u64, u64)>>,
+    /// Refreshes before this one fails, if it is to (the test of a failure inside a step:
+    /// `DUSTSPH_FAIL_IN_STEP=rank:step` fails the step's second refresh, in its forces).
+    pub(super) fail: Option<u32>,
+}
+
+/// Whether `DUSTSPH_FAIL_IN_STEP=rank:step` names this rank and step (tests/mpi.rs: a failure
+/// inside a step stops the job, with its message, and does not hang).
+pub(super) fn fail_requested(rank: u32, step: u64) -> bool {
+    std::env::var("DUSTSPH_FAIL_IN_STEP").is_ok_and(|v| v == format!("{rank}:{step}"))
+}
+
+impl GhostSync for RankGhosts {
+    fn refresh(&mut self, tables: &mut [GhostRows<'_>]) -> Result<(), String> {
+        match &mut self.fail {
+            Some(0) => return Err("failure requested by DUSTSPH_FAIL_IN_STEP".into()),
+            Some(n) => *n -= 1,
+            None => {}
+        }
+        for (k, t) in tables.iter_mut().enumerate() {
+            let slot: KeyMap<usize> = t
+                .keys
+                .iter()
+                .enumerate()
+                .map(|(i, &key)| (key, i))
+                .collect();
+            let mut out: Vec<Vec<u8>> = vec![Vec::new(); self.sends.len()];
+            for (q, keys) in self.sends.iter().enumerate() {
+                for key in keys.iter().filter(|key| (key.0 == 0) == (k == 0)) {
+                    let i = *slot
+                        .get(key)
+                        .ok_or_else(|| format!("particle {key:?} is not on its owner"))?;
+                    for w in [key.0, key.1, t.row as u64] {
+                        out[q].extend_from_slice(&w.to_le_bytes());
+                    }
+                    out[q].extend_from_slice(&t.data[i * t.row..(i + 1) * t.row]);
+                }
+            }
+            let got = self.comm.exchange(&out)?;
+            let rec = 24 + t.row;
+            let word = |r: &[u8], j: usize| {
+                u64::from_le_bytes(r[8 * j..8 * j + 8].try_into().expect("8 bytes"))
+            };
+            if got.len() % rec != 0 {
+                return Err("a rank sent ghost rows of another layout".into());
+            }
+            for r in got.chunks_exact(rec) {
+                if word(r, 2) != t.row as u64 {
+                    return Err("a rank sent ghost rows of another layout".into());
+                }
+                if let Some(&i) = slot.get(&(word(r, 0), word(r, 1))) {
+                    t.data[i * t.row..(i + 1) * t.row].copy_from_slice(&r[24..]);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The halo as the step needs it: particles within `inner` of an owned particle are stepped
+/// (their passes recomputed here); those up to `outer` (one support further) are held fixed at
+/// their owners' values (their density and pressure are exact at the start of the step, so the
+/// stepped halo's forces are too, and no particle with an incomplete neighbourhood enters the
+/// step's maxima); the rest, which no stepped particle reaches, are left out.
+pub(super) fn shell(
+    owned: &[ParticleRecord],
+    halo: &[ParticleRecord],
+    inner: f64,
+    outer: f64,
+    domain: &crate::grid::Domain,
+) -> Vec<ParticleRecord> {
+    use std::collections::HashMap;
+    // Cells of about half the test radius (on a periodic axis a whole number per period, the
+    // indices wrapping): a halo particle scans only the cells across the edge of its sphere.
+    let axes: [(f64, f64, Option<i64>); 3] = [0, 1, 2].map(|k| match domain.periodic[k] {
+        Some((lo, len)) => {
+            let n = (len / (0.5 * inner)).ceil().max(1.0) as i64;
+            (lo, len / n as f64, Some(n))
+        }
+        None => (0.0, 0.5 * inner, None),
+    });
+    let index = |k: usize, v: f64| -> i64 {
+        let (lo, size, n) = axes[k];
+        let i = ((v - lo) / size).floor() as i64;
+        n.map_or(i, |n| i.clamp(0, n - 1))
+    };
+    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>, std::hash::BuildHasherDefault<IntHasher>> =
+        HashMap::default();
+    for r in owned {
+        let x = full_pos(r);
+        grid.entry([0, 1, 2].map(|k| index(k, x[k])))
+            .or_default()
+            .push(x);
+    }
+    let sep2 = |a: [f64; 3], b: [f64; 3]| domain.distance2(a, b);
+    // Along axis k, the cells within `radius` of coordinate v: (index, lower bound of the
+    // distance, less a rounding margin); every cell of a period the reach spans whole.
+    let cells_along = |k: usize, v: f64, radius: f64, out: &mut Vec<(i64, f64)>| {
+        out.clear();
+        let r2 = radius * radius;
+        let (lo, size, n) = axes[k];
+        let c = index(k, v);
+        let reach = (radius / size).ceil() as i64;
+        if let Some(n) = n {
+            if 2 * reach + 1 >= n {
+                out.extend((0..n).map(|i| (i, 0.0)));
+                return;
+            }
+        }
+        let face_lo = v - (lo + c as f64 * size);
+        let face_hi = size - face_lo;
+        for o in -reach..=reach {
+            let g = match o {
+                0 => 0.0,
+                o if o > 0 => (o - 1) as f64 * size + face_hi,
+                o => (-o - 1) as f64 * size + face_lo,
+            };
+            let g = (g - 1e-9 * size).max(0.0);
+            if g * g <= r2 {
+                let i = n.map_or(c + o, |n| (c + o).rem_euclid(n));
+                out.push((i, g * g));
+            }
+        }
+    };
+    let (mut cx, mut cy, mut cz) = (Vec::new(), Vec::new(), Vec::new());
+    // Whether an owned particle lies within `radius` of x.
+    let mut within = |x: [f64; 3], radius: f64| -> bool {
+        let r2 = radius * radius;
+        cells_along(0, x[0], radius, &mut cx);
+        cells_along(1, x[1], radius, &mut cy);
+        cells_along(2, x[2], radius, &mut cz);
+        cz.iter().any(|&(iz, gz)| {
+            cy.iter().any(|&(iy, gy)| {
+                gz + gy <= r2
+                    && cx.iter().any(|&(ix, gx)| {
+                        gz + gy + gx <= r2
+                            && grid
+                                .get(&[ix, iy, iz])
+                                .is_some_and(|v| v.iter().any(|&o| sep2(o, x) <= r2))
+                    })
+            })
+        })
+    };
+    halo.iter()
+        .filter_map(|h| {
+            let x = full_pos(h);
+            if within(x, inner) {
+                return Some(*h);
+            }
+            within(x, outer).then(|| {
+                let mut r = *h;
+                r.fixed = 1;
+                r
+            })
+        })
+        .collect()
+}

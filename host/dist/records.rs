@@ -1,0 +1,173 @@
+//! Particles as they travel between ranks: [`ParticleRecord`] (a plain-data row per particle)
+//! and the conversions from and to a [`State`]. Plain data without MPI: the ranks (with the mpi
+//! feature) send them as bytes.
+use crate::particles::{Gas, Phase, State};
+
+/// A particle's whole state as it travels between ranks (migration, the halo, the gather for
+/// output): everything a rank's engine needs to step it, as plain data (`Pod`: sent as bytes,
+/// read back to the bit).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ParticleRecord {
+    pub id: u64,
+    /// 0 gas, 1 + k dust fraction k.
+    pub phase: u64,
+    pub x: [f64; 3],
+    pub v: [f64; 3],
+    pub m: f64,
+    pub rho: f64,
+    /// Gas: the internal energy (0 without an energy equation).
+    pub e: f64,
+    /// 1: held fixed (a wall of the scene, or the deep halo's outer shell).
+    pub fixed: u64,
+    /// [`ParticleRecord::HAS_H`] | [`ParticleRecord::HAS_CLOSING_FORCES`].
+    pub flags: u64,
+    /// Gas with variable h: h and Ω of its last solve.
+    pub h: f64,
+    pub omega: f64,
+    /// Gas under the leapfrog: the closing forces (A, ė, v_sig) the next step starts from.
+    pub closing_forces: [f64; 5],
+    /// Gas: pressure and sound speed of its layer.
+    pub p: f64,
+    pub c: f64,
+}
+
+// SAFETY: `repr(C)` of 8-byte fields only (no padding), and every bit pattern is a valid
+// u64 or f64.
+unsafe impl bytemuck::Zeroable for ParticleRecord {}
+unsafe impl bytemuck::Pod for ParticleRecord {}
+
+impl ParticleRecord {
+    pub const HAS_H: u64 = 1;
+    pub const HAS_CLOSING_FORCES: u64 = 2;
+
+    /// Particle i of phase `phase` (position, velocity, mass, density, fixed).
+    pub(crate) fn of(phase: usize, ph: &Phase, i: usize) -> ParticleRecord {
+        ParticleRecord {
+            id: ph.id[i],
+            phase: phase as u64,
+            x: ph.x[i],
+            v: ph.v[i],
+            m: ph.m[i],
+            rho: ph.rho.get(i).copied().unwrap_or(0.0),
+            fixed: ph.is_fixed(i) as u64,
+            ..Default::default()
+        }
+    }
+
+    /// (phase, id): a particle's key over the ranks.
+    pub fn key(&self) -> (u64, u64) {
+        (self.phase, self.id)
+    }
+
+    /// h where it was solved (variable h), else 0.
+    pub fn solved_h(&self) -> f64 {
+        if self.flags & Self::HAS_H != 0 {
+            self.h
+        } else {
+            0.0
+        }
+    }
+}
+
+pub(crate) fn full_pos(r: &ParticleRecord) -> [f64; 3] {
+    r.x
+}
+
+/// Every particle of a state as records.
+pub fn records(st: &State) -> Vec<ParticleRecord> {
+    let mut out = Vec::new();
+    for (k, ph) in std::iter::once(&st.gas.ph)
+        .chain(st.dust.iter())
+        .enumerate()
+    {
+        for i in 0..ph.len() {
+            let mut r = ParticleRecord::of(k, ph, i);
+            if k == 0 {
+                let g = &st.gas;
+                if let Some(e) = &g.e {
+                    r.e = e[i];
+                }
+                if let (Some(h), Some(o)) = (&g.h, &g.omega) {
+                    r.flags |= ParticleRecord::HAS_H;
+                    r.h = h[i];
+                    r.omega = o[i];
+                }
+                if g.p.len() == ph.len() && g.c.len() == ph.len() {
+                    r.p = g.p[i];
+                    r.c = g.c[i];
+                }
+                if let Some(f) = &g.next_forces {
+                    r.flags |= ParticleRecord::HAS_CLOSING_FORCES;
+                    r.closing_forces = f[i];
+                }
+            }
+            out.push(r);
+        }
+    }
+    out
+}
+
+/// A state from records (phases in order; `template` gives the phase count and whether the
+/// gas has an energy or fixed particles).
+pub fn state_of(recs: &[ParticleRecord], template: &State) -> State {
+    let nph = 1 + template.dust.len();
+    let mut phases: Vec<Phase> = (0..nph).map(|_| Phase::default()).collect();
+    let mut fixed: Vec<Vec<bool>> = vec![Vec::new(); nph];
+    let mut e = Vec::new();
+    let (mut h, mut omega, mut nf) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut pres, mut cs) = (Vec::new(), Vec::new());
+    let (mut all_h, mut all_nf) = (true, true);
+    for r in recs {
+        let k = r.phase as usize;
+        let ph = &mut phases[k];
+        ph.id.push(r.id);
+        ph.x.push(r.x);
+        ph.v.push(r.v);
+        ph.m.push(r.m);
+        ph.rho.push(r.rho);
+        fixed[k].push(r.fixed != 0);
+        if k == 0 {
+            e.push(r.e);
+            all_h &= r.flags & ParticleRecord::HAS_H != 0;
+            all_nf &= r.flags & ParticleRecord::HAS_CLOSING_FORCES != 0;
+            h.push(r.h);
+            omega.push(r.omega);
+            nf.push(r.closing_forces);
+            pres.push(r.p);
+            cs.push(r.c);
+        }
+    }
+    let some_gas = recs.iter().any(|r| r.phase == 0);
+    // Fixed particles: the scene's walls, and the halo's outer shell.
+    let with_fixed = |k: usize, t: &Phase| {
+        (t.fixed.is_some() || fixed[k].iter().any(|&f| f)).then(|| fixed[k].clone())
+    };
+    let mut gas_ph = std::mem::take(&mut phases[0]);
+    gas_ph.fixed = with_fixed(0, &template.gas.ph);
+    let dust = phases
+        .into_iter()
+        .enumerate()
+        .skip(1)
+        .map(|(k, mut p)| {
+            p.fixed = with_fixed(k, &template.dust[k - 1]);
+            p
+        })
+        .collect();
+    State {
+        t: template.t,
+        step: template.step,
+        gas: Gas {
+            ph: gas_ph,
+            e: template.gas.e.as_ref().map(|_| e),
+            // A resumed layer: the solved h and Ω and the closing forces travel with their
+            // particles (the engine then keeps them, as on resume).
+            h: (some_gas && all_h).then_some(h),
+            omega: (some_gas && all_h).then_some(omega),
+            next_forces: (some_gas && all_nf).then_some(nf),
+            p: pres,
+            c: cs,
+        },
+        dust,
+    }
+}
