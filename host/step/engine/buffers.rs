@@ -514,3 +514,166 @@ pub(super) fn fill(v: &[f64], n: usize) -> Vec<f64> {
         vec![0.0; n]
     }
 }
+
+/// The step's constants (f64; cast to the step's precision per launch) for a physics.
+pub(super) fn step_params(
+    phys: &Physics,
+    stages: &Stages,
+    nf: usize,
+    grid: &Grid,
+) -> StepParams<f64> {
+    let (eos_kind, eos_value) = match phys.eos {
+        Eos::Isothermal { cs } => (0, cs),
+        Eos::Adiabatic { gamma } => (1, gamma),
+    };
+    let mut laws = [LawParam::default(); MAX_FRACTIONS];
+    for (l, p) in laws.iter_mut().zip(&phys.laws) {
+        *l = LawParam::from_law(p);
+    }
+    StepParams {
+        geom: grid.geom,
+        total: 0,
+        h: phys.h,
+        tau: 0.0,
+        dim: phys.dim,
+        eos_kind,
+        eos_value,
+        av: phys.av.is_some() as u32,
+        alpha: phys.av.map_or(0.0, |a| a.alpha),
+        beta: phys.av.map_or(0.0, |a| a.beta),
+        nu2_factor: phys.av.map_or(0.0, |a| a.nu2_factor),
+        nf: nf as u32,
+        needs_gas_state: phys.laws.iter().any(|l| l.needs_gas_state()) as u32,
+        laws,
+        ext_gas: phys.ext_gas,
+        ext_dust: phys.ext_dust,
+        explicit_drag: stages.explicit_drag as u32,
+    }
+}
+
+impl<L: Launcher, R: Float> CellBuffers<L, R> {
+    /// Room for `cap` union cells of `nf` fractions.
+    pub(super) fn new(d: &Device<L>, cap: usize, nf: usize) -> Result<Self, GpuError> {
+        Ok(CellBuffers {
+            uidx: d.buf(1)?,
+            ukey: d.buf(cap)?,
+            gas_mass: d.buf(cap)?,
+            v_new: d.buf(cap)?,
+            eps: d.buf(cap * nf.max(1))?,
+            beta: d.buf(cap * nf.max(1))?,
+            t_stop: d.buf(cap * nf.max(1))?,
+            u_new: d.buf(cap * nf.max(1))?,
+            heat: d.buf(cap)?,
+            sparse: None,
+            union_fresh: false,
+        })
+    }
+}
+
+impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
+    /// The kernel coupling's buffers for `ng` gas and `nd` dust particles of `nf` fractions
+    /// (`None` without the kernel coupling).
+    pub(super) fn new(
+        d: &Device<L>,
+        phys: &Physics,
+        stages: &Stages,
+        ng: usize,
+        nd: usize,
+        nf: usize,
+    ) -> Result<Option<Self>, GpuError> {
+        if !stages.kernel_coupling {
+            return Ok(None);
+        }
+        Ok(Some(CouplingBuffers {
+            sums: if phys.deposit_scatter {
+                Some(d.buf((ng * (1 + nf) * th::DEPOSIT_SLOTS).max(1))?)
+            } else {
+                None
+            },
+            s_gas: d.buf(ng.max(1))?,
+            s_dust: d.buf(nd.max(1))?,
+            dv: d.buf(ng.max(1))?,
+            du: d.buf((ng * nf).max(1))?,
+            t_stop: d.buf((ng * nf).max(1))?,
+            heat: if stages.heating {
+                Some(d.buf(ng.max(1))?)
+            } else {
+                None
+            },
+            per_particle_kernels: stages.variable_h,
+        }))
+    }
+}
+
+impl<L: Launcher, R: Float> LeapfrogBuffers<L, R> {
+    /// The leapfrog's buffers (the saved velocities also serve the authors' position update);
+    /// `rows`: a resumed leapfrog run's closing forces (A, ė, v_sig per gas particle).
+    pub(super) fn new(
+        d: &Device<L>,
+        phys: &Physics,
+        stages: &Stages,
+        rows: Option<&[[f64; 5]]>,
+        ng: usize,
+        nd: usize,
+    ) -> Result<Self, GpuError> {
+        let k = stages.kdk;
+        let save = k || phys.position_update == PositionUpdate::Old;
+        let closing = rows.map(|r| {
+            let f = Forces::from_rows(r);
+            (f.vsig_max, f.acc_max)
+        });
+        let vsig = rows.map(|r| r.iter().map(|x| x[4]).collect::<Vec<f64>>());
+        Ok(LeapfrogBuffers {
+            closing,
+            vsig: if k {
+                Some(match vsig {
+                    Some(c) => d.upload_f64(&c)?,
+                    None => d.buf(ng.max(1))?,
+                })
+            } else {
+                None
+            },
+            v_save: d.buf(if save { ng.max(1) } else { 1 })?,
+            u_save: d.buf(if save { nd.max(1) } else { 1 })?,
+            e_save: if k && stages.energy {
+                Some(d.buf(ng.max(1))?)
+            } else {
+                None
+            },
+        })
+    }
+}
+
+impl<L: Launcher, R: Float> SmoothingBuffers<L, R> {
+    /// Variable h's and IAD's buffers; a resumed variable-h state's h and Ω are kept as they
+    /// are.
+    pub(super) fn new(
+        d: &Device<L>,
+        stages: &Stages,
+        g: &crate::particles::Gas,
+        ng: usize,
+        nd: usize,
+    ) -> Result<Self, GpuError> {
+        let vh = stages.variable_h;
+        let resumed = vh && g.h.is_some() && g.omega.is_some();
+        let per_gas = if vh || stages.iad { ng.max(1) } else { 1 };
+        let solve = if vh { ng.max(nd).max(1) } else { 1 };
+        let kept = |v: &Option<Vec<f64>>| -> Result<Option<Buf<L, R>>, GpuError> {
+            match (resumed, v) {
+                (true, Some(v)) => Ok(Some(d.upload_f64(v)?)),
+                _ => Ok(None),
+            }
+        };
+        Ok(SmoothingBuffers {
+            gas_h: kept(&g.h)?,
+            gas_omega: kept(&g.omega)?,
+            h_new: d.buf(solve)?,
+            omega_new: d.buf(solve)?,
+            iters: d.buf(solve)?,
+            kernel_at: d.buf(per_gas)?,
+            pt: d.buf(per_gas)?,
+            iad: d.buf(if stages.iad { ng.max(1) } else { 1 })?,
+            hmax: d.buf(1)?,
+        })
+    }
+}

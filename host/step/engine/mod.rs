@@ -144,34 +144,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             launcher,
             allocated: std::cell::Cell::new(0),
         };
-        let (eos_kind, eos_value) = match phys.eos {
-            Eos::Isothermal { cs } => (0, cs),
-            Eos::Adiabatic { gamma } => (1, gamma),
-        };
-        let mut laws = [LawParam::default(); MAX_FRACTIONS];
-        for (l, p) in laws.iter_mut().zip(&phys.laws) {
-            *l = LawParam::from_law(p);
-        }
         let grid = Grid::build(&phys.domain, phys.cell_size, phys.support(), &[])?;
-        let base = StepParams {
-            geom: grid.geom,
-            total: 0,
-            h: phys.h,
-            tau: 0.0,
-            dim: phys.dim,
-            eos_kind,
-            eos_value,
-            av: phys.av.is_some() as u32,
-            alpha: phys.av.map_or(0.0, |a| a.alpha),
-            beta: phys.av.map_or(0.0, |a| a.beta),
-            nu2_factor: phys.av.map_or(0.0, |a| a.nu2_factor),
-            nf: nf as u32,
-            needs_gas_state: phys.laws.iter().any(|l| l.needs_gas_state()) as u32,
-            laws,
-            ext_gas: phys.ext_gas,
-            ext_dust: phys.ext_dust,
-            explicit_drag: stages.explicit_drag as u32,
-        };
+        let base = step_params(&phys, &stages, nf, &grid);
         let heating = stages.heating;
         let gas = PhaseBuffers::new(&d, &[&state.gas.ph], heating)?;
         let dust_refs: Vec<&Phase> = state.dust.iter().collect();
@@ -201,41 +175,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 (true, Some(c)) => Some(d.upload_f64(&c)?),
                 (true, None) => Some(d.buf(ng)?),
             },
-            cells: CellBuffers {
-                uidx: d.buf(1)?,
-                ukey: d.buf(cap)?,
-                gas_mass: d.buf(cap)?,
-                v_new: d.buf(cap)?,
-                eps: d.buf(cap * nf.max(1))?,
-                beta: d.buf(cap * nf.max(1))?,
-                t_stop: d.buf(cap * nf.max(1))?,
-                u_new: d.buf(cap * nf.max(1))?,
-                heat: d.buf(cap)?,
-                sparse: None,
-                union_fresh: false,
-            },
-            coupling: if stages.kernel_coupling {
-                Some(CouplingBuffers {
-                    sums: if phys.deposit_scatter {
-                        Some(d.buf((ng * (1 + nf) * th::DEPOSIT_SLOTS).max(1))?)
-                    } else {
-                        None
-                    },
-                    s_gas: d.buf(ng.max(1))?,
-                    s_dust: d.buf(dust.n.max(1))?,
-                    dv: d.buf(ng.max(1))?,
-                    du: d.buf((ng * nf).max(1))?,
-                    t_stop: d.buf((ng * nf).max(1))?,
-                    heat: if stages.heating {
-                        Some(d.buf(ng.max(1))?)
-                    } else {
-                        None
-                    },
-                    per_particle_kernels: stages.variable_h,
-                })
-            } else {
-                None
-            },
+            cells: CellBuffers::new(&d, cap, nf)?,
+            coupling: CouplingBuffers::new(&d, &phys, &stages, ng, dust.n, nf)?,
             sums: d.buf(1)?,
             limits: d.buf(2)?,
             bounds: d.buf(6)?,
@@ -249,58 +190,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 ListChoice::Off => false,
                 ListChoice::Auto => d.launcher.lists_by_default(),
             },
-            kdk: {
-                let k = stages.kdk;
-                let save = k || phys.position_update == PositionUpdate::Old;
-                let closing = rows.map(|r| {
-                    let f = Forces::from_rows(r);
-                    (f.vsig_max, f.acc_max)
-                });
-                LeapfrogBuffers {
-                    closing,
-                    vsig: if k {
-                        Some(match col(4) {
-                            Some(c) => d.upload_f64(&c)?,
-                            None => d.buf(ng.max(1))?,
-                        })
-                    } else {
-                        None
-                    },
-                    v_save: d.buf(if save { ng.max(1) } else { 1 })?,
-                    u_save: d.buf(if save { dust.n.max(1) } else { 1 })?,
-                    e_save: if k && stages.energy {
-                        Some(d.buf(ng.max(1))?)
-                    } else {
-                        None
-                    },
-                }
-            },
-            sm: {
-                let vh = stages.variable_h;
-                // On resume the state carries h and Ω of the last step: kept as they are.
-                let resumed = vh && g.h.is_some() && g.omega.is_some();
-                let per_gas = if vh || stages.iad { ng.max(1) } else { 1 };
-                let solve = if vh { ng.max(dust.n).max(1) } else { 1 };
-                SmoothingBuffers {
-                    gas_h: if resumed {
-                        Some(d.upload_f64(g.h.as_deref().unwrap_or(&[]))?)
-                    } else {
-                        None
-                    },
-                    gas_omega: if resumed {
-                        Some(d.upload_f64(g.omega.as_deref().unwrap_or(&[]))?)
-                    } else {
-                        None
-                    },
-                    h_new: d.buf(solve)?,
-                    omega_new: d.buf(solve)?,
-                    iters: d.buf(solve)?,
-                    kernel_at: d.buf(per_gas)?,
-                    pt: d.buf(per_gas)?,
-                    iad: d.buf(if stages.iad { ng.max(1) } else { 1 })?,
-                    hmax: d.buf(1)?,
-                }
-            },
+            kdk: LeapfrogBuffers::new(&d, &phys, &stages, rows, ng, dust.n)?,
+            sm: SmoothingBuffers::new(&d, &stages, g, ng, dust.n)?,
             phys,
             stages,
             timers: Timers::default(),
@@ -317,13 +208,21 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             }),
             ghosts: None,
         };
-        eng.regrid()?;
+        eng.first_layer(state, layer)?;
+        Ok(eng)
+    }
+
+    /// The first layer: the grid and sort, the gas density (or the state's: see
+    /// [`InitialLayer`]) and EOS, the dust densities, the host state brought up to date and
+    /// checked.
+    fn first_layer(&mut self, state: &mut State, layer: InitialLayer) -> Result<(), StepError> {
+        self.regrid()?;
         let given = layer == InitialLayer::FromState;
-        if given && !eng.stages.variable_h {
+        if given && !self.stages.variable_h {
             // Summation or continuity density: ρ is the state's; only p and c_s from it.
-            eng.eos()?;
+            self.eos()?;
         } else {
-            eng.gas_density_eos(None)?;
+            self.gas_density_eos(None)?;
         }
         // A resumed variable-h run keeps its dust densities too: the next solve starts from
         // them (as the uninterrupted run's does), so the resume stays bit-identical.
@@ -332,17 +231,16 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             .dust
             .iter()
             .all(|d| d.rho.len() == d.len() && d.rho.iter().all(|r| *r > 0.0 && r.is_finite()));
-        eng.dust_density_fresh = if given {
-            eng.stages.dust_density_each_step && dust_rho_valid
+        self.dust_density_fresh = if given {
+            self.stages.dust_density_each_step && dust_rho_valid
         } else {
-            eng.stages.variable_h && g.h.is_some() && g.omega.is_some() && dust_rho_valid
+            self.stages.variable_h && g.h.is_some() && g.omega.is_some() && dust_rho_valid
         };
-        if !given || eng.stages.dust_density_each_step {
-            eng.dust_density()?;
+        if !given || self.stages.dust_density_each_step {
+            self.dust_density()?;
         }
-        eng.sync(state)?;
-        eng.check(state)?;
-        Ok(eng)
+        self.sync(state)?;
+        self.check(state)
     }
 
     pub fn describe(&self) -> String {
