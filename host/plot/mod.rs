@@ -496,35 +496,48 @@ pub fn fig_speed_tstop(
             .border_style(BLACK)
             .draw()?;
 
-        let caption = if ts.is_empty() {
-            "dust stopping time (no finite values)".to_string()
-        } else {
-            "dust stopping time".to_string()
-        };
-        let mut chart = ChartBuilder::on(&bottom)
-            .caption(caption, (FONT, 22))
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(75)
-            .build_cartesian_2d(
-                x_range.clone(),
-                log_range(ts.iter().map(|p| p.1)).log_scale(),
-            )?;
-        chart
-            .configure_mesh()
-            .x_desc("r")
-            .y_desc("t_stop")
-            .x_label_formatter(&linear_ticks(&x_range))
-            .y_label_formatter(&log_ticks)
-            .label_style((FONT, 15))
-            .axis_desc_style((FONT, 18))
-            .draw()?;
-        chart.draw_series(
-            ts.iter()
-                .map(|&q| Circle::new(q, dot_size(ts.len()), DUST.mix(0.6).filled())),
-        )?;
-        Ok(())
+        tstop_panel(&bottom, x_range.clone(), &ts)
     })
+}
+
+/// The dust stopping time against radius on a log scale (the lower panel of
+/// [`fig_speed_tstop`]).
+fn tstop_panel<DB: DrawingBackend>(
+    bottom: &DrawingArea<DB, Shift>,
+    x_range: Range<f64>,
+    ts: &[(f64, f64)],
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let caption = if ts.is_empty() {
+        "dust stopping time (no finite values)".to_string()
+    } else {
+        "dust stopping time".to_string()
+    };
+    let mut chart = ChartBuilder::on(&bottom)
+        .caption(caption, (FONT, 22))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(75)
+        .build_cartesian_2d(
+            x_range.clone(),
+            log_range(ts.iter().map(|p| p.1)).log_scale(),
+        )?;
+    chart
+        .configure_mesh()
+        .x_desc("r")
+        .y_desc("t_stop")
+        .x_label_formatter(&linear_ticks(&x_range))
+        .y_label_formatter(&log_ticks)
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 18))
+        .draw()?;
+    chart.draw_series(
+        ts.iter()
+            .map(|&q| Circle::new(q, dot_size(ts.len()), DUST.mix(0.6).filled())),
+    )?;
+    Ok(())
 }
 
 /// Gas and dust particles in the slab |z| < `slab` (1D/2D snapshots: all particles) in the x–y
