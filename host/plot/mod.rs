@@ -515,7 +515,7 @@ where
     } else {
         "dust stopping time".to_string()
     };
-    let mut chart = ChartBuilder::on(&bottom)
+    let mut chart = ChartBuilder::on(bottom)
         .caption(caption, (FONT, 22))
         .margin(12)
         .x_label_area_size(45)

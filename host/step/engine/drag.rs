@@ -112,7 +112,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     pub(super) fn kernel_coupling(&mut self, tau: f64, heat: bool) -> Result<(), StepError> {
         self.coupling_norms()?;
         // The solve weighs each neighbour by its own norm.
-        self.ghost_sync()?;
+        self.ghost_sync(&Refresh::COUPLING_NORMS)?;
         let ng = self.gas.n;
         let nf = self.dust.groups;
         let d = &self.d;
@@ -151,7 +151,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             None => d.run(R::COUPLING_SOLVE, ng, &ca)?,
         }
         // The return reads the neighbouring gas particles' solves.
-        self.ghost_sync()?;
+        self.ghost_sync(&Refresh::COUPLING_SOLVE)?;
         let d = &self.d;
         let c = self.coupling.as_ref().expect("kernel coupling");
         for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
@@ -177,7 +177,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         }
         if let (true, Some(_)) = (heat, &c.heat) {
             // The heat sums the neighbours' losses.
-            self.ghost_sync()?;
+            self.ghost_sync(&Refresh::COUPLING_RETURN)?;
         }
         let d = &self.d;
         let c = self.coupling.as_ref().expect("kernel coupling");

@@ -105,7 +105,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 d.run(R::IAD_MATRIX, self.gas.n, &a)
             })?;
             // The forces read the neighbours' matrices.
-            self.ghost_sync()?;
+            self.ghost_sync(&Refresh::IAD_MATRICES)?;
         }
         let d = &self.d;
         let a = th::ForcesArgs {
@@ -132,7 +132,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         };
         timers.time(name, || d.run(R::FORCES, self.gas.n, &a))?;
         // The drag's cell sums read the cell-mates' accelerations.
-        self.ghost_sync()?;
+        self.ghost_sync(&Refresh::FORCES)?;
         let l = self.d.get(&self.limits, 2)?;
         let dec = |b: u64| if b == 0 { 0.0 } else { from_ordered_bits(b) };
         Ok(Forces {

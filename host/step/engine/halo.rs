@@ -2,6 +2,148 @@
 //! refresh of their values from their owners between the step's neighbour passes.
 use super::*;
 
+/// A per-particle field the halo can move (a buffer of the engine, gas or dust).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Field {
+    Position,
+    Velocity,
+    Mass,
+    Density,
+    /// The kinetic energy the drag took (drag heating).
+    KineticLoss,
+    Pressure,
+    SoundSpeed,
+    Energy,
+    Acceleration,
+    EnergyRate,
+    /// The leapfrog's signal speeds (its closing forces' v_sig).
+    SignalSpeed,
+    /// The velocities kept across a kick (the leapfrog; the authors' position update).
+    SavedVelocity,
+    SavedEnergy,
+    SmoothingLength,
+    Omega,
+    /// Per-particle kernel constants (variable h, IAD) and the pressure term p/(Ωρ²).
+    KernelAt,
+    PressureTerm,
+    IadMatrix,
+    /// The kernel coupling's normaliser S_q, its increments and stopping times, its heat.
+    CouplingNorm,
+    GasIncrement,
+    DustIncrement,
+    CouplingStoppingTime,
+    CouplingHeat,
+}
+
+impl Field {
+    pub(super) const ALL: &'static [Field] = &[
+        Field::Position,
+        Field::Velocity,
+        Field::Mass,
+        Field::Density,
+        Field::KineticLoss,
+        Field::Pressure,
+        Field::SoundSpeed,
+        Field::Energy,
+        Field::Acceleration,
+        Field::EnergyRate,
+        Field::SignalSpeed,
+        Field::SavedVelocity,
+        Field::SavedEnergy,
+        Field::SmoothingLength,
+        Field::Omega,
+        Field::KernelAt,
+        Field::PressureTerm,
+        Field::IadMatrix,
+        Field::CouplingNorm,
+        Field::GasIncrement,
+        Field::DustIncrement,
+        Field::CouplingStoppingTime,
+        Field::CouplingHeat,
+    ];
+}
+
+/// A halo refresh between two of the step's passes: the fields the passes since the last
+/// refresh wrote (every rank steps its engine from its owners' values; a refresh moves what
+/// changed since). A field left out that a later pass reads is caught by `DUSTSPH_HALO_CHECK`
+/// (tests/mpi.rs runs every scene with it).
+pub(super) struct Refresh {
+    pub name: &'static str,
+    pub fields: &'static [Field],
+}
+
+use Field::*;
+
+impl Refresh {
+    /// When the ghosts are set: everything.
+    pub(super) const EVERYTHING: Refresh = Refresh {
+        name: "at the start",
+        fields: Field::ALL,
+    };
+    /// The IAD matrices and the per-particle kernels the forces read.
+    pub(super) const IAD_MATRICES: Refresh = Refresh {
+        name: "after the IAD matrices",
+        fields: &[KernelAt, PressureTerm, IadMatrix],
+    };
+    /// The forces the drag's cell sums read (and the kernels of a variable-h force pass).
+    pub(super) const FORCES: Refresh = Refresh {
+        name: "after the forces",
+        fields: &[
+            KernelAt,
+            PressureTerm,
+            Acceleration,
+            EnergyRate,
+            SignalSpeed,
+        ],
+    };
+    /// The kernel coupling's normalisers (and the dust's external kick before them) its solve
+    /// reads.
+    pub(super) const COUPLING_NORMS: Refresh = Refresh {
+        name: "after the kernel coupling's normalisers",
+        fields: &[Velocity, KernelAt, PressureTerm, CouplingNorm],
+    };
+    /// The kernel coupling's solve on every gas particle, which the return reads.
+    pub(super) const COUPLING_SOLVE: Refresh = Refresh {
+        name: "after the kernel coupling's solve",
+        fields: &[GasIncrement, DustIncrement, CouplingStoppingTime],
+    };
+    /// The kernel coupling's return (velocities, losses), which its heat sums read.
+    pub(super) const COUPLING_RETURN: Refresh = Refresh {
+        name: "after the kernel coupling's return",
+        fields: &[Velocity, KineticLoss],
+    };
+    /// The kick, the drift and the energy update.
+    pub(super) const DRIFT: Refresh = Refresh {
+        name: "after the drift",
+        fields: &[
+            Position,
+            Velocity,
+            KineticLoss,
+            Energy,
+            SavedVelocity,
+            CouplingHeat,
+        ],
+    };
+    /// The new layer's densities, h, pressures (and the leapfrog's predicted energy).
+    pub(super) const NEW_LAYER: Refresh = Refresh {
+        name: "at the end of the new layer",
+        fields: &[
+            Density,
+            Pressure,
+            SoundSpeed,
+            SmoothingLength,
+            Omega,
+            Energy,
+            SavedEnergy,
+        ],
+    };
+    /// The leapfrog's predicted velocities, which its forces at the new layer read.
+    pub(super) const PREDICTOR: Refresh = Refresh {
+        name: "after the leapfrog's predictor",
+        fields: &[Velocity, SavedVelocity],
+    };
+}
+
 /// Ghost particles: copies of particles another MPI rank owns, within one interaction reach of
 /// this rank's own (docs/scaling.md, "A thin halo"). Between the step's neighbour passes the
 /// engine hands every particle's per-particle values to [`GhostSync::refresh`], which writes
@@ -64,7 +206,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             slots: [Vec::new(), Vec::new()],
         });
         self.ghost_masks()?;
-        self.ghost_sync()
+        self.ghost_sync(&Refresh::EVERYTHING)
     }
 
     /// Every slot's key (phase, id) of a phase, in the current order.
@@ -121,16 +263,92 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         Ok(())
     }
 
-    /// Refresh the ghosts from their owners (a no-op without ghosts): every per-particle
-    /// buffer, as bytes, row by row.
-    pub(super) fn ghost_sync(&mut self) -> Result<(), StepError> {
+    /// Refresh the ghosts from their owners (a no-op without ghosts): the fields `refresh`
+    /// names, as bytes, row by row. With `DUSTSPH_HALO_CHECK` set, a full refresh follows and
+    /// any ghost value it changes (a field written since the last refresh and not named) stops
+    /// the step, naming the refresh and the field.
+    pub(super) fn ghost_sync(&mut self, refresh: &Refresh) -> Result<(), StepError> {
         if self.ghosts.is_none() {
             return Ok(());
         }
+        self.exchange_rows(refresh.fields)?;
+        if std::env::var_os("DUSTSPH_HALO_CHECK").is_some() && refresh.fields != Field::ALL {
+            // After this step's sort, only the fields the sort carries have values that still
+            // mean something until a pass writes them again.
+            let live = if self.resorted {
+                self.sorted_fields()
+            } else {
+                Field::ALL
+            };
+            let before = self.field_bytes(live)?;
+            self.exchange_rows(Field::ALL)?;
+            let after = self.field_bytes(live)?;
+            if let Some((gas, f)) =
+                (before.iter().zip(&after)).find_map(|(b, a)| (b.2 != a.2).then_some((b.0, b.1)))
+            {
+                return Err(StepError::Blowup(format!(
+                    "halo check: the refresh {} left the ghosts' {f:?} ({}) stale",
+                    refresh.name,
+                    if gas { "gas" } else { "dust" }
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The fields the grid rebuild's sort carries with their particles.
+    fn sorted_fields(&self) -> &'static [Field] {
+        const CARRIED: &[Field] = &[
+            Position,
+            Velocity,
+            Mass,
+            Density,
+            Pressure,
+            SoundSpeed,
+            Energy,
+            SmoothingLength,
+            Omega,
+        ];
+        const CARRIED_KDK: &[Field] = &[
+            Position,
+            Velocity,
+            Mass,
+            Density,
+            Pressure,
+            SoundSpeed,
+            Energy,
+            SmoothingLength,
+            Omega,
+            Acceleration,
+            EnergyRate,
+            SignalSpeed,
+        ];
+        if self.stages.kdk {
+            CARRIED_KDK
+        } else {
+            CARRIED
+        }
+    }
+
+    /// The `fields` of both phases as bytes (for the halo check).
+    fn field_bytes(&mut self, fields: &[Field]) -> Result<Vec<(bool, Field, Vec<u8>)>, GpuError> {
+        let mut out = Vec::new();
+        for gas in [true, false] {
+            for &f in fields {
+                for c in self.ghost_columns(gas, None, &[f])? {
+                    out.push((gas, f, c));
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Send the owners' values of `fields` and write them into the ghosts' rows (collective).
+    fn exchange_rows(&mut self, fields: &[Field]) -> Result<(), StepError> {
         let mut rows = Vec::with_capacity(2);
         for gas in [true, false] {
             let n = if gas { self.gas.n } else { self.dust.n };
-            let cols = self.ghost_columns(gas, None)?;
+            let cols = self.ghost_columns(gas, None, fields)?;
             let row: usize = cols.iter().map(|c| c.len() / n.max(1)).sum();
             let mut data = vec![0u8; n * row];
             let mut at = 0;
@@ -144,7 +362,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             rows.push((row, data));
         }
         // The slots' keys of the last sort (ghost_masks): no id download per refresh.
-        let Ghosts { sync, slots, .. } = self.ghosts.as_mut().expect("checked above");
+        let Ghosts { sync, slots, .. } = self.ghosts.as_mut().expect("ghosts are set");
         let mut tables: Vec<GhostRows<'_>> = (slots.iter().zip(rows))
             .map(|(keys, (row, data))| GhostRows { keys, row, data })
             .collect();
@@ -152,17 +370,18 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
         let rows: Vec<(usize, Vec<u8>)> = tables.into_iter().map(|t| (t.row, t.data)).collect();
         for ((row, data), gas) in rows.iter().zip([true, false]) {
-            self.ghost_columns(gas, Some((*row, data)))?;
+            self.ghost_columns(gas, Some((*row, data)), fields)?;
         }
         Ok(())
     }
 
-    /// A phase's per-particle buffers as byte columns (`put` = None), or written back from
-    /// the rows of `put`; those this scene's pipeline does not use are left out.
+    /// A phase's per-particle buffers of `fields` as byte columns (`put` = None), or written
+    /// back from the rows of `put`; those this scene's pipeline does not use are left out.
     pub(super) fn ghost_columns(
         &mut self,
         gas: bool,
         put: Option<(usize, &[u8])>,
+        fields: &[Field],
     ) -> Result<Vec<Vec<u8>>, GpuError> {
         /// Buffer `b` with `per` values per particle, particle-major.
         pub(super) fn one<L: Launcher, T: Copy>(
@@ -204,51 +423,53 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let smooth = self.stages.variable_h || self.stages.iad;
         let iad = self.stages.iad;
         macro_rules! col {
-            ($b:expr, $n:expr) => {
-                one(d, $b, $n, 1, put.map(|t| (t, &mut at)), &mut out)?
+            ($f:ident, $b:expr, $n:expr) => {
+                col!($f, $b, $n, 1)
             };
-            ($b:expr, $n:expr, $per:expr) => {
-                one(d, $b, $n, $per, put.map(|t| (t, &mut at)), &mut out)?
+            ($f:ident, $b:expr, $n:expr, $per:expr) => {
+                if fields.contains(&Field::$f) {
+                    one(d, $b, $n, $per, put.map(|t| (t, &mut at)), &mut out)?
+                }
             };
         }
         let nf = self.dust.groups;
         if gas {
             let n = self.gas.n;
-            col!(Some(&mut self.gas.x), n);
-            col!(Some(&mut self.gas.v), n);
-            col!(Some(&mut self.gas.m), n);
-            col!(Some(&mut self.gas.rho), n);
-            col!(self.gas.loss.as_mut(), n);
-            col!(Some(&mut self.pres), n);
-            col!(Some(&mut self.cs), n);
-            col!(self.e.as_mut(), n);
-            col!(Some(&mut self.acc), n);
-            col!(self.dedt.as_mut(), n);
-            col!(self.kdk.vsig.as_mut(), n);
-            col!(save.then_some(&mut self.kdk.v_save), n);
-            col!(self.kdk.e_save.as_mut(), n);
-            col!(self.sm.gas_h.as_mut(), n);
-            col!(self.sm.gas_omega.as_mut(), n);
-            col!(smooth.then_some(&mut self.sm.kernel_at), n);
-            col!(smooth.then_some(&mut self.sm.pt), n);
-            col!(iad.then_some(&mut self.sm.iad), n);
+            col!(Position, Some(&mut self.gas.x), n);
+            col!(Velocity, Some(&mut self.gas.v), n);
+            col!(Mass, Some(&mut self.gas.m), n);
+            col!(Density, Some(&mut self.gas.rho), n);
+            col!(KineticLoss, self.gas.loss.as_mut(), n);
+            col!(Pressure, Some(&mut self.pres), n);
+            col!(SoundSpeed, Some(&mut self.cs), n);
+            col!(Energy, self.e.as_mut(), n);
+            col!(Acceleration, Some(&mut self.acc), n);
+            col!(EnergyRate, self.dedt.as_mut(), n);
+            col!(SignalSpeed, self.kdk.vsig.as_mut(), n);
+            col!(SavedVelocity, save.then_some(&mut self.kdk.v_save), n);
+            col!(SavedEnergy, self.kdk.e_save.as_mut(), n);
+            col!(SmoothingLength, self.sm.gas_h.as_mut(), n);
+            col!(Omega, self.sm.gas_omega.as_mut(), n);
+            col!(KernelAt, smooth.then_some(&mut self.sm.kernel_at), n);
+            col!(PressureTerm, smooth.then_some(&mut self.sm.pt), n);
+            col!(IadMatrix, iad.then_some(&mut self.sm.iad), n);
             if let Some(c) = &mut self.coupling {
-                col!(Some(&mut c.s_gas), n);
-                col!(Some(&mut c.dv), n);
-                col!(Some(&mut c.du), n, nf);
-                col!(Some(&mut c.t_stop), n, nf);
-                col!(c.heat.as_mut(), n);
+                col!(CouplingNorm, Some(&mut c.s_gas), n);
+                col!(GasIncrement, Some(&mut c.dv), n);
+                col!(DustIncrement, Some(&mut c.du), n, nf);
+                col!(CouplingStoppingTime, Some(&mut c.t_stop), n, nf);
+                col!(CouplingHeat, c.heat.as_mut(), n);
             }
         } else {
             let n = self.dust.n;
-            col!(Some(&mut self.dust.x), n);
-            col!(Some(&mut self.dust.v), n);
-            col!(Some(&mut self.dust.m), n);
-            col!(Some(&mut self.dust.rho), n);
-            col!(self.dust.loss.as_mut(), n);
-            col!(save.then_some(&mut self.kdk.u_save), n);
+            col!(Position, Some(&mut self.dust.x), n);
+            col!(Velocity, Some(&mut self.dust.v), n);
+            col!(Mass, Some(&mut self.dust.m), n);
+            col!(Density, Some(&mut self.dust.rho), n);
+            col!(KineticLoss, self.dust.loss.as_mut(), n);
+            col!(SavedVelocity, save.then_some(&mut self.kdk.u_save), n);
             if let Some(c) = &mut self.coupling {
-                col!(Some(&mut c.s_dust), n);
+                col!(CouplingNorm, Some(&mut c.s_dust), n);
             }
         }
         Ok(out)

@@ -43,6 +43,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         before_density: impl FnOnce(&mut Self) -> Result<(), GpuError>,
     ) -> Result<(), StepError> {
         timers.time("grid rebuild + sort", || self.regrid())?;
+        self.resorted = true;
         before_density(self)?;
         let name = if self.stages.variable_h {
             "gas h and density (variable h, Newton–Raphson) + EOS"
@@ -62,12 +63,13 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             timers.time(name, || self.dust_density())?;
         }
         // The leapfrog's predicted kick reads the cell-mates' new densities.
-        self.ghost_sync()
+        self.ghost_sync(&Refresh::NEW_LAYER)
     }
 
     /// Advance one step of size τ from layer n (forces already computed at layer n).
     pub fn advance(&mut self, state: &mut State, tau: f64) -> Result<(), StepError> {
         let mut timers = std::mem::take(&mut self.timers);
+        self.resorted = false;
         let r = if self.stages.kdk {
             self.advance_kdk(&mut timers, tau)
         } else {
@@ -114,7 +116,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             }
             self.energy_step(tau, heat)
         })?;
-        self.ghost_sync()?;
+        self.ghost_sync(&Refresh::DRIFT)?;
         self.new_layer(timers, tau, |_| Ok(()))
     }
 
@@ -136,7 +138,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             self.drift(&self.gas, tau)?;
             self.drift(&self.dust, tau)
         })?;
-        self.ghost_sync()?;
+        self.ghost_sync(&Refresh::DRIFT)?;
         // The sort carries A^n and ė^n (kdk sorts them with the gas): e* = e^{n+1/2} + τ/2 ė^n
         // sets the pressure of the new layer.
         self.new_layer(timers, tau, |eng| {
@@ -152,7 +154,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         // would be off by O(1)), timed apart from the two half kicks.
         let mut pred = Timers::default();
         self.kick(&mut pred, half, false)?;
-        self.ghost_sync()?;
+        self.ghost_sync(&Refresh::PREDICTOR)?;
         let t_pred: f64 = pred.entries().iter().map(|e| e.1).sum();
         timers.add(
             "leapfrog: predicted v*, u* at the new layer (half kick + drag)",

@@ -35,8 +35,8 @@ use rayon::prelude::*;
 use std::marker::PhantomData;
 
 pub use buffers::{Float, LIST_BYTES_PER_GAS_PARTICLE};
-use halo::Ghosts;
 pub use halo::{GhostRows, GhostSync};
+use halo::{Ghosts, Refresh};
 
 /// Device memory a run needs per particle (gas or dust), by precision: measured with the rayon
 /// launcher, which allocates the very buffers a GPU does (`tests/launch.rs`,
@@ -71,6 +71,9 @@ pub struct Engine<L: Launcher, R: Float> {
     limits: Buf<L, u64>,
     bounds: Buf<L, u64>,
     bad: Buf<L, u32>,
+    /// This step has rebuilt the grid and sorted the particles (the halo check then compares
+    /// only the fields the sort carries).
+    resorted: bool,
     /// The momentum sums of each chunk of particles ([`Engine::momentum`]).
     chunk_sums: Buf<L, f64>,
     dust_density_fresh: bool,
@@ -182,6 +185,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             bounds: d.buf(6)?,
             bad: d.buf(1)?,
             chunk_sums: d.buf(1)?,
+            resorted: false,
             step: state.step,
             t: state.t,
             force_sparse: false,
