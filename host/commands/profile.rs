@@ -212,6 +212,41 @@ pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
 // ---------------------------------------------------------------------------------------------
 // The command line.
 
+/// One table of error norms, headed by what it compares against, in words: the reference and,
+/// wrapped below it, how the errors are measured (the reference's further clauses).
+pub fn print_errors(e: &ExactErrors) {
+    let mut clauses = e.reference.split("; ");
+    println!(
+        "  errors at t = {} against the {}",
+        e.t,
+        clauses.next().unwrap_or("exact solution")
+    );
+    let rest: Vec<&str> = clauses.collect();
+    if !rest.is_empty() {
+        for line in wrap(&rest.join("; "), 88) {
+            println!("    {line}");
+        }
+    }
+    for f in &e.fields {
+        print_field(f);
+    }
+}
+
+/// `text` in lines of at most `width` characters, broken at spaces.
+fn wrap(text: &str, width: usize) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    for word in text.split_whitespace() {
+        match lines.last_mut() {
+            Some(l) if l.chars().count() + 1 + word.chars().count() <= width => {
+                l.push(' ');
+                l.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
+    }
+    lines
+}
+
 /// One line of an error table; a constant offset (one number) reads as one.
 pub fn print_field(f: &crate::analysis::FieldError) {
     if f.field.ends_with(" offset") {
@@ -263,10 +298,7 @@ pub fn execute(a: ProfileArgs) -> u8 {
                 println!("wrote {}", f.display());
             }
             for e in &r.errors {
-                println!("errors against {}", e.reference);
-                for f in &e.fields {
-                    print_field(f);
-                }
+                print_errors(e);
             }
             if let Some(s) = &r.symmetry {
                 println!(

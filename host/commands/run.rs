@@ -516,11 +516,7 @@ fn report(s: &Summary, out: &std::path::Path) {
         out.join("summary.json").display()
     );
     for last in s.errors.iter().filter(|e| e.t == s.t_final) {
-        let r = &last.reference;
-        println!("  vs {}", r.split(';').next().unwrap_or(r));
-        for f in &last.fields {
-            super::profile::print_field(f);
-        }
+        super::profile::print_errors(last);
     }
 }
 
