@@ -298,18 +298,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
 
     /// The fields the grid rebuild's sort carries with their particles.
     fn sorted_fields(&self) -> &'static [Field] {
+        // The leapfrog's forces travel with their particles too (the last three).
         const CARRIED: &[Field] = &[
-            Position,
-            Velocity,
-            Mass,
-            Density,
-            Pressure,
-            SoundSpeed,
-            Energy,
-            SmoothingLength,
-            Omega,
-        ];
-        const CARRIED_KDK: &[Field] = &[
             Position,
             Velocity,
             Mass,
@@ -324,9 +314,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             SignalSpeed,
         ];
         if self.stages.kdk {
-            CARRIED_KDK
-        } else {
             CARRIED
+        } else {
+            &CARRIED[..CARRIED.len() - 3]
         }
     }
 
