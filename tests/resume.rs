@@ -13,7 +13,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
     SERIAL.lock().unwrap_or_else(|e| e.into_inner())
 }
 use dustsph::particles::{Phase, State};
-use dustsph::run::{Run as Runner, RunOptions};
+use dustsph::run::{Run, RunOptions};
 use std::process::Command;
 
 fn bits(ph: &Phase) -> Vec<u64> {
@@ -57,13 +57,13 @@ fn resume_is_bit_exact(scene: &str, sets: &[&str], n: u64) {
         verbose: false,
         device: dustsph::step::backend::DeviceChoice::Cpu,
     };
-    let mut whole = Runner::start(&loaded, &opts("whole")).unwrap();
+    let mut whole = Run::start(&loaded, &opts("whole")).unwrap();
     whole.advance(Some(2 * n), None, None).unwrap();
-    let mut first = Runner::start(&loaded, &opts("split")).unwrap();
+    let mut first = Run::start(&loaded, &opts("split")).unwrap();
     first.advance(Some(n), None, None).unwrap();
     first.checkpoint().unwrap();
     drop(first);
-    let mut second = Runner::resume(
+    let mut second = Run::resume(
         &tmp.path().join("split"),
         false,
         dustsph::step::backend::DeviceChoice::Cpu,
@@ -191,7 +191,7 @@ fn checkpointed(scene: &str, sets: &[&str], dir: &std::path::Path, steps: u64) {
         verbose: false,
         device: dustsph::step::backend::DeviceChoice::Cpu,
     };
-    let mut r = Runner::start(&loaded, &opts).unwrap();
+    let mut r = Run::start(&loaded, &opts).unwrap();
     r.advance(Some(steps), None, None).unwrap();
     r.checkpoint().unwrap();
 }
