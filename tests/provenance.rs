@@ -40,7 +40,7 @@ fn a_ball_run_with_overrides_is_profiled_against_its_own_scene() {
     assert_eq!(h.source_text.as_deref(), Some(file_text.as_str()));
     // The effective scene parses, alone, to the overridden values.
     let scene = dustsph::scene::parse(&h.scene_text, &last, &[]).unwrap();
-    assert_eq!(scene.gas.p, Some(2.0));
+    assert_eq!(scene.ball().map(|b| b.background.p), Some(2.0));
     assert_eq!(scene.sph.n, 8);
 
     let summary: serde_json::Value =

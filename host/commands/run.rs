@@ -547,7 +547,7 @@ pub fn execute(a: RunArgs) -> u8 {
             return 2;
         }
     };
-    let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.scene.name));
+    let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.name));
     // Over MPI ranks only rank 0 speaks (and writes).
     let quiet = quiet || crate::dist::launched().is_some_and(|(r, _)| r != 0);
     if !quiet {
