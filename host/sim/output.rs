@@ -181,12 +181,14 @@ pub fn write_snapshot(
         g.e.is_none()
             .then(|| g.p.iter().zip(&g.ph.rho).map(|(p, r)| p / r).collect());
     let scene_file = loaded.path.display().to_string();
+    let model = loaded.scene.to_toml();
     let view = SnapshotView {
         time: state.t,
         dim,
         periodic: phys.domain.periodic,
         pad: dustsph_device::kernel::SUPPORT * h_max,
         scene_text: &loaded.effective,
+        scene_model: &model,
         source: io::SceneSource {
             file: &scene_file,
             text: &loaded.text,
