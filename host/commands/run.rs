@@ -536,11 +536,13 @@ pub fn execute(a: RunArgs) -> u8 {
         device,
         precision,
     } = a;
-    let mut set = set;
-    if let Some(p) = precision {
-        set.push(format!("numerics.precision=\"{}\"", p.name()));
-    }
-    let loaded = match crate::scene::load(&scene, &set) {
+    let loaded = crate::scene::load(&scene, &set).and_then(|mut l| {
+        if let Some(p) = precision {
+            l.set_precision(p)?;
+        }
+        Ok(l)
+    });
+    let loaded = match loaded {
         Ok(l) => l,
         Err(e) => {
             eprintln!("error: {e}");

@@ -67,6 +67,32 @@ impl LoadedScene {
             effective: effective_text(text, file, overrides)?,
         })
     }
+
+    /// `numerics.precision` set by a command-line option: the model's field, and the
+    /// option recorded as the override `numerics.precision="…"` (the last, so it wins over a
+    /// `--set` of the same key), so that the effective scene still says what ran.
+    pub fn set_precision(&mut self, p: Precision) -> Result<(), SceneError> {
+        self.record_option("numerics.precision", p.name())?;
+        self.scene.numerics.precision = p;
+        Ok(())
+    }
+
+    /// `numerics.neighbour_list` set by a command-line option, as [`Self::set_precision`].
+    pub fn set_neighbour_list(&mut self, l: ListChoice) -> Result<(), SceneError> {
+        self.record_option("numerics.neighbour_list", l.name())?;
+        self.scene.numerics.neighbour_list = l;
+        Ok(())
+    }
+
+    /// A command-line option's string value as the last override, and the effective scene
+    /// made again with it.
+    fn record_option(&mut self, key: &str, value: &str) -> Result<(), SceneError> {
+        let mut overrides = self.overrides.clone();
+        overrides.push(format!("{key}=\"{value}\""));
+        self.effective = effective_text(&self.text, &self.path, &overrides)?;
+        self.overrides = overrides;
+        Ok(())
+    }
 }
 
 /// The effective scene: the file's TOML table with every `--set` override applied, written
@@ -302,6 +328,27 @@ mod tests {
             let again = parse(&l.effective, Path::new(name), &[]).unwrap();
             assert_eq!(again, l.scene, "{name}");
         }
+    }
+
+    /// An option set on the model is recorded as an override: the effective scene parses to
+    /// the model that runs.
+    #[test]
+    fn options_set_the_model_and_the_effective_scene_alike() {
+        let mut l = load_shipped("configs/dustywave.toml", &["sph.n=16".into()]).unwrap();
+        l.set_precision(Precision::F32).unwrap();
+        l.set_neighbour_list(ListChoice::Off).unwrap();
+        assert_eq!(l.scene.numerics.precision, Precision::F32);
+        assert_eq!(l.scene.numerics.neighbour_list, ListChoice::Off);
+        assert_eq!(
+            l.overrides,
+            [
+                "sph.n=16",
+                "numerics.precision=\"f32\"",
+                "numerics.neighbour_list=\"off\""
+            ]
+        );
+        assert_eq!(parse(&l.effective, &l.path, &[]).unwrap(), l.scene);
+        assert!(l.scene.to_toml().contains("precision = \"f32\""));
     }
 
     /// The model says which rule each choice took, and what the file leaves to defaults.
