@@ -40,7 +40,7 @@ fn a_ball_run_with_overrides_is_profiled_against_its_own_scene() {
     assert_eq!(h.source_text.as_deref(), Some(file_text.as_str()));
     // The effective scene parses, alone, to the overridden values.
     let scene = dustsph::scene::parse(&h.scene_text, &last, &[]).unwrap();
-    assert_eq!(scene.gas.p, Some(2.0));
+    assert_eq!(scene.ball().map(|b| b.background.p), Some(2.0));
     assert_eq!(scene.sph.n, 8);
 
     let summary: serde_json::Value =
@@ -119,4 +119,88 @@ fn resume_refuses_snapshots_of_the_same_file_with_other_overrides() {
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("written by another run"), "{err}");
     assert_eq!(std::fs::read(a.join("snapshot_0000.h5")).unwrap(), before);
+}
+
+/// `--precision f32` sets the model's field and shows in what the outputs record: the
+/// snapshot's effective scene (which parses back to the f32 scene that ran), its overrides,
+/// its `SceneModel`, and the summary's `scene_model`.
+#[test]
+fn a_precision_option_shows_in_the_effective_scene_and_the_model() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("wave");
+    let out_s = out.display().to_string();
+    let o = dustsph(&[
+        "run",
+        "configs/dustywave.toml",
+        "--set",
+        "sph.n=16",
+        "--set",
+        "time.t_end=0.01",
+        "--set",
+        "time.output_dt=",
+        "--precision",
+        "f32",
+        "--out",
+        &out_s,
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let last = out.join("snapshot_0001.h5");
+    let h = dustsph::io::snapshot::read_header(&last).unwrap();
+    let scene = dustsph::scene::parse(&h.scene_text, &last, &[]).unwrap();
+    assert_eq!(scene.numerics.precision, dustsph::scene::Precision::F32);
+    assert!(
+        h.overrides
+            .as_ref()
+            .is_some_and(|o| o.last().map(String::as_str) == Some("numerics.precision=\"f32\"")),
+        "{:?}",
+        h.overrides
+    );
+    let model = h.scene_model.expect("the snapshot's SceneModel");
+    assert_eq!(model, scene.to_toml());
+    assert!(model.contains("precision = \"f32\""), "{model}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["scene_model"].as_str(), Some(model.as_str()));
+    assert_eq!(summary["precision"].as_str(), Some("f32"));
+}
+
+/// The resolved model in the outputs says which step rule ran: `--set time.cfl= --set
+/// time.dt=0.01` is a fixed step of 0.01, in the snapshots' `SceneModel` and the summary's
+/// `scene_model` alike.
+#[test]
+fn the_outputs_carry_the_model_with_the_step_rule_that_ran() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("wave");
+    let out_s = out.display().to_string();
+    let o = dustsph(&[
+        "run",
+        "configs/dustywave.toml",
+        "--set",
+        "sph.n=16",
+        "--set",
+        "time.t_end=0.02",
+        "--set",
+        "time.output_dt=",
+        "--set",
+        "time.cfl=",
+        "--set",
+        "time.dt=0.01",
+        "--out",
+        &out_s,
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let model = summary["scene_model"]
+        .as_str()
+        .expect("summary's scene_model");
+    assert!(model.contains("\ndt = 0.01\n"), "{model}");
+    assert!(!model.contains("cfl"), "{model}");
+    for snap in ["snapshot_0000.h5", "snapshot_0001.h5"] {
+        let h = dustsph::io::snapshot::read_header(&out.join(snap)).unwrap();
+        assert_eq!(h.scene_model.as_deref(), Some(model), "{snap}");
+    }
+    assert_eq!(summary["steps"].as_u64(), Some(2));
 }

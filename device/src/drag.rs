@@ -27,21 +27,25 @@ pub struct CellMeans<R> {
 }
 
 impl<R: Real> StoppingLaw<R> {
+    /// The law's stopping time t_k at a gas density, a dust density (the fraction's own) and
+    /// a gas sound speed: t_stop; ρ_d/K; s ρ_s/(ρ_g c_s). The one formula of each law, for
+    /// the drag's cell means ([`Self::cell_time`]) and the exact solutions alike. Not checked:
+    /// no dust (constant K) gives 0, no gas (Epstein) +∞ or less than 0.
+    #[inline(always)]
+    pub fn stopping_time(&self, rho_gas: R, rho_dust: R, cs_gas: R) -> R {
+        match *self {
+            StoppingLaw::ConstantTime { t_stop } => t_stop,
+            StoppingLaw::ConstantK { k } => rho_dust / k,
+            StoppingLaw::Epstein { s_rho } => s_rho / (rho_gas * cs_gas),
+        }
+    }
+
     /// Cell stopping time t_k*. Returns +∞-like `None` when the law cannot couple
-    /// (no dust density under constant K, no gas under Epstein): the caller then skips drag.
+    /// (no dust density under constant K, no gas under Epstein: a time that is not finite and
+    /// positive): the caller then skips drag.
     #[inline(always)]
     pub fn cell_time(&self, m: &CellMeans<R>) -> Option<R> {
-        let t = match *self {
-            StoppingLaw::ConstantTime { t_stop } => t_stop,
-            StoppingLaw::ConstantK { k } => m.rho_dust / k,
-            StoppingLaw::Epstein { s_rho } => {
-                let d = m.rho_gas * m.cs_gas;
-                if d <= R::ZERO {
-                    return None;
-                }
-                s_rho / d
-            }
-        };
+        let t = self.stopping_time(m.rho_gas, m.rho_dust, m.cs_gas);
         if t > R::ZERO && t.is_finite() {
             Some(t)
         } else {

@@ -9,7 +9,7 @@ use crate::exact::dustybox::DustyBox;
 use crate::exact::dustywave::WaveGas;
 use crate::exact::riemann::{DustyRiemann, Prim};
 use crate::particles::{Phase, State};
-use crate::scene::{BallCfg, BoxCfg, EosKind, LawKind, ProblemCfg, Scene, SettleCfg};
+use crate::scene::{BallCfg, BoxCfg, GasEos, GasState, ProblemCfg, Scene, SettleCfg};
 use crate::setup::dustywave;
 use norms::Norms;
 use serde::{Deserialize, Serialize};
@@ -40,28 +40,15 @@ impl ExactErrors {
     }
 }
 
-/// Per-fraction velocity of the dusty box at time t: (gas, dust).
+/// The dusty box's linear drag problem, and its initial gas and dust velocities.
 fn dustybox_model(scene: &Scene, b: &BoxCfg) -> (DustyBox, f64, Vec<f64>) {
-    let d = scene.dust.as_ref().expect("validated");
-    let rho = scene.gas.rho.expect("validated");
-    let eps: Vec<f64> = d.fractions.iter().map(|f| f.eps).collect();
-    let t_stop = d
-        .fractions
+    let bg = b.background;
+    let cs = scene.gas.eos.sound_speed(bg);
+    let fr = scene.fractions();
+    let eps: Vec<f64> = fr.iter().map(|f| f.eps).collect();
+    let t_stop = fr
         .iter()
-        .map(|f| match d.law {
-            LawKind::ConstantT => f.t_stop.or(d.t_stop).expect("validated"),
-            LawKind::ConstantK => f.eps * rho / f.k.expect("validated"),
-            LawKind::Epstein => {
-                let cs = match scene.gas.eos {
-                    EosKind::Isothermal => scene.gas.cs.expect("validated"),
-                    EosKind::Adiabatic => (scene.gas.gamma.expect("validated")
-                        * scene.gas.p.expect("validated")
-                        / rho)
-                        .sqrt(),
-                };
-                f.s_rho.expect("validated") / (rho * cs)
-            }
-        })
+        .map(|f| f.law.stopping_time(bg.rho, f.eps * bg.rho, cs))
         .collect();
     (DustyBox { eps, t_stop }, b.v_gas, b.u_dust.clone())
 }
@@ -190,7 +177,7 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
     match &scene.problem {
         ProblemCfg::Dustyball(b) => out.extend(ball_reference_errors(scene, b, state)),
         ProblemCfg::Dustybox(b) => {
-            let rho = scene.gas.rho.expect("validated");
+            let rho = b.background.rho;
             let (bx, v0, u0) = dustybox_model(scene, b);
             let eps = bx.eps.clone();
             let (vg, ud) = bx.exact(v0, &u0, t);
@@ -308,32 +295,20 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
         }
         ProblemCfg::Dustysettle(c) => out.push(settle_errors(scene, c, state)),
         ProblemCfg::Dustyshock(s) => {
-            let eps_k: Vec<f64> = scene
-                .dust
-                .as_ref()
-                .map_or(Vec::new(), |d| d.fractions.iter().map(|f| f.eps).collect());
+            let eps_k: Vec<f64> = scene.fractions().iter().map(|f| f.eps).collect();
             let eps: f64 = eps_k.iter().sum();
             let x0 = 0.5 * s.length;
-            let prim = |st: crate::scene::ShockState| Prim {
+            let prim = |st: GasState| Prim {
                 rho: st.rho,
                 u: 0.0,
-                p: st.p.unwrap_or(0.0),
+                p: st.p,
             };
             let sol = match scene.gas.eos {
-                EosKind::Adiabatic => DustyRiemann::ideal(
-                    prim(s.left),
-                    prim(s.right),
-                    eps,
-                    scene.gas.gamma.expect("validated"),
-                ),
-                EosKind::Isothermal => {
-                    let cs = scene.gas.cs.expect("validated");
-                    let pr = |st: crate::scene::ShockState| Prim {
-                        rho: st.rho,
-                        u: 0.0,
-                        p: cs * cs * st.rho,
-                    };
-                    DustyRiemann::isothermal(pr(s.left), pr(s.right), eps, cs)
+                GasEos::Adiabatic { gamma } => {
+                    DustyRiemann::ideal(prim(s.left), prim(s.right), eps, gamma)
+                }
+                GasEos::Isothermal { cs } => {
+                    DustyRiemann::isothermal(prim(s.left), prim(s.right), eps, cs)
                 }
             };
             if let Some(sol) = sol {
@@ -366,18 +341,8 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
 /// dust velocities relative to their exact values (u_dk: (u − u_term)/|u_term|), the gas
 /// velocity in units of the largest terminal speed in the column.
 fn settle_errors(scene: &Scene, c: &SettleCfg, state: &State) -> ExactErrors {
-    use crate::exact::settle::Law;
-    let col = crate::setup::dustysettle::column(scene);
-    let d = scene.dust.as_ref().expect("validated");
-    let laws: Vec<Law> = d
-        .fractions
-        .iter()
-        .map(|f| match d.law {
-            LawKind::ConstantT => Law::ConstantT(f.t_stop.or(d.t_stop).unwrap_or(f64::INFINITY)),
-            LawKind::ConstantK => Law::ConstantK(f.k.unwrap_or(0.0)),
-            LawKind::Epstein => Law::Epstein(f.s_rho.unwrap_or(f64::INFINITY)),
-        })
-        .collect();
+    let col = crate::setup::dustysettle::column(scene, c);
+    let laws: Vec<_> = scene.fractions().iter().map(|f| f.law).collect();
     let h = crate::setup::dustysettle::smoothing(scene, c).0;
     // Away from the walls: the middle 60% of the column (sound from the walls needs 0.2 L/c_s
     // to get there) and at least 4h from either end.
@@ -458,19 +423,15 @@ const BALL_REFERENCE_ZONES: usize = 2000;
 /// limit is outside the reference).
 pub fn ball_reference(scene: &Scene, t: f64) -> Option<radial::RadialCurve> {
     let b = scene.ball()?;
-    if scene.gas.eos != EosKind::Adiabatic {
+    let GasEos::Adiabatic { gamma } = scene.gas.eos else {
         return None;
-    }
-    let rho = scene.gas.rho?;
-    let eps: f64 = scene
-        .dust
-        .as_ref()
-        .map_or(0.0, |d| d.fractions.iter().map(|f| f.eps).sum());
+    };
+    let eps: f64 = scene.fractions().iter().map(|f| f.eps).sum();
     let prob = spherical::BallProblem {
-        rho_gas: rho,
-        rho_dust: eps * rho,
-        p: scene.gas.p?,
-        gamma: scene.gas.gamma?,
+        rho_gas: b.background.rho,
+        rho_dust: eps * b.background.rho,
+        p: b.background.p,
+        gamma,
         radius: b.radius,
     };
     Some(spherical::equilibrium_ball_in(

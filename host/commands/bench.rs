@@ -222,13 +222,12 @@ pub fn execute(a: BenchArgs) -> u8 {
     let mut where_ = String::new();
     for (name, file, sets) in cases {
         let name = name.as_str();
-        let mut sets = sets;
-        sets.push(format!("numerics.precision=\"{}\"", precision.name()));
-        sets.push(format!(
-            "numerics.neighbour_list=\"{}\"",
-            neighbour_list.name()
-        ));
-        let loaded = match crate::scene::load_shipped(file, &sets) {
+        let loaded = crate::scene::load_shipped(file, &sets).and_then(|mut l| {
+            l.set_precision(precision)?;
+            l.set_neighbour_list(neighbour_list)?;
+            Ok(l)
+        });
+        let loaded = match loaded {
             Ok(l) => l,
             Err(e) => {
                 eprintln!("error: {e}");

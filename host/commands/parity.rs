@@ -500,9 +500,12 @@ pub fn execute(a: ParityArgs) -> u8 {
     }
     let mut all_ok = true;
     for (label, file, sets, steps) in crate::parity::CASES {
-        let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-        sets.push(format!("numerics.precision=\"{}\"", precision.name()));
-        let loaded = match crate::scene::load_shipped(file, &sets) {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        let loaded = crate::scene::load_shipped(file, &sets).and_then(|mut l| {
+            l.set_precision(precision)?;
+            Ok(l)
+        });
+        let loaded = match loaded {
             Ok(l) => l,
             Err(e) => {
                 eprintln!("error: {e}");

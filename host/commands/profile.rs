@@ -174,7 +174,7 @@ pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
     );
     let name = scene
         .as_ref()
-        .map_or("snapshot".to_string(), |s| s.scene.name.clone());
+        .map_or("snapshot".to_string(), |s| s.name.clone());
     let title = format!("{name}, t = {:.4}", snap.time);
     let mut files = Vec::new();
     let csv = sibling(path, "profile.csv");
@@ -195,7 +195,7 @@ pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
     plot::fig_scatter_xy(&f, &snap, h, &title)?;
     files.push(f);
     let (errors, symmetry) = match &scene {
-        Some(s) if s.scene.problem == Problem::Dustyball => {
+        Some(s) if s.kind() == Problem::Dustyball => {
             let state = state_from_snapshot(&snap);
             let r0 = s.ball().map_or(1.0, |b| b.radius);
             (exact_errors(s, &state, None), symmetry(&snap, r0))

@@ -532,18 +532,20 @@ pub fn execute(a: RunArgs) -> u8 {
         device,
         precision,
     } = a;
-    let mut set = set;
-    if let Some(p) = precision {
-        set.push(format!("numerics.precision=\"{}\"", p.name()));
-    }
-    let loaded = match crate::scene::load(&scene, &set) {
+    let loaded = crate::scene::load(&scene, &set).and_then(|mut l| {
+        if let Some(p) = precision {
+            l.set_precision(p)?;
+        }
+        Ok(l)
+    });
+    let loaded = match loaded {
         Ok(l) => l,
         Err(e) => {
             eprintln!("error: {e}");
             return 2;
         }
     };
-    let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.scene.name));
+    let out = out.unwrap_or_else(|| PathBuf::from("output").join(&loaded.scene.name));
     // Over MPI ranks only rank 0 speaks (and writes).
     let quiet = quiet || crate::dist::launched().is_some_and(|(r, _)| r != 0);
     if !quiet {

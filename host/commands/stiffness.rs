@@ -451,13 +451,11 @@ pub fn run_case(case: &Case) -> CaseReport {
 fn prepare_case(
     case: &Case,
     rep: &mut CaseReport,
-) -> Option<(Physics, State, crate::scene::TimeCfg, Option<Scene>)> {
-    let fixed = |t_end: f64, dt: f64| crate::scene::TimeCfg {
+) -> Option<(Physics, State, crate::scene::Time, Option<Scene>)> {
+    let fixed = |t_end: f64, dt: f64| crate::scene::Time {
         t_end,
-        dt: Some(dt),
-        cfl: None,
-        output_dt: None,
-        output_times: None,
+        step: crate::scene::StepRule::Fixed { dt },
+        output: crate::scene::OutputSchedule::EndOnly,
         position_update: PositionUpdate::New,
         integrator: crate::scene::Integrator::FirstOrder,
     };
@@ -509,7 +507,7 @@ fn run_checked(
     rep: &mut CaseReport,
     phys: Physics,
     state: State,
-    time: &crate::scene::TimeCfg,
+    time: &crate::scene::Time,
     (explicit_limit, t_min): (f64, f64),
 ) -> Option<Simulation> {
     let t_end = time.t_end;
@@ -570,7 +568,7 @@ fn check_final_state(rep: &mut CaseReport, sim: &mut Simulation) -> Option<()> {
 
 /// Against the exact solution: the wave's amplitude, the box's discrete IDIC oracle.
 fn check_exact(rep: &mut CaseReport, sc: &Scene, state: &State) {
-    let errs = analysis::exact_errors(sc, state, sc.time.dt);
+    let errs = analysis::exact_errors(sc, state, sc.time.fixed_dt());
     // Box velocity norms are relative to the slip (to 1e-300 without slip): rescale those to
     // the largest of slip, velocity scale and 1, as for the oracle check below.
     let vel_factor = match &sc.problem {

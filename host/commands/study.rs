@@ -590,7 +590,7 @@ fn check_metric_fields(
             Some("study.scene".into()),
             format!(
                 "problem `{}` has no exact solution to measure errors against",
-                first.scene.problem.name()
+                first.kind().name()
             ),
         ));
     }
@@ -705,7 +705,7 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
     if let Err(e) = sim.refresh_dust_density() {
         return fail(out, e.to_string());
     }
-    out.errors = analysis::exact_errors(scene, &sim.state, scene.time.dt);
+    out.errors = analysis::exact_errors(scene, &sim.state, scene.time.fixed_dt());
     out.momentum_drift = sim.diagnostics.momentum_drift();
     out.total_s = t0.elapsed().as_secs_f64();
     out

@@ -6,6 +6,7 @@
 //! and drag only), so u_k − v = −g t_k; the gas carries the dust's weight through the drag,
 //! 0 = −∂p/∂x/ρ_g − g − Σ_k ε_k g, hence ρ_g(x) = ρ_0 exp(−x/H) with H = c_s²/((1 + Σε) g).
 //! Valid while t_k is short against the settling time (the ε_k stay uniform).
+use dustsph_device::drag::StoppingLaw;
 
 /// The column: base density, isothermal sound speed, gravity and the dust-to-gas ratios.
 #[derive(Debug, Clone)]
@@ -14,16 +15,6 @@ pub struct SettleColumn {
     pub cs: f64,
     pub g: f64,
     pub eps: Vec<f64>,
-}
-
-/// Stopping-time law of a fraction, as the scene gives it.
-#[derive(Debug, Clone, Copy)]
-pub enum Law {
-    ConstantT(f64),
-    /// t = ρ_k/K with ρ_k = ε_k ρ_g.
-    ConstantK(f64),
-    /// t = s ρ_s /(ρ_g c_s) (the authors' Epstein form, method.md §1.2).
-    Epstein(f64),
 }
 
 impl SettleColumn {
@@ -48,17 +39,15 @@ impl SettleColumn {
         -h * (1.0 - m / (self.rho0 * h)).ln()
     }
 
-    pub fn t_stop(&self, k: usize, law: Law, x: f64) -> f64 {
+    /// Stopping time of fraction k at height x: the law ([`StoppingLaw::stopping_time`]) at
+    /// the gas density there, the fraction's density ε_k ρ_g and c_s.
+    pub fn t_stop(&self, k: usize, law: StoppingLaw<f64>, x: f64) -> f64 {
         let rho = self.rho_gas(x);
-        match law {
-            Law::ConstantT(t) => t,
-            Law::ConstantK(kd) => self.eps[k] * rho / kd,
-            Law::Epstein(s_rho) => s_rho / (rho * self.cs),
-        }
+        law.stopping_time(rho, self.eps[k] * rho, self.cs)
     }
 
     /// Terminal velocity of fraction k at height x (the gas is at rest): −g t_k(x).
-    pub fn u_terminal(&self, k: usize, law: Law, x: f64) -> f64 {
+    pub fn u_terminal(&self, k: usize, law: StoppingLaw<f64>, x: f64) -> f64 {
         -self.g * self.t_stop(k, law, x)
     }
 }
@@ -84,7 +73,7 @@ mod tests {
         let want = -(1.04) * c.rho_gas(x) * c.g;
         assert!((dpdx / want - 1.0).abs() < 1e-8, "{dpdx} vs {want}");
         // Epstein: t ∝ 1/ρ_g, so the fall speeds up with height by e^{x/H}.
-        let law = Law::Epstein(1e-3);
+        let law = StoppingLaw::Epstein { s_rho: 1e-3 };
         let r = c.u_terminal(0, law, 1.0) / c.u_terminal(0, law, 0.0);
         assert!((r - (1.0 / c.scale_height()).exp()).abs() < 1e-12);
     }

@@ -110,6 +110,9 @@ pub struct SnapshotView<'a> {
     /// The effective scene as TOML (the file with its `--set` overrides applied): the
     /// `Scene` attribute every reader parses.
     pub scene_text: &'a str,
+    /// The resolved scene model as TOML (`Scene::to_toml`: every default applied): the
+    /// `SceneModel` attribute, for readers; `Scene` is what parses back to the run.
+    pub scene_model: &'a str,
     /// Where the effective scene came from.
     pub source: SceneSource<'a>,
     pub gas: Option<PhaseView<'a>>,
@@ -331,6 +334,7 @@ fn validate(path: &Path, snap: &SnapshotView) -> Result<SceneTexts, IoError> {
         .map_err(|e| IoError::invalid(path, format!("overrides cannot be stored: {e}")))?;
     Ok(SceneTexts {
         effective: text(snap.scene_text)?,
+        model: text(snap.scene_model)?,
         file: text(snap.source.file)?,
         file_text: text(snap.source.text)?,
         overrides: text(&overrides)?,
@@ -340,6 +344,7 @@ fn validate(path: &Path, snap: &SnapshotView) -> Result<SceneTexts, IoError> {
 /// The Header's scene attributes, checked storable before the file is touched.
 struct SceneTexts {
     effective: VarLenUnicode,
+    model: VarLenUnicode,
     file: VarLenUnicode,
     file_text: VarLenUnicode,
     overrides: VarLenUnicode,
@@ -435,6 +440,7 @@ fn write_header(
     put_scalar(&g, "Code", &code, path)?;
     // The scene as run (what readers parse), and how it was made.
     put_scalar(&g, "Scene", &scene.effective, path)?;
+    put_scalar(&g, "SceneModel", &scene.model, path)?;
     put_scalar(&g, "SceneFile", &scene.file, path)?;
     put_scalar(&g, "SceneFileText", &scene.file_text, path)?;
     put_scalar(&g, "SceneOverrides", &scene.overrides, path)?;
@@ -536,6 +542,8 @@ pub struct SnapshotHeader {
     /// the Header recorded them, whose `Scene` is the file's text alone).
     pub source_text: Option<String>,
     pub overrides: Option<Vec<String>>,
+    /// The resolved scene model (`SceneModel`; None in snapshots written before it).
+    pub scene_model: Option<String>,
     pub num_part: [u64; 6],
 }
 
@@ -569,6 +577,10 @@ fn open_header(path: &Path) -> Result<(File, SnapshotHeader), IoError> {
                         IoError::invalid(path, format!("/Header/SceneOverrides: {e}"))
                     })?)
                 }
+                Err(_) => None,
+            },
+            scene_model: match header.attr("SceneModel") {
+                Ok(_) => Some(get_string(&header, "SceneModel", path)?),
                 Err(_) => None,
             },
             num_part: get_counts(&header, "NumPart_Total", path)?,
@@ -794,6 +806,7 @@ mod tests {
 
     const SCENE: &str = "# Schéma de test — poussière\n[gas]\nname = \"gaz ρ₀\"\ngamma = 1.4\n\n\
                          [[dust]]\nsize = \"1 µm\"  # ✓ ünïcödé\n";
+    const MODEL: &str = "[gas]\neos = \"adiabatic\"\ngamma = 1.4 # γ\n";
 
     fn bits(v: &[f64]) -> Vec<u64> {
         v.iter().map(|x| x.to_bits()).collect()
@@ -866,6 +879,7 @@ mod tests {
             periodic: [None; 3],
             pad: 0.25,
             scene_text: SCENE,
+            scene_model: MODEL,
             source: SceneSource::default(),
             gas,
             dust,
@@ -1058,6 +1072,13 @@ mod tests {
         assert_eq!(shape("Scene"), Vec::<usize>::new());
         let scene: VarLenUnicode = h.attr("Scene").unwrap().read_scalar().unwrap();
         assert_eq!(scene.as_str(), SCENE);
+        assert_eq!(desc("SceneModel"), T::VarLenUnicode);
+        let model: VarLenUnicode = h.attr("SceneModel").unwrap().read_scalar().unwrap();
+        assert_eq!(model.as_str(), MODEL);
+        assert_eq!(
+            read_header(&path).unwrap().scene_model.as_deref(),
+            Some(MODEL)
+        );
         // The yt-compatibility extras.
         for (n, want) in [
             ("Redshift", 0.0),

@@ -456,6 +456,7 @@ mod tests {
             periodic: [None; 3],
             pad: 0.5,
             scene_text: "",
+            scene_model: "",
             source: Default::default(),
             gas,
             dust,

@@ -1,13 +1,20 @@
-//! Scene files: TOML → validated [`Scene`].
+//! Scene files: TOML → the resolved [`Scene`] model.
 //!
-//! Every key is checked before any output is written. Errors name the file and the dotted key
-//! (`gas.gamma`, `dust.fractions.1.t_stop`, ...). `--set key=value` overrides are applied to
-//! the parsed table before validation, so they are checked exactly like file keys.
+//! Three layers: the file as written ([`file`]: serde structs mirroring the TOML), its checks
+//! and defaults (`resolve.rs`: [`Scene::from_file`]), and the model every run is made of
+//! ([`model`]: enums in place of the file's optional keys). Every key is checked before any
+//! output is written. Errors name the file and the dotted key (`gas.gamma`,
+//! `dust.fractions.1.t_stop`, ...). `--set key=value` overrides are applied to the parsed table
+//! before validation, so they are checked exactly like file keys.
+pub mod file;
+pub mod model;
 mod overrides;
-mod types;
+mod resolve;
 
+pub use file::*;
+pub use model::*;
 pub use overrides::apply_override;
-pub use types::*;
+pub use resolve::{num, MAX_FIXED_STEPS};
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -59,6 +66,32 @@ impl LoadedScene {
             overrides: overrides.to_vec(),
             effective: effective_text(text, file, overrides)?,
         })
+    }
+
+    /// `numerics.precision` set by a command-line option: the model's field, and the
+    /// option recorded as the override `numerics.precision="…"` (the last, so it wins over a
+    /// `--set` of the same key), so that the effective scene still says what ran.
+    pub fn set_precision(&mut self, p: Precision) -> Result<(), SceneError> {
+        self.record_option("numerics.precision", p.name())?;
+        self.scene.numerics.precision = p;
+        Ok(())
+    }
+
+    /// `numerics.neighbour_list` set by a command-line option, as [`Self::set_precision`].
+    pub fn set_neighbour_list(&mut self, l: ListChoice) -> Result<(), SceneError> {
+        self.record_option("numerics.neighbour_list", l.name())?;
+        self.scene.numerics.neighbour_list = l;
+        Ok(())
+    }
+
+    /// A command-line option's string value as the last override, and the effective scene
+    /// made again with it.
+    fn record_option(&mut self, key: &str, value: &str) -> Result<(), SceneError> {
+        let mut overrides = self.overrides.clone();
+        overrides.push(format!("{key}=\"{value}\""));
+        self.effective = effective_text(&self.text, &self.path, &overrides)?;
+        self.overrides = overrides;
+        Ok(())
     }
 }
 
@@ -179,7 +212,7 @@ pub fn load_shipped(name: &str, overrides: &[String]) -> Result<LoadedScene, Sce
 }
 
 /// Keys with a default that some scenes do not use, and why a scene does not (None: used).
-type Unused = fn(&types::SceneFile) -> Option<&'static str>;
+type Unused = fn(&Scene) -> Option<&'static str>;
 const UNUSED_UNLESS: [(&str, Unused); 5] = [
     ("sph.alpha", unused_without_viscosity),
     ("sph.beta", unused_without_viscosity),
@@ -188,12 +221,13 @@ const UNUSED_UNLESS: [(&str, Unused); 5] = [
     ("dustybox.lattice", unused_in_1d),
 ];
 
-fn unused_without_viscosity(f: &types::SceneFile) -> Option<&'static str> {
-    (!f.sph.viscosity).then_some("used only with artificial viscosity (sph.viscosity = true)")
+fn unused_without_viscosity(s: &Scene) -> Option<&'static str> {
+    (s.sph.viscosity.is_none())
+        .then_some("used only with artificial viscosity (sph.viscosity = true)")
 }
 
-fn unused_in_1d(f: &types::SceneFile) -> Option<&'static str> {
-    (f.scene.dim == 1).then_some("2D/3D only: a 1D run is a uniform line of particles")
+fn unused_in_1d(s: &Scene) -> Option<&'static str> {
+    (s.dim == 1).then_some("2D/3D only: a 1D run is a uniform line of particles")
 }
 
 /// Parse scene text (with `--set` overrides) and validate it; `file` is used in messages.
@@ -233,15 +267,16 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
     }
     // Keys with defaults cannot tell "not given" after deserialising: note which were given
     // of those that some scenes do not use (checked after validation, below).
-    let given: Vec<&str> = UNUSED_UNLESS
+    let given: Vec<(&str, Unused)> = UNUSED_UNLESS
         .iter()
-        .map(|&(k, _)| k)
-        .filter(|k| {
-            let (section, key) = k.split_once('.').expect("section.key");
-            table
-                .get(section)
-                .and_then(|t| t.as_table())
-                .is_some_and(|t| t.contains_key(key))
+        .copied()
+        .filter(|(k, _)| {
+            k.split_once('.').is_some_and(|(section, key)| {
+                table
+                    .get(section)
+                    .and_then(|t| t.as_table())
+                    .is_some_and(|t| t.contains_key(key))
+            })
         })
         .collect();
     let value = toml::Value::Table(table);
@@ -261,16 +296,80 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         };
         err(key, msg)
     })?;
-    file.validate().map_err(|(key, msg)| err(Some(key), msg))?;
+    let scene = Scene::from_file(&file).map_err(|(key, msg)| err(Some(key), msg))?;
     // A key given but not used would silently not do what its author meant.
-    for k in given {
-        let (_, why) = UNUSED_UNLESS.iter().find(|(u, _)| *u == k).expect("listed");
-        if let Some(why) = why(&file) {
+    for (k, why) in given {
+        if let Some(why) = why(&scene) {
             return Err(err(
                 Some(k.to_string()),
                 format!("{why} (remove it: --set {k}=)"),
             ));
         }
     }
-    Ok(Scene::from_file(file))
+    Ok(scene)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dustsph_device::drag::StoppingLaw;
+
+    /// Every shipped scene: the model is written as TOML, and its effective scene parses back
+    /// to the same model.
+    #[test]
+    fn shipped_scenes_write_their_model_and_parse_back() {
+        for (name, _) in SHIPPED {
+            let l = load_shipped(name, &[]).unwrap();
+            let toml = l.scene.to_toml();
+            assert!(toml.starts_with("[scene]\n"), "{name}:\n{toml}");
+            assert!(!toml.contains("cannot be written"), "{name}:\n{toml}");
+            let table: toml::Table = toml.parse().unwrap();
+            assert!(table.contains_key(l.scene.kind().name()), "{name}:\n{toml}");
+            let again = parse(&l.effective, Path::new(name), &[]).unwrap();
+            assert_eq!(again, l.scene, "{name}");
+        }
+    }
+
+    /// An option set on the model is recorded as an override: the effective scene parses to
+    /// the model that runs.
+    #[test]
+    fn options_set_the_model_and_the_effective_scene_alike() {
+        let mut l = load_shipped("configs/dustywave.toml", &["sph.n=16".into()]).unwrap();
+        l.set_precision(Precision::F32).unwrap();
+        l.set_neighbour_list(ListChoice::Off).unwrap();
+        assert_eq!(l.scene.numerics.precision, Precision::F32);
+        assert_eq!(l.scene.numerics.neighbour_list, ListChoice::Off);
+        assert_eq!(
+            l.overrides,
+            [
+                "sph.n=16",
+                "numerics.precision=\"f32\"",
+                "numerics.neighbour_list=\"off\""
+            ]
+        );
+        assert_eq!(parse(&l.effective, &l.path, &[]).unwrap(), l.scene);
+        assert!(l.scene.to_toml().contains("precision = \"f32\""));
+    }
+
+    /// The model says which rule each choice took, and what the file leaves to defaults.
+    #[test]
+    fn the_model_resolves_rules_and_defaults() {
+        let sets = ["time.cfl=".to_string(), "time.dt=0.01".to_string()];
+        let l = load_shipped("configs/dustywave.toml", &sets).unwrap();
+        assert_eq!(l.scene.time.step, StepRule::Fixed { dt: 0.01 });
+        let toml = l.scene.to_toml();
+        assert!(toml.contains("\ndt = 0.01\n"), "{toml}");
+        assert!(!toml.contains("cfl"), "{toml}");
+        // dust.t_stop fills in for a fraction that gives none.
+        let sets = ["dust.fractions.0.t_stop=".into(), "dust.t_stop=0.25".into()];
+        let l = load_shipped("configs/dustybox.toml", &sets).unwrap();
+        let laws: Vec<_> = l.scene.fractions().iter().map(|f| f.law).collect();
+        assert_eq!(laws[0], StoppingLaw::ConstantTime { t_stop: 0.25 });
+        assert_eq!(laws[1], StoppingLaw::ConstantTime { t_stop: 0.215443 });
+        assert!(l.scene.to_toml().contains("t_stop = 0.25\n"));
+        // The isothermal background's pressure is c_s² ρ; viscosity off is no viscosity.
+        assert_eq!(l.scene.problem.background().map(|b| b.p), Some(1.0));
+        assert_eq!(l.scene.sph.viscosity, None);
+        assert_eq!(l.scene.idic.coupling, Coupling::Cell);
+    }
 }

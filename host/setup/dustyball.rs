@@ -5,8 +5,7 @@ use super::*;
 
 pub(super) fn build(scene: &Scene, b: &crate::scene::BallCfg) -> Result<Setup, SetupError> {
     let dim = scene.dim();
-    let rho = scene.gas.rho.expect("validated");
-    let p = scene.gas.p.unwrap_or(0.0);
+    let rho = b.background.rho;
     let dx = 1.0 / scene.sph.n as f64;
     let h = smoothing_length(scene, dx);
     let nmax_f = (b.radius / dx).floor();
@@ -50,7 +49,7 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BallCfg) -> Result<Setup, S
         id: (0..n as u64).collect(),
         fixed: None,
     };
-    let e = internal_energy(scene, rho, p).map(|e| vec![e; n]);
+    let e = internal_energy(scene, b.background).map(|e| vec![e; n]);
     let dust = co_located_dust(scene, &gas, |_| [0.0; 3]);
     Ok(Setup::at_start(
         gas_phase(gas, e),

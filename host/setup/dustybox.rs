@@ -4,7 +4,7 @@ use crate::scene::Lattice;
 
 pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, SetupError> {
     let dim = scene.dim();
-    let rho = scene.gas.rho.expect("validated");
+    let rho = b.background.rho;
     let n_f = (scene.sph.n as f64 * b.length).round().max(2.0);
     super::check_size(
         n_f.powi(dim as i32),
@@ -56,7 +56,7 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
         id: (0..n as u64).collect(),
         fixed: None,
     };
-    let e = internal_energy(scene, rho, scene.gas.p.unwrap_or(0.0)).map(|e| vec![e; n]);
+    let e = internal_energy(scene, b.background).map(|e| vec![e; n]);
     let mut dust = co_located_dust(scene, &gas, |k| [b.u_dust[k], 0.0, 0.0]);
     // dust_shift: the dust lattice offset by that many spacings along every axis (wrapped).
     for d in &mut dust {

@@ -8,29 +8,26 @@ use crate::exact::settle::SettleColumn;
 use crate::scene::SettleCfg;
 
 /// The exact column of a settle scene.
-pub fn column(scene: &Scene) -> SettleColumn {
+pub fn column(scene: &Scene, c: &SettleCfg) -> SettleColumn {
     SettleColumn {
-        rho0: scene.gas.rho.expect("validated"),
-        cs: scene.gas.cs.expect("validated"),
+        rho0: c.background.rho,
+        cs: c.cs,
         g: -scene.external.gas[0],
-        eps: scene
-            .dust
-            .as_ref()
-            .map_or(Vec::new(), |d| d.fractions.iter().map(|f| f.eps).collect()),
+        eps: scene.fractions().iter().map(|f| f.eps).collect(),
     }
 }
 
 /// The column's smoothing length and its top spacing: h refers to the coarsest spacing inside
 /// the column (the top), so every particle has enough neighbours.
 pub fn smoothing(scene: &Scene, c: &SettleCfg) -> (f64, f64) {
-    let col = column(scene);
+    let col = column(scene, c);
     let len = c.height;
     let top_spacing = col.rho0 / (scene.sph.n as f64 * col.rho_gas(len));
     (smoothing_length(scene, top_spacing), top_spacing)
 }
 
 pub(super) fn build(scene: &Scene, c: &SettleCfg) -> Result<Setup, SetupError> {
-    let col = column(scene);
+    let col = column(scene, c);
     let len = c.height;
     // Equal masses: sph.n particles per unit length at the base.
     let dx0 = 1.0 / scene.sph.n as f64;
@@ -75,7 +72,6 @@ pub(super) fn build(scene: &Scene, c: &SettleCfg) -> Result<Setup, SetupError> {
         id: (0..n as u64).collect(),
         fixed: Some(fixed),
     };
-    let d = scene.dust.as_ref().expect("validated");
     let xd: Vec<[f64; 3]> = (i_lo..i_hi)
         .map(|i| {
             [
@@ -87,8 +83,8 @@ pub(super) fn build(scene: &Scene, c: &SettleCfg) -> Result<Setup, SetupError> {
         .filter(|p| p[0] > 0.0 && p[0] < len)
         .collect();
     let nd = xd.len();
-    let dust = d
-        .fractions
+    let dust = scene
+        .fractions()
         .iter()
         .enumerate()
         .map(|(k, f)| Phase {

@@ -62,18 +62,14 @@ pub(super) fn build(scene: &Scene, s: &crate::scene::ShockCfg) -> Result<Setup, 
         id: (0..n as u64).collect(),
         fixed: Some(fixed),
     };
-    let e = match scene.gas.eos {
-        crate::scene::EosKind::Isothermal => None,
-        crate::scene::EosKind::Adiabatic => Some(
+    let e = internal_energy(scene, s.left)
+        .zip(internal_energy(scene, s.right))
+        .map(|(e_l, e_r)| {
             side_left
                 .iter()
-                .map(|&l| {
-                    let st = if l { s.left } else { s.right };
-                    internal_energy(scene, st.rho, st.p.unwrap_or(0.0)).unwrap_or(0.0)
-                })
-                .collect(),
-        ),
-    };
+                .map(|&l| if l { e_l } else { e_r })
+                .collect()
+        });
     let dust = co_located_dust(scene, &gas, |_| [0.0; 3]);
     Ok(Setup::at_start(
         gas_phase(gas, e),

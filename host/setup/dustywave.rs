@@ -4,44 +4,26 @@
 use super::*;
 use crate::exact::complex::C;
 use crate::exact::dustywave::{LinearWave, WaveAmplitudes, WaveGas};
-use crate::scene::{Lattice, LawKind, WaveCfg, WaveMode};
+use crate::scene::{GasEos, Lattice, WaveCfg, WaveMode};
 
 /// The linear model of the scene (background state, linear stopping times).
 pub fn model(scene: &Scene, w: &WaveCfg) -> LinearWave {
-    let rho_g0 = scene.gas.rho.expect("validated");
-    let (gas, cs0) = match scene.gas.eos {
-        EosKind::Isothermal => {
-            let cs = scene.gas.cs.expect("validated");
-            (WaveGas::Isothermal { cs }, cs)
-        }
-        EosKind::Adiabatic => {
-            let (gamma, p0) = (
-                scene.gas.gamma.expect("validated"),
-                scene.gas.p.expect("validated"),
-            );
-            (
-                WaveGas::Adiabatic { gamma, p0 },
-                (gamma * p0 / rho_g0).sqrt(),
-            )
-        }
+    let bg = w.background;
+    let rho_g0 = bg.rho;
+    let gas = match scene.gas.eos {
+        GasEos::Isothermal { cs } => WaveGas::Isothermal { cs },
+        GasEos::Adiabatic { gamma } => WaveGas::Adiabatic { gamma, p0: bg.p },
     };
-    let (rho_d0, t_stop) = match &scene.dust {
-        Some(d) => d
-            .fractions
-            .iter()
-            .map(|f| {
-                let rho = f.eps * rho_g0;
-                // Linear theory: drag perturbations of t are second order.
-                let t = match d.law {
-                    LawKind::ConstantT => f.t_stop.or(d.t_stop).expect("validated"),
-                    LawKind::ConstantK => rho / f.k.expect("validated"),
-                    LawKind::Epstein => f.s_rho.expect("validated") / (rho_g0 * cs0),
-                };
-                (rho, t)
-            })
-            .unzip(),
-        None => (Vec::new(), Vec::new()),
-    };
+    let cs0 = scene.gas.eos.sound_speed(bg);
+    let (rho_d0, t_stop) = scene
+        .fractions()
+        .iter()
+        .map(|f| {
+            let rho = f.eps * rho_g0;
+            // Linear theory: drag perturbations of t are second order.
+            (rho, f.law.stopping_time(rho_g0, rho, cs0))
+        })
+        .unzip();
     LinearWave {
         rho_g0,
         gas,

@@ -7,7 +7,7 @@ pub mod dustywave;
 
 use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
-use crate::scene::{EosKind, ProblemCfg, Scene};
+use crate::scene::{GasState, ProblemCfg, Scene};
 
 /// Initial state plus the resolved resolution-dependent quantities.
 #[derive(Debug, Clone)]
@@ -124,10 +124,7 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
 
 /// h from `sph.h` or `sph.hfact × spacing`.
 pub(crate) fn smoothing_length(scene: &Scene, spacing: f64) -> f64 {
-    scene
-        .sph
-        .h
-        .unwrap_or_else(|| scene.sph.hfact.unwrap_or(1.2) * spacing)
+    scene.sph.smoothing.h(spacing)
 }
 
 /// Periodic boxes must hold the kernel support twice over, so minimum-image pairs are unique.
@@ -145,12 +142,9 @@ pub(crate) fn check_periodic_fits(length: f64, h: f64, len_key: &str) -> Result<
     Ok(())
 }
 
-/// Specific internal energy for adiabatic gas of pressure p and density ρ.
-pub(crate) fn internal_energy(scene: &Scene, rho: f64, p: f64) -> Option<f64> {
-    match scene.gas.eos {
-        EosKind::Isothermal => None,
-        EosKind::Adiabatic => Some(p / ((scene.gas.gamma.unwrap_or(5.0 / 3.0) - 1.0) * rho)),
-    }
+/// Specific internal energy for adiabatic gas in the state `st` (`None`: isothermal).
+pub(crate) fn internal_energy(scene: &Scene, st: GasState) -> Option<f64> {
+    scene.gas.eos.internal_energy(st)
 }
 
 /// Assemble a gas phase; `e` only for adiabatic gas.
@@ -176,20 +170,19 @@ pub(crate) fn co_located_dust(
     u: impl Fn(usize) -> [f64; 3],
 ) -> Vec<Phase> {
     let n = gas.len() as u64;
-    scene.dust.as_ref().map_or_else(Vec::new, |d| {
-        d.fractions
-            .iter()
-            .enumerate()
-            .map(|(k, f)| Phase {
-                x: gas.x.clone(),
-                v: vec![u(k); gas.len()],
-                m: gas.m.iter().map(|m| f.eps * m).collect(),
-                rho: gas.rho.iter().map(|r| f.eps * r).collect(),
-                id: ((k as u64 + 1) * n..(k as u64 + 2) * n).collect(),
-                fixed: gas.fixed.clone(),
-            })
-            .collect()
-    })
+    scene
+        .fractions()
+        .iter()
+        .enumerate()
+        .map(|(k, f)| Phase {
+            x: gas.x.clone(),
+            v: vec![u(k); gas.len()],
+            m: gas.m.iter().map(|m| f.eps * m).collect(),
+            rho: gas.rho.iter().map(|r| f.eps * r).collect(),
+            id: ((k as u64 + 1) * n..(k as u64 + 2) * n).collect(),
+            fixed: gas.fixed.clone(),
+        })
+        .collect()
 }
 
 /// Uniform lattice of `n_axis` points per axis in [0, length)^dim at cell centres.

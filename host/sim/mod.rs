@@ -13,7 +13,7 @@ pub mod stepper;
 pub mod summary;
 
 use crate::particles::State;
-use crate::scene::TimeCfg;
+use crate::scene::Time;
 use crate::step::backend::{Backend, DeviceChoice, StartError};
 use crate::step::timestep::{Plan, StepPlanner, Taken};
 use crate::step::{Physics, StepError};
@@ -127,7 +127,7 @@ impl Simulation {
     /// state up to date), its diagnostics starting here.
     pub fn new(
         phys: Physics,
-        time: &TimeCfg,
+        time: &Time,
         state: State,
         mut stepper: Stepper,
     ) -> Result<Simulation, StepError> {
@@ -151,7 +151,7 @@ impl Simulation {
     /// A simulation continuing from a checkpoint's diagnostics.
     pub fn resumed(
         phys: Physics,
-        time: &TimeCfg,
+        time: &Time,
         state: State,
         stepper: Stepper,
         diagnostics: Diagnostics,
@@ -169,7 +169,7 @@ impl Simulation {
     /// did not use the GPU.
     pub fn local(
         phys: Physics,
-        time: &TimeCfg,
+        time: &Time,
         mut state: State,
         device: DeviceChoice,
     ) -> Result<(Simulation, Option<String>), StartError> {

@@ -5,7 +5,7 @@
 use super::{Flow, Observer, RunError, Simulation};
 use crate::analysis::{self, ExactErrors};
 use crate::io::{self, PhaseView, SnapshotView};
-use crate::scene::{LoadedScene, Problem};
+use crate::scene::{LoadedScene, OutputSchedule, Problem};
 use crate::step::timestep::Taken;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -15,12 +15,13 @@ use std::path::{Path, PathBuf};
 pub fn output_times(loaded: &LoadedScene) -> Vec<f64> {
     let t = &loaded.scene.time;
     let mut v = vec![0.0];
-    if let Some(dt) = t.output_dt {
-        let n = (t.t_end / dt + 1e-9).floor() as usize;
-        v.extend((1..=n).map(|i| i as f64 * dt));
-    }
-    if let Some(ts) = &t.output_times {
-        v.extend(ts.iter().copied());
+    match &t.output {
+        OutputSchedule::Every { output_dt: dt } => {
+            let n = (t.t_end / dt + 1e-9).floor() as usize;
+            v.extend((1..=n).map(|i| i as f64 * dt));
+        }
+        OutputSchedule::At { output_times } => v.extend(output_times.iter().copied()),
+        OutputSchedule::EndOnly => {}
     }
     v.push(t.t_end);
     v.sort_by(|a, b| a.total_cmp(b));
@@ -85,7 +86,7 @@ impl Outputs {
 
     fn write_files(&mut self, sim: &mut Simulation, name: &str) -> Result<(), RunError> {
         write_snapshot(&self.dir.join(name), &self.loaded, sim)?;
-        let fixed_dt = self.loaded.scene.time.dt;
+        let fixed_dt = self.loaded.scene.time.fixed_dt();
         self.record.errors.extend(analysis::exact_errors(
             &self.loaded.scene,
             &sim.state,
@@ -180,12 +181,14 @@ pub fn write_snapshot(
         g.e.is_none()
             .then(|| g.p.iter().zip(&g.ph.rho).map(|(p, r)| p / r).collect());
     let scene_file = loaded.path.display().to_string();
+    let model = loaded.scene.to_toml();
     let view = SnapshotView {
         time: state.t,
         dim,
         periodic: phys.domain.periodic,
         pad: dustsph_device::kernel::SUPPORT * h_max,
         scene_text: &loaded.effective,
+        scene_model: &model,
         source: io::SceneSource {
             file: &scene_file,
             text: &loaded.text,
@@ -232,16 +235,9 @@ pub fn write_snapshot(
 fn ball_core(loaded: &LoadedScene, sim: &Simulation) -> Option<analysis::ball::CoreCheck> {
     let sc = &loaded.scene;
     let b = sc.ball()?;
-    let rho = sc.gas.rho?;
-    let p = match sc.gas.eos {
-        crate::scene::EosKind::Adiabatic => sc.gas.p?,
-        crate::scene::EosKind::Isothermal => sc.gas.cs? * sc.gas.cs? * rho,
-    };
+    let (rho, p) = (b.background.rho, b.background.p);
     let cs = sim.phys.eos.sound_speed(rho, p);
-    let eps: f64 = sc
-        .dust
-        .as_ref()
-        .map_or(0.0, |d| d.fractions.iter().map(|f| f.eps).sum());
+    let eps: f64 = sc.fractions().iter().map(|f| f.eps).sum();
     analysis::ball::core_check(&sim.state, b.radius, rho, eps * rho, p, cs, sim.phys.h)
 }
 
@@ -262,7 +258,7 @@ pub struct BallChecks {
 impl BallChecks {
     /// For the ball only (`None` for other scenes).
     pub fn of(loaded: &LoadedScene, record: BallRecord) -> Option<BallChecks> {
-        (loaded.scene.scene.problem == Problem::Dustyball).then(|| BallChecks {
+        (loaded.scene.kind() == Problem::Dustyball).then(|| BallChecks {
             loaded: loaded.clone(),
             record,
         })

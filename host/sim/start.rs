@@ -97,7 +97,7 @@ pub fn check_first_step(
 /// neighbours to be SPH sums (method.md §2).
 fn start_warnings(loaded: &LoadedScene, phys: &Physics, state: &State, f: &Forces) -> Vec<String> {
     let mut out = Vec::new();
-    if let Some(dt) = loaded.scene.time.dt {
+    if let Some(dt) = loaded.scene.time.fixed_dt() {
         let (dt_cfl, dt_force) = dt_limits(phys.h, f);
         let limit = dt_cfl.min(dt_force);
         if dt > limit {

@@ -67,6 +67,9 @@ pub struct Summary {
     /// The scene as run: the file with the overrides applied, as TOML (what the snapshots'
     /// `Scene` attribute holds).
     pub scene_effective: String,
+    /// The resolved scene model as TOML ([`crate::scene::Scene::to_toml`]: every default
+    /// applied, the same text as the snapshots' `Header/SceneModel`).
+    pub scene_model: String,
     pub dimension: u32,
     pub backend: String,
     pub precision: &'static str,
@@ -175,11 +178,12 @@ pub fn finish(
         code: "dustsph",
         version: env!("CARGO_PKG_VERSION"),
         git: env!("DUSTSPH_GIT"),
-        scene: scene.scene.name.clone(),
-        problem: scene.scene.problem.name(),
+        scene: scene.name.clone(),
+        problem: scene.kind().name(),
         scene_file: loaded.path.display().to_string(),
         overrides: loaded.overrides.clone(),
         scene_effective: loaded.effective.clone(),
+        scene_model: scene.to_toml(),
         dimension: scene.dim(),
         backend: sim.stepper.describe(),
         precision: phys.precision.name(),

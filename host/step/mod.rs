@@ -16,8 +16,8 @@ pub use check::{check_state, Forces, Momentum, StepError, SUPPORT};
 
 use crate::grid::Domain;
 use crate::scene::{
-    Coupling, DensityMethod, DragMethod, EosKind, GradientMethod, Integrator, LawKind,
-    PositionUpdate, Precision, Scene,
+    Coupling, DensityMethod, DragMethod, GradientMethod, Integrator, PositionUpdate, Precision,
+    Scene,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -63,46 +63,17 @@ pub struct Physics {
 
 impl Physics {
     pub fn from_scene(scene: &Scene, h: f64, domain: Domain) -> Physics {
-        let eos = match scene.gas.eos {
-            EosKind::Isothermal => Eos::Isothermal {
-                cs: scene.gas.cs.unwrap_or(1.0),
-            },
-            EosKind::Adiabatic => Eos::Adiabatic {
-                gamma: scene.gas.gamma.unwrap_or(5.0 / 3.0),
-            },
-        };
-        let av = scene.sph.viscosity.then_some(Viscosity {
-            alpha: scene.sph.alpha,
-            beta: scene.sph.beta,
-            nu2_factor: 0.01,
-        });
-        let (laws, heating) = match &scene.dust {
-            Some(d) => (
-                d.fractions
-                    .iter()
-                    .map(|f| match d.law {
-                        LawKind::ConstantT => StoppingLaw::ConstantTime {
-                            t_stop: f.t_stop.or(d.t_stop).unwrap_or(f64::INFINITY),
-                        },
-                        LawKind::ConstantK => StoppingLaw::ConstantK {
-                            k: f.k.unwrap_or(0.0),
-                        },
-                        LawKind::Epstein => StoppingLaw::Epstein {
-                            s_rho: f.s_rho.unwrap_or(f64::INFINITY),
-                        },
-                    })
-                    .collect(),
-                d.heating,
-            ),
-            None => (Vec::new(), false),
-        };
         Physics {
             dim: scene.dim(),
             h,
-            eos,
-            av,
-            laws,
-            heating,
+            eos: scene.gas.eos.eos(),
+            av: scene.sph.viscosity.map(|v| Viscosity {
+                alpha: v.alpha,
+                beta: v.beta,
+                nu2_factor: 0.01,
+            }),
+            laws: scene.fractions().iter().map(|f| f.law).collect(),
+            heating: scene.dust.as_ref().is_some_and(|d| d.heating),
             drag: scene.drag.method,
             coupling: scene.idic.coupling,
             deposit_scatter: scene.idic.deposit == crate::scene::DepositForm::Scatter,
@@ -112,7 +83,7 @@ impl Physics {
             domain,
             position_update: scene.time.position_update,
             density: scene.sph.density,
-            variable_h: scene.sph.variable_h.then(|| scene.sph.hfact.unwrap_or(1.2)),
+            variable_h: scene.sph.smoothing.variable_hfact(),
             gradient: scene.sph.gradient,
             integrator: scene.time.integrator,
             precision: scene.numerics.precision,

@@ -3,7 +3,7 @@
 //! limits the step), shortened to land exactly on a target time (an output, t_end). One rule
 //! for every way of stepping: one process, MPI ranks (with the maxima over the ranks), parity.
 use super::Forces;
-use crate::scene::{TimeCfg, MAX_FIXED_STEPS};
+use crate::scene::{StepRule, Time, MAX_FIXED_STEPS};
 
 /// What the planner chose for one step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,7 +40,7 @@ pub enum PlanError {
 /// Chooses steps for one scene's time settings.
 #[derive(Debug, Clone)]
 pub struct StepPlanner {
-    pub time: TimeCfg,
+    pub time: Time,
     /// Reference smoothing length (the CFL length).
     pub h: f64,
 }
@@ -63,11 +63,10 @@ pub fn dt_limits(h: f64, f: &Forces) -> (f64, f64) {
 /// The step size τ: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit), and in
 /// either case no more than the drag limit `dt_drag`. Returns (τ, whether the drag limit set
 /// it).
-pub fn step_size(time: &TimeCfg, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f64, bool) {
-    let base = match (time.dt, time.cfl) {
-        (Some(dt), _) => dt,
-        (None, Some(c)) => c * dt_cfl.min(dt_force),
-        (None, None) => f64::NAN,
+pub fn step_size(time: &Time, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f64, bool) {
+    let base = match time.step {
+        StepRule::Fixed { dt } => dt,
+        StepRule::Cfl { cfl } => cfl * dt_cfl.min(dt_force),
     };
     if dt_drag < base {
         (dt_drag, true)
@@ -77,7 +76,7 @@ pub fn step_size(time: &TimeCfg, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f
 }
 
 impl StepPlanner {
-    pub fn new(time: &TimeCfg, h: f64) -> StepPlanner {
+    pub fn new(time: &Time, h: f64) -> StepPlanner {
         StepPlanner {
             time: time.clone(),
             h,
@@ -105,7 +104,7 @@ impl StepPlanner {
         // A CFL step that has collapsed would never reach the end: stop with a diagnosis (the
         // fixed time.dt has the same bound at validation).
         let left = self.time.t_end - t;
-        if self.time.dt.is_none() && left > 0.0 && left / dt_free > MAX_FIXED_STEPS {
+        if self.time.fixed_dt().is_none() && left > 0.0 && left / dt_free > MAX_FIXED_STEPS {
             let (limit, value) = if dt_cfl <= dt_force {
                 ("CFL (h / max signal speed)", forces.vsig_max)
             } else {

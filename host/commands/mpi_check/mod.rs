@@ -68,7 +68,7 @@ pub fn execute(a: MpiCheckArgs) -> u8 {
             if world.rank() == 0 {
                 println!(
                     "{}: {} ranks, halo depth {} kernel support(s)",
-                    loaded.scene.scene.name,
+                    loaded.scene.name,
                     reports.len(),
                     check_depth
                 );

@@ -1,0 +1,441 @@
+//! The resolved scene: what a run is made of, every default applied and every choice an enum
+//! whose variants carry exactly the numbers they need. A [`Scene`] comes only from a scene
+//! file that passed every check (`resolve.rs`); it cannot express a half-specified scene
+//! (an isothermal gas without its sound speed, a fraction without its stopping-time
+//! parameter, both a fixed step and a CFL factor), so nothing downstream re-checks it.
+//!
+//! [`Scene::to_toml`] writes the model as TOML (the summary's `scene_model`, the snapshots'
+//! `SceneModel` attribute), with the scene file's key names where the file has the key.
+use super::file::{
+    Coupling, DensityMethod, DepositForm, DragMethod, EosKind, GradientMethod, Integrator, Lattice,
+    LawKind, ListChoice, PositionUpdate, Precision, Problem, WaveMode,
+};
+use dustsph_device::drag::StoppingLaw;
+use dustsph_device::eos::Eos;
+use serde::ser::SerializeStruct;
+use serde::{Serialize, Serializer};
+
+/// A validated scene with its defaults applied.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// `scene.name` (also the default output folder).
+    pub name: String,
+    pub dim: u32,
+    pub gas: Gas,
+    /// `None`: no dust section (a dust-free run; never for the box or the settling column).
+    pub dust: Option<Dust>,
+    pub sph: Sph,
+    pub idic: Idic,
+    pub drag: Drag,
+    pub external: External,
+    pub time: Time,
+    pub numerics: Numerics,
+    /// The problem's own parameters, with the gas state it starts from.
+    pub problem: ProblemCfg,
+}
+
+impl Scene {
+    pub fn dim(&self) -> u32 {
+        self.dim
+    }
+
+    /// Which problem this is (`scene.problem`).
+    pub fn kind(&self) -> Problem {
+        self.problem.kind()
+    }
+
+    /// The dust fractions (none without dust).
+    pub fn fractions(&self) -> &[Fraction] {
+        self.dust.as_ref().map_or(&[], |d| d.fractions.as_slice())
+    }
+
+    pub fn n_fractions(&self) -> usize {
+        self.fractions().len()
+    }
+
+    /// The ball's section, if this is the ball.
+    pub fn ball(&self) -> Option<&BallCfg> {
+        match &self.problem {
+            ProblemCfg::Dustyball(b) => Some(b),
+            _ => None,
+        }
+    }
+
+    /// The model as TOML: the scene as it runs, every default written out (what was left to
+    /// a default in the file is not told apart from what was given).
+    pub fn to_toml(&self) -> String {
+        let view = ModelToml {
+            scene: MetaToml {
+                name: &self.name,
+                problem: self.kind(),
+                dim: self.dim,
+            },
+            gas: GasToml {
+                eos: self.gas.eos,
+                background: self.problem.background(),
+            },
+            dust: self.dust.as_ref(),
+            sph: &self.sph,
+            idic: &self.idic,
+            drag: &self.drag,
+            external: &self.external,
+            time: &self.time,
+            numerics: &self.numerics,
+            problem: &self.problem,
+        };
+        // Every value of a model is a finite number, a string, a bool or a table of them:
+        // TOML holds all of them.
+        toml::to_string(&view)
+            .unwrap_or_else(|e| format!("# the scene model cannot be written as TOML: {e}\n"))
+    }
+}
+
+/// `[gas]`: the equation of state. The state the gas starts in is the problem's (the
+/// background of [`ProblemCfg`], or the shock tube's two sides).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Gas {
+    pub eos: GasEos,
+}
+
+/// The gas equation of state with its constant.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(tag = "eos", rename_all = "lowercase")]
+pub enum GasEos {
+    /// p = c_s² ρ.
+    Isothermal { cs: f64 },
+    /// p = (γ − 1) ρ e.
+    Adiabatic { gamma: f64 },
+}
+
+impl GasEos {
+    pub fn kind(self) -> EosKind {
+        match self {
+            GasEos::Isothermal { .. } => EosKind::Isothermal,
+            GasEos::Adiabatic { .. } => EosKind::Adiabatic,
+        }
+    }
+
+    /// The step's equation of state.
+    pub fn eos(self) -> Eos<f64> {
+        match self {
+            GasEos::Isothermal { cs } => Eos::Isothermal { cs },
+            GasEos::Adiabatic { gamma } => Eos::Adiabatic { gamma },
+        }
+    }
+
+    /// Sound speed of the gas state `s`: c_s, or sqrt(γ p / ρ).
+    pub fn sound_speed(self, s: GasState) -> f64 {
+        match self {
+            GasEos::Isothermal { cs } => cs,
+            GasEos::Adiabatic { gamma } => (gamma * s.p / s.rho).sqrt(),
+        }
+    }
+
+    /// Specific internal energy of adiabatic gas in state `s` (`None`: isothermal gas has no
+    /// energy equation).
+    pub fn internal_energy(self, s: GasState) -> Option<f64> {
+        match self {
+            GasEos::Isothermal { .. } => None,
+            GasEos::Adiabatic { gamma } => Some(s.p / ((gamma - 1.0) * s.rho)),
+        }
+    }
+}
+
+/// A uniform gas state: density and pressure (isothermal gas: p = c_s² ρ).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct GasState {
+    pub rho: f64,
+    pub p: f64,
+}
+
+/// `[dust]`: the fractions, each with its resolved stopping-time law.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Dust {
+    /// The law of every fraction (`dust.law`), for names and messages.
+    pub law: LawKind,
+    /// Frictional heating of the gas by the drag (adiabatic gas only).
+    pub heating: bool,
+    pub fractions: Vec<Fraction>,
+}
+
+/// One dust fraction: its dust-to-gas ratio in the background state and its stopping-time
+/// law with the law's parameter (`dust.t_stop` applied where the fraction gives none).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fraction {
+    pub eps: f64,
+    pub law: StoppingLaw<f64>,
+}
+
+impl Serialize for Fraction {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let mut st = s.serialize_struct("Fraction", 2)?;
+        st.serialize_field("eps", &self.eps)?;
+        match self.law {
+            StoppingLaw::ConstantTime { t_stop } => st.serialize_field("t_stop", &t_stop)?,
+            StoppingLaw::ConstantK { k } => st.serialize_field("k", &k)?,
+            StoppingLaw::Epstein { s_rho } => st.serialize_field("s_rho", &s_rho)?,
+        }
+        st.end()
+    }
+}
+
+/// `[sph]`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Sph {
+    /// Gas particles per unit length (see the file's `sph.n` for what each problem counts).
+    pub n: usize,
+    #[serde(flatten)]
+    pub smoothing: SmoothingLength,
+    pub density: DensityMethod,
+    pub gradient: GradientMethod,
+    /// Artificial viscosity, if on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub viscosity: Option<ArtificialViscosity>,
+}
+
+/// The smoothing length rule.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum SmoothingLength {
+    /// `sph.h`: one absolute smoothing length.
+    Absolute { h: f64 },
+    /// `sph.hfact`: h = hfact × the problem's reference gas spacing; with `variable_h`, the
+    /// gas's own h_a = hfact (m_a/ρ_a)^(1/d) (h is then the reference h).
+    Hfact { hfact: f64, variable_h: bool },
+}
+
+impl SmoothingLength {
+    /// The (reference) smoothing length for a reference gas spacing.
+    pub fn h(self, spacing: f64) -> f64 {
+        match self {
+            SmoothingLength::Absolute { h } => h,
+            SmoothingLength::Hfact { hfact, .. } => hfact * spacing,
+        }
+    }
+
+    /// Variable h: `Some(hfact)`.
+    pub fn variable_hfact(self) -> Option<f64> {
+        match self {
+            SmoothingLength::Hfact {
+                hfact,
+                variable_h: true,
+            } => Some(hfact),
+            _ => None,
+        }
+    }
+}
+
+/// Monaghan's artificial viscosity (`sph.viscosity = true`, `sph.alpha`, `sph.beta`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ArtificialViscosity {
+    pub alpha: f64,
+    pub beta: f64,
+}
+
+/// `[idic]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Idic {
+    /// Cell size in units of h.
+    pub cell: f64,
+    pub coupling: Coupling,
+    /// Kernel coupling: how the deposits are summed (`gather` with the cell coupling).
+    pub deposit: DepositForm,
+}
+
+/// `[drag]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Drag {
+    pub method: DragMethod,
+}
+
+/// `[external]`: constant accelerations of the gas and of every dust particle.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct External {
+    pub gas: [f64; 3],
+    pub dust: [f64; 3],
+}
+
+impl External {
+    pub fn is_zero(&self) -> bool {
+        self.gas.iter().chain(&self.dust).all(|a| *a == 0.0)
+    }
+}
+
+/// `[time]`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Time {
+    pub t_end: f64,
+    #[serde(flatten)]
+    pub step: StepRule,
+    #[serde(flatten)]
+    pub output: OutputSchedule,
+    pub position_update: PositionUpdate,
+    pub integrator: Integrator,
+}
+
+impl Time {
+    /// The fixed step, if the step is fixed.
+    pub fn fixed_dt(&self) -> Option<f64> {
+        match self.step {
+            StepRule::Fixed { dt } => Some(dt),
+            StepRule::Cfl { .. } => None,
+        }
+    }
+}
+
+/// How each step's size is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum StepRule {
+    /// `time.dt`: every step τ = dt.
+    Fixed { dt: f64 },
+    /// `time.cfl`: τ = cfl × min(CFL limit, force limit).
+    Cfl { cfl: f64 },
+}
+
+/// When snapshots are written besides t = 0 and t_end.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum OutputSchedule {
+    /// `time.output_dt`: every output_dt.
+    Every { output_dt: f64 },
+    /// `time.output_times`: at these times.
+    At { output_times: Vec<f64> },
+    /// At t = 0 and t_end only.
+    EndOnly,
+}
+
+/// `[numerics]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Numerics {
+    pub precision: Precision,
+    pub neighbour_list: ListChoice,
+}
+
+/// The problem's own parameters (`[dustybox]`, `[dustywave]`, …), selected by `scene.problem`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ProblemCfg {
+    Dustybox(BoxCfg),
+    Dustywave(WaveCfg),
+    Dustyshock(ShockCfg),
+    Dustyball(BallCfg),
+    Dustysettle(SettleCfg),
+}
+
+impl ProblemCfg {
+    pub fn kind(&self) -> Problem {
+        match self {
+            ProblemCfg::Dustybox(_) => Problem::Dustybox,
+            ProblemCfg::Dustywave(_) => Problem::Dustywave,
+            ProblemCfg::Dustyshock(_) => Problem::Dustyshock,
+            ProblemCfg::Dustyball(_) => Problem::Dustyball,
+            ProblemCfg::Dustysettle(_) => Problem::Dustysettle,
+        }
+    }
+
+    /// The uniform gas state the problem starts from (`gas.rho`, `gas.p`); the shock tube
+    /// has two (its sides) instead.
+    pub fn background(&self) -> Option<GasState> {
+        match self {
+            ProblemCfg::Dustybox(b) => Some(b.background),
+            ProblemCfg::Dustywave(w) => Some(w.background),
+            ProblemCfg::Dustyshock(_) => None,
+            ProblemCfg::Dustyball(b) => Some(b.background),
+            ProblemCfg::Dustysettle(c) => Some(c.background),
+        }
+    }
+}
+
+/// DUSTYBOX.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BoxCfg {
+    /// `gas.rho`, `gas.p` (written under `[gas]`).
+    #[serde(skip)]
+    pub background: GasState,
+    pub length: f64,
+    pub v_gas: f64,
+    /// One initial dust velocity per fraction.
+    pub u_dust: Vec<f64>,
+    pub dust_shift: f64,
+    pub lattice: Lattice,
+}
+
+/// DUSTYWAVE.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct WaveCfg {
+    /// `gas.rho`, `gas.p` (written under `[gas]`).
+    #[serde(skip)]
+    pub background: GasState,
+    pub length: f64,
+    pub amplitude: f64,
+    pub mode: WaveMode,
+    /// 2D/3D only.
+    pub lattice: Lattice,
+    /// 2D/3D only.
+    pub layers: usize,
+    pub dust_shift: f64,
+}
+
+/// DUSTYSHOCK: the two sides' gas states (isothermal gas: p = c_s² ρ).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ShockCfg {
+    pub length: f64,
+    pub left: GasState,
+    pub right: GasState,
+}
+
+/// The ball.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BallCfg {
+    /// `gas.rho`, `gas.p` (written under `[gas]`).
+    #[serde(skip)]
+    pub background: GasState,
+    pub radius: f64,
+}
+
+/// DUSTYSETTLE: an isothermal column (its gas's c_s here, the same as the scene's
+/// [`GasEos::Isothermal`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SettleCfg {
+    /// The base of the column: `gas.rho` and p = c_s² ρ (written under `[gas]`).
+    #[serde(skip)]
+    pub background: GasState,
+    #[serde(skip)]
+    pub cs: f64,
+    pub height: f64,
+    pub dust_shift: f64,
+}
+
+/// The model as [`Scene::to_toml`] writes it: the scene file's sections and keys, the
+/// background state under `[gas]`.
+#[derive(Serialize)]
+struct ModelToml<'a> {
+    scene: MetaToml<'a>,
+    gas: GasToml,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    dust: Option<&'a Dust>,
+    sph: &'a Sph,
+    idic: &'a Idic,
+    drag: &'a Drag,
+    external: &'a External,
+    time: &'a Time,
+    numerics: &'a Numerics,
+    #[serde(flatten)]
+    problem: &'a ProblemCfg,
+}
+
+#[derive(Serialize)]
+struct MetaToml<'a> {
+    name: &'a str,
+    problem: Problem,
+    dim: u32,
+}
+
+#[derive(Serialize)]
+struct GasToml {
+    #[serde(flatten)]
+    eos: GasEos,
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    background: Option<GasState>,
+}

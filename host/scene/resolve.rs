@@ -1,0 +1,722 @@
+//! The scene file → the [`Scene`] model: every check of a scene's values, made while the model
+//! is built from them, and every default (what a key left out of the file means), applied here
+//! and nowhere else. The first failure is returned as (key, message); the checks run in the
+//! order of the file's sections (scene, the problem's section, gas, dust, sph, idic, external,
+//! drag, time, then the problem's own parameters).
+use super::file::*;
+use super::model::*;
+use dustsph_device::drag::StoppingLaw;
+
+type VError = (String, String);
+type VResult<T = ()> = Result<T, VError>;
+
+/// A number as a person would write it: plain in a friendly range, else in e-notation.
+pub fn num(v: f64) -> String {
+    if v == 0.0 || (1e-4..1e6).contains(&v.abs()) || !v.is_finite() {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// Magnitudes a scene value may have: products of a few of them (masses × velocities², sums
+/// over 1e9 particles) must stay finite in f64, so that every number of a summary is a number.
+const MAX_MAGNITUDE: f64 = 1e100;
+
+/// The most steps a fixed `time.dt` may ask for (1e9: days of a small run).
+pub const MAX_FIXED_STEPS: f64 = 1e9;
+
+fn err<T>(key: impl Into<String>, msg: impl Into<String>) -> VResult<T> {
+    Err((key.into(), msg.into()))
+}
+
+fn positive(key: &str, v: f64) -> VResult {
+    if !(v.is_finite() && v > 0.0) {
+        return err(key, format!("must be a finite number > 0 (got {})", num(v)));
+    }
+    in_range(key, v)
+}
+
+/// |v| within [1/MAX_MAGNITUDE, MAX_MAGNITUDE] (or 0).
+fn in_range(key: &str, v: f64) -> VResult {
+    let a = v.abs();
+    if a != 0.0 && !(1.0 / MAX_MAGNITUDE..=MAX_MAGNITUDE).contains(&a) {
+        return err(
+            key,
+            format!(
+                "{} is outside [1e-100, 1e100] in magnitude: the run's derived quantities \
+                 (masses, momenta, energies) would overflow; change the units",
+                num(v)
+            ),
+        );
+    }
+    Ok(())
+}
+
+fn non_negative(key: &str, v: f64) -> VResult {
+    if !(v.is_finite() && v >= 0.0) {
+        return err(key, format!("must be a finite number ≥ 0 (got {})", num(v)));
+    }
+    in_range(key, v)
+}
+
+fn finite(key: &str, v: f64) -> VResult {
+    if !v.is_finite() {
+        return err(key, format!("must be finite (got {})", num(v)));
+    }
+    in_range(key, v)
+}
+
+/// A required key's value, or the error naming it.
+fn required(key: &str, v: Option<f64>, why: &str) -> VResult<f64> {
+    v.ok_or_else(|| (key.to_string(), why.to_string()))
+}
+
+/// The problem's section of a file, with what it is resolved with so far (`B`: nothing yet,
+/// then the background gas state; the shock tube has none).
+enum Section<'a, B> {
+    Box(&'a BoxSection, B),
+    Wave(&'a WaveSection, B),
+    Shock(&'a ShockSection),
+    Ball(&'a BallSection, B),
+    Settle(&'a SettleSection, B),
+}
+
+impl<'a> Section<'a, ()> {
+    /// The section `scene.problem` names; every other problem's section must be absent (the
+    /// first section, in the order of the problems, that is wrong is reported).
+    fn of(f: &'a SceneFile) -> VResult<Section<'a, ()>> {
+        let problem = f.scene.problem;
+        let chosen = match problem {
+            Problem::Dustybox => f.dustybox.as_ref().map(|s| Section::Box(s, ())),
+            Problem::Dustywave => f.dustywave.as_ref().map(|s| Section::Wave(s, ())),
+            Problem::Dustyshock => f.dustyshock.as_ref().map(Section::Shock),
+            Problem::Dustyball => f.dustyball.as_ref().map(|s| Section::Ball(s, ())),
+            Problem::Dustysettle => f.dustysettle.as_ref().map(|s| Section::Settle(s, ())),
+        };
+        let missing = |p: Problem| {
+            err(
+                p.name(),
+                format!("section [{}] is required by scene.problem", p.name()),
+            )
+        };
+        let present = [
+            (Problem::Dustybox, f.dustybox.is_some()),
+            (Problem::Dustywave, f.dustywave.is_some()),
+            (Problem::Dustyshock, f.dustyshock.is_some()),
+            (Problem::Dustyball, f.dustyball.is_some()),
+            (Problem::Dustysettle, f.dustysettle.is_some()),
+        ];
+        for (p, there) in present {
+            if p == problem && chosen.is_none() {
+                return missing(p);
+            }
+            if p != problem && there {
+                return err(
+                    p.name(),
+                    format!(
+                        "section [{}] does not belong to problem `{}`",
+                        p.name(),
+                        problem.name()
+                    ),
+                );
+            }
+        }
+        chosen.map_or_else(|| missing(problem), Ok)
+    }
+
+    /// The background gas state (`gas.rho`, and `gas.p` for adiabatic gas) of every problem
+    /// but the shock tube, which must not give one.
+    fn with_background(self, g: &GasSection, eos: GasEos) -> VResult<Section<'a, GasState>> {
+        let bg = || -> VResult<GasState> {
+            let rho = required("gas.rho", g.rho, "required")?;
+            positive("gas.rho", rho)?;
+            let p = match eos {
+                GasEos::Adiabatic { .. } => {
+                    let p = required("gas.p", g.p, "required for adiabatic gas")?;
+                    positive("gas.p", p)?;
+                    p
+                }
+                GasEos::Isothermal { cs } => cs * cs * rho,
+            };
+            Ok(GasState { rho, p })
+        };
+        Ok(match self {
+            Section::Shock(s) => {
+                for (key, v) in [("gas.rho", g.rho), ("gas.p", g.p)] {
+                    if v.is_some() {
+                        return err(key, "the shock tube takes dustyshock.left/right instead");
+                    }
+                }
+                Section::Shock(s)
+            }
+            Section::Box(s, ()) => Section::Box(s, bg()?),
+            Section::Wave(s, ()) => Section::Wave(s, bg()?),
+            Section::Ball(s, ()) => Section::Ball(s, bg()?),
+            Section::Settle(s, ()) => Section::Settle(s, bg()?),
+        })
+    }
+}
+
+impl Scene {
+    /// The scene a file describes, or the first thing wrong with it as (key, message).
+    pub fn from_file(f: &SceneFile) -> VResult<Scene> {
+        meta(&f.scene)?;
+        let section = Section::of(f)?;
+        let eos = gas_eos(&f.gas)?;
+        let section = section.with_background(&f.gas, eos)?;
+        let dust = dust(f, eos)?;
+        let sph = sph(&f.sph)?;
+        let idic_file = f.idic.as_ref();
+        let cell = idic_file.and_then(|i| i.cell).unwrap_or(0.5);
+        positive("idic.cell", cell)?;
+        // Below 0.05h the neighbour reach (2h/Δc rows per axis) explodes; above 4h a cell
+        // averages over several kernel supports.
+        if !(0.05..=4.0).contains(&cell) {
+            return err(
+                "idic.cell",
+                format!(
+                    "must be between 0.05 and 4 (cell size in units of h; got {})",
+                    num(cell)
+                ),
+            );
+        }
+        let external = external(f.external.as_ref(), f.scene.dim)?;
+        let idic = Idic {
+            cell,
+            coupling: idic_file.and_then(|i| i.coupling).unwrap_or(Coupling::Cell),
+            deposit: idic_file
+                .and_then(|i| i.deposit)
+                .unwrap_or(DepositForm::Gather),
+        };
+        let drag = Drag {
+            method: f
+                .drag
+                .as_ref()
+                .and_then(|d| d.method)
+                .unwrap_or(DragMethod::Idic),
+        };
+        coupling(&idic, &drag, dust.is_some())?;
+        let time = time(&f.time)?;
+        let numerics = f.numerics.as_ref();
+        let problem = problem(section, f, eos, dust.as_ref(), &external)?;
+        Ok(Scene {
+            name: f.scene.name.clone(),
+            dim: f.scene.dim,
+            gas: Gas { eos },
+            dust,
+            sph,
+            idic,
+            drag,
+            external,
+            time,
+            numerics: Numerics {
+                precision: numerics.and_then(|n| n.precision).unwrap_or(Precision::F64),
+                neighbour_list: numerics
+                    .and_then(|n| n.neighbour_list)
+                    .unwrap_or(ListChoice::Auto),
+            },
+            problem,
+        })
+    }
+}
+
+fn meta(s: &MetaSection) -> VResult {
+    if s.name.trim().is_empty() {
+        return err("scene.name", "must not be empty");
+    }
+    // The default output folder is output/<name>: a name must not lead anywhere else.
+    if s.name.contains(['/', '\\', '\0']) || s.name == "." || s.name.contains("..") {
+        return err(
+            "scene.name",
+            format!(
+                "{:?} is not a plain name: no path separators or \"..\" (it names the \
+                 output folder output/<name>; use --out for another place)",
+                s.name
+            ),
+        );
+    }
+    if !(1..=3).contains(&s.dim) {
+        return err("scene.dim", format!("must be 1, 2 or 3 (got {})", s.dim));
+    }
+    match s.problem {
+        Problem::Dustyshock | Problem::Dustysettle if s.dim != 1 => err(
+            "scene.dim",
+            format!(
+                "problem `{}` is one-dimensional: dim must be 1",
+                s.problem.name()
+            ),
+        ),
+        _ => Ok(()),
+    }
+}
+
+fn gas_eos(g: &GasSection) -> VResult<GasEos> {
+    match g.eos {
+        EosKind::Isothermal => {
+            let cs = required("gas.cs", g.cs, "required for isothermal gas")?;
+            positive("gas.cs", cs)?;
+            if g.gamma.is_some() {
+                return err("gas.gamma", "not used by isothermal gas (remove it)");
+            }
+            if g.p.is_some() {
+                return err("gas.p", "isothermal pressure is cs²ρ (remove it)");
+            }
+            Ok(GasEos::Isothermal { cs })
+        }
+        EosKind::Adiabatic => {
+            let gamma = required("gas.gamma", g.gamma, "required for adiabatic gas")?;
+            if !(gamma.is_finite() && gamma > 1.0) {
+                return err("gas.gamma", format!("must be > 1 (got {gamma})"));
+            }
+            if g.cs.is_some() {
+                return err(
+                    "gas.cs",
+                    "adiabatic sound speed follows from γ, p, ρ (remove it)",
+                );
+            }
+            Ok(GasEos::Adiabatic { gamma })
+        }
+    }
+}
+
+fn dust(f: &SceneFile, eos: GasEos) -> VResult<Option<Dust>> {
+    let Some(d) = &f.dust else {
+        if f.scene.problem == Problem::Dustybox {
+            return err(
+                "dust",
+                "dustybox needs a [dust] section with at least one fraction",
+            );
+        }
+        return Ok(None);
+    };
+    if d.fractions.is_empty() {
+        return err(
+            "dust.fractions",
+            "must list at least one fraction ([[dust.fractions]])",
+        );
+    }
+    let max = dustsph_device::kernels::MAX_FRACTIONS;
+    if d.fractions.len() > max {
+        return err(
+            "dust.fractions",
+            format!(
+                "{} fractions given; at most {max} are supported (the GPU cell kernel keeps them in registers)",
+                d.fractions.len()
+            ),
+        );
+    }
+    let heating = d.heating.unwrap_or(false);
+    if heating && eos.kind() == EosKind::Isothermal {
+        return err("dust.heating", "drag heating needs adiabatic gas");
+    }
+    if let Some(t) = d.t_stop {
+        positive("dust.t_stop", t)?;
+        if d.law != LawKind::ConstantT {
+            return err("dust.t_stop", "only used with law = \"constant_t\"");
+        }
+    }
+    let fractions = d
+        .fractions
+        .iter()
+        .enumerate()
+        .map(|(i, fr)| fraction(i, fr, d))
+        .collect::<VResult<Vec<_>>>()?;
+    Ok(Some(Dust {
+        law: d.law,
+        heating,
+        fractions,
+    }))
+}
+
+/// Fraction `i`: its ε and the law's one parameter (the constant-t law falls back on
+/// `dust.t_stop`).
+fn fraction(i: usize, f: &FractionSection, d: &DustSection) -> VResult<Fraction> {
+    let key = |k: &str| format!("dust.fractions.{i}.{k}");
+    positive(&key("eps"), f.eps)?;
+    let (want, other): (&str, [(&str, Option<f64>); 2]) = match d.law {
+        LawKind::ConstantT => ("t_stop", [("k", f.k), ("s_rho", f.s_rho)]),
+        LawKind::ConstantK => ("k", [("t_stop", f.t_stop), ("s_rho", f.s_rho)]),
+        LawKind::Epstein => ("s_rho", [("t_stop", f.t_stop), ("k", f.k)]),
+    };
+    for (name, v) in other {
+        if v.is_some() {
+            return err(
+                key(name),
+                format!("not used by law `{}` (expects `{want}`)", d.law.name()),
+            );
+        }
+    }
+    let v = match d.law {
+        LawKind::ConstantT => f.t_stop.or(d.t_stop),
+        LawKind::ConstantK => f.k,
+        LawKind::Epstein => f.s_rho,
+    };
+    let v = required(&key(want), v, "required by dust.law")?;
+    positive(&key(want), v)?;
+    let law = match d.law {
+        LawKind::ConstantT => StoppingLaw::ConstantTime { t_stop: v },
+        LawKind::ConstantK => StoppingLaw::ConstantK { k: v },
+        LawKind::Epstein => StoppingLaw::Epstein { s_rho: v },
+    };
+    Ok(Fraction { eps: f.eps, law })
+}
+
+fn sph(s: &SphSection) -> VResult<Sph> {
+    if s.n < 2 {
+        return err(
+            "sph.n",
+            format!("must be ≥ 2 particles per unit length (got {})", s.n),
+        );
+    }
+    let variable_h = s.variable_h.unwrap_or(false);
+    let density = s.density.unwrap_or(DensityMethod::Summation);
+    let smoothing = match (s.h, s.hfact) {
+        (Some(_), Some(_)) => return err("sph.h", "give either sph.h or sph.hfact, not both"),
+        (None, None) => {
+            return err(
+                "sph.hfact",
+                "give sph.hfact (h in units of the particle spacing) or sph.h",
+            )
+        }
+        (Some(h), None) => {
+            positive("sph.h", h)?;
+            if variable_h {
+                return err(
+                    "sph.variable_h",
+                    "needs sph.hfact (h = hfact (m/ρ)^(1/d)), not sph.h",
+                );
+            }
+            SmoothingLength::Absolute { h }
+        }
+        (None, Some(hfact)) => {
+            positive("sph.hfact", hfact)?;
+            SmoothingLength::Hfact { hfact, variable_h }
+        }
+    };
+    if variable_h && density == DensityMethod::Continuity {
+        return err(
+            "sph.variable_h",
+            "variable h defines the density by summation (sph.density = \"continuity\" excludes it)",
+        );
+    }
+    let (alpha, beta) = (s.alpha.unwrap_or(1.0), s.beta.unwrap_or(2.0));
+    non_negative("sph.alpha", alpha)?;
+    non_negative("sph.beta", beta)?;
+    Ok(Sph {
+        n: s.n,
+        smoothing,
+        density,
+        gradient: s.gradient.unwrap_or(GradientMethod::Standard),
+        viscosity: s
+            .viscosity
+            .unwrap_or(false)
+            .then_some(ArtificialViscosity { alpha, beta }),
+    })
+}
+
+fn external(e: Option<&ExternalSection>, dim: u32) -> VResult<External> {
+    let ext = External {
+        gas: e.and_then(|e| e.gas).unwrap_or([0.0; 3]),
+        dust: e.and_then(|e| e.dust).unwrap_or([0.0; 3]),
+    };
+    for (name, a) in [("gas", ext.gas), ("dust", ext.dust)] {
+        for (i, v) in a.iter().enumerate() {
+            finite(&format!("external.{name}.{i}"), *v)?;
+        }
+        if (dim as usize) < 3 && a[dim as usize..].iter().any(|v| *v != 0.0) {
+            return err(
+                format!("external.{name}"),
+                format!("has a component along an axis a {dim}D scene does not have"),
+            );
+        }
+    }
+    Ok(ext)
+}
+
+/// The drag's method, coupling and deposit go together.
+fn coupling(idic: &Idic, drag: &Drag, has_dust: bool) -> VResult {
+    if idic.deposit == DepositForm::Scatter && idic.coupling != Coupling::Kernel {
+        return err(
+            "idic.deposit",
+            "\"scatter\" sums the kernel coupling's deposits; it needs idic.coupling = \"kernel\"",
+        );
+    }
+    if idic.coupling == Coupling::Kernel && drag.method == DragMethod::Explicit {
+        return err(
+            "idic.coupling",
+            "\"kernel\" is an implicit coupling; the explicit baseline uses \"cell\"",
+        );
+    }
+    if drag.method == DragMethod::Explicit && !has_dust {
+        return err(
+            "drag.method",
+            "\"explicit\" drag needs a [dust] section (without dust there is no drag)",
+        );
+    }
+    Ok(())
+}
+
+/// (`MAX_FIXED_STEPS` bounds a fixed step's count: `time.dt = 1e-300` would never end.)
+fn time(t: &TimeSection) -> VResult<Time> {
+    positive("time.t_end", t.t_end)?;
+    let integrator = t.integrator.unwrap_or(Integrator::FirstOrder);
+    let position_update = t.position_update.unwrap_or(PositionUpdate::New);
+    if integrator == Integrator::Kdk && position_update == PositionUpdate::Old {
+        return err(
+            "time.position_update",
+            "\"old\" belongs to the first-order step; time.integrator = \"kdk\" drifts with v^{n+1/2}",
+        );
+    }
+    let step = match (t.dt, t.cfl) {
+        (Some(_), Some(_)) => {
+            return err(
+                "time.dt",
+                "give either time.dt (fixed) or time.cfl, not both",
+            )
+        }
+        (None, None) => return err("time.dt", "give time.dt (fixed step) or time.cfl"),
+        (Some(dt), None) => {
+            positive("time.dt", dt)?;
+            let steps = (t.t_end / dt).ceil();
+            if steps.is_nan() || steps > MAX_FIXED_STEPS {
+                return err(
+                    "time.dt",
+                    format!(
+                        "{steps:e} steps of {dt:e} to time.t_end = {}: more than {MAX_FIXED_STEPS:e}; \
+                         a larger time.dt or time.cfl",
+                        t.t_end
+                    ),
+                );
+            }
+            StepRule::Fixed { dt }
+        }
+        (None, Some(c)) => {
+            positive("time.cfl", c)?;
+            if c > 1.0 {
+                return err("time.cfl", format!("must be ≤ 1 (got {c})"));
+            }
+            StepRule::Cfl { cfl: c }
+        }
+    };
+    Ok(Time {
+        t_end: t.t_end,
+        step,
+        output: output_schedule(t)?,
+        position_update,
+        integrator,
+    })
+}
+
+fn output_schedule(t: &TimeSection) -> VResult<OutputSchedule> {
+    match (&t.output_dt, &t.output_times) {
+        (Some(_), Some(_)) => err("time.output_dt", "give output_dt or output_times, not both"),
+        (Some(d), None) => {
+            positive("time.output_dt", *d)?;
+            if t.t_end / d > 100_000.0 {
+                return err(
+                    "time.output_dt",
+                    format!(
+                        "{} snapshots would be written (limit 100000)",
+                        (t.t_end / d).floor()
+                    ),
+                );
+            }
+            Ok(OutputSchedule::Every { output_dt: *d })
+        }
+        (None, Some(ts)) => {
+            if ts.len() > 100_000 {
+                return err(
+                    "time.output_times",
+                    format!("{} snapshots would be written (limit 100000)", ts.len()),
+                );
+            }
+            for (i, &x) in ts.iter().enumerate() {
+                let key = format!("time.output_times.{i}");
+                non_negative(&key, x)?;
+                if x > t.t_end {
+                    return err(key, format!("{x} is after time.t_end = {}", t.t_end));
+                }
+            }
+            Ok(OutputSchedule::At {
+                output_times: ts.clone(),
+            })
+        }
+        (None, None) => Ok(OutputSchedule::EndOnly),
+    }
+}
+
+/// The problem's own parameters, checked last.
+fn problem(
+    section: Section<'_, GasState>,
+    f: &SceneFile,
+    eos: GasEos,
+    dust: Option<&Dust>,
+    external: &External,
+) -> VResult<ProblemCfg> {
+    Ok(match section {
+        Section::Box(b, background) => ProblemCfg::Dustybox(dustybox(
+            b,
+            background,
+            dust.map_or(0, |d| d.fractions.len()),
+        )?),
+        Section::Settle(c, background) => {
+            let height = c.height.unwrap_or(1.0);
+            let dust_shift = c.dust_shift.unwrap_or(0.0);
+            positive("dustysettle.height", height)?;
+            finite("dustysettle.dust_shift", dust_shift)?;
+            if !(0.0..1.0).contains(&dust_shift) {
+                return err(
+                    "dustysettle.dust_shift",
+                    format!("must be in [0, 1) gas spacings (got {})", num(dust_shift)),
+                );
+            }
+            let GasEos::Isothermal { cs } = eos else {
+                return err(
+                    "gas.eos",
+                    "dustysettle is an isothermal column: eos must be \"isothermal\"",
+                );
+            };
+            settle_forces(dust.is_some(), external)?;
+            ProblemCfg::Dustysettle(SettleCfg {
+                background,
+                cs,
+                height,
+                dust_shift,
+            })
+        }
+        Section::Wave(w, background) => {
+            ProblemCfg::Dustywave(dustywave(w, background, f.scene.dim)?)
+        }
+        Section::Ball(b, background) => {
+            let radius = b.radius.unwrap_or(1.0);
+            positive("dustyball.radius", radius)?;
+            ProblemCfg::Dustyball(BallCfg { background, radius })
+        }
+        Section::Shock(s) => {
+            let length = s.length.unwrap_or(1.0);
+            positive("dustyshock.length", length)?;
+            ProblemCfg::Dustyshock(ShockCfg {
+                length,
+                left: shock_side("left", s.left, eos)?,
+                right: shock_side("right", s.right, eos)?,
+            })
+        }
+    })
+}
+
+fn dustybox(b: &BoxSection, background: GasState, nf: usize) -> VResult<BoxCfg> {
+    let length = b.length.unwrap_or(1.0);
+    let v_gas = b.v_gas.unwrap_or(0.0);
+    let dust_shift = b.dust_shift.unwrap_or(0.0);
+    positive("dustybox.length", length)?;
+    finite("dustybox.v_gas", v_gas)?;
+    if b.u_dust.len() != nf {
+        return err(
+            "dustybox.u_dust",
+            format!(
+                "needs one velocity per dust fraction ({nf}), got {}",
+                b.u_dust.len()
+            ),
+        );
+    }
+    for (i, &u) in b.u_dust.iter().enumerate() {
+        finite(&format!("dustybox.u_dust.{i}"), u)?;
+    }
+    finite("dustybox.dust_shift", dust_shift)?;
+    Ok(BoxCfg {
+        background,
+        length,
+        v_gas,
+        u_dust: b.u_dust.clone(),
+        dust_shift,
+        lattice: b.lattice.unwrap_or(Lattice::Cubic),
+    })
+}
+
+/// The settling column needs dust, and gravity along −x on gas and dust alike.
+fn settle_forces(has_dust: bool, external: &External) -> VResult {
+    if !has_dust {
+        return err(
+            "dust",
+            "dustysettle needs a [dust] section with at least one fraction",
+        );
+    }
+    let g = -external.gas[0];
+    if g.is_nan() || g <= 0.0 {
+        return err(
+            "external.gas",
+            "dustysettle needs gravity along −x: external.gas = [-g, 0, 0] with g > 0",
+        );
+    }
+    if external.dust != external.gas {
+        return err(
+            "external.dust",
+            "dustysettle: gas and dust fall under the same gravity (external.dust = external.gas)",
+        );
+    }
+    Ok(())
+}
+
+fn dustywave(w: &WaveSection, background: GasState, dim: u32) -> VResult<WaveCfg> {
+    let length = w.length.unwrap_or(1.0);
+    let dust_shift = w.dust_shift.unwrap_or(0.0);
+    let lattice = w.lattice.unwrap_or(Lattice::Closepacked);
+    let layers = w.layers.unwrap_or(12);
+    positive("dustywave.length", length)?;
+    positive("dustywave.amplitude", w.amplitude)?;
+    finite("dustywave.dust_shift", dust_shift)?;
+    if dim > 1 {
+        let need = match (lattice, dim) {
+            // Hexagonal rows alternate (period 2); fcc layers repeat every 3.
+            (Lattice::Closepacked, 2) => 2,
+            (Lattice::Closepacked, _) => 6,
+            (Lattice::Cubic, _) => 1,
+        };
+        if layers == 0 || layers % need != 0 {
+            return err(
+                "dustywave.layers",
+                format!(
+                    "must be a positive multiple of {need} for a periodic {} lattice in {dim}D (got {layers})",
+                    lattice.name()
+                ),
+            );
+        }
+    }
+    if w.amplitude > 0.1 {
+        return err(
+            "dustywave.amplitude",
+            format!(
+                "a linear wave needs a small amplitude (≤ 0.1, got {})",
+                w.amplitude
+            ),
+        );
+    }
+    Ok(WaveCfg {
+        background,
+        length,
+        amplitude: w.amplitude,
+        mode: w.mode,
+        lattice,
+        layers,
+        dust_shift,
+    })
+}
+
+/// One side of the shock tube: ρ, and p for adiabatic gas (isothermal: p = c_s² ρ).
+fn shock_side(side: &str, st: ShockSideSection, eos: GasEos) -> VResult<GasState> {
+    positive(&format!("dustyshock.{side}.rho"), st.rho)?;
+    let key = format!("dustyshock.{side}.p");
+    let p = match (eos, st.p) {
+        (GasEos::Adiabatic { .. }, None) => return err(key, "required for adiabatic gas"),
+        (GasEos::Adiabatic { .. }, Some(p)) => {
+            positive(&key, p)?;
+            p
+        }
+        (GasEos::Isothermal { .. }, Some(_)) => {
+            return err(key, "isothermal pressure is cs²ρ (remove it)")
+        }
+        (GasEos::Isothermal { cs }, None) => cs * cs * st.rho,
+    };
+    Ok(GasState { rho: st.rho, p })
+}
