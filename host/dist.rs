@@ -27,8 +27,8 @@ pub fn refuse_many_ranks(what: &str) -> Result<(), String> {
         Some((rank, size)) if size > 1 => Err(format!(
             "{what} runs on one process: launched as rank {rank} of {size} MPI ranks, every rank \
              would run the whole scene into the same output; run it without mpirun (or with \
-             -n 1). Only `dustsph run` (in a build with the mpi feature) and `dustsph \
-             mpi-check` split over ranks"
+             -n 1). Only `dustsph run` and `dustsph resume` (in a build with the mpi feature) \
+             and `dustsph mpi-check` split over ranks"
         )),
         _ => Ok(()),
     }

@@ -1,9 +1,11 @@
 //! dustsph: gas + polydisperse dust by SPH with implicit drag in cell (IDIC).
 //!
-//! Data flow, one module per stage: [`scene`] (TOML → validated scene) → [`setup`] (initial
-//! particles) → [`engine`] (the step, on a backend; physics formulas in `dustsph-device`) →
-//! [`io`] (snapshots, summary) with [`analysis`] (errors against [`exact`] solutions) and
-//! [`plot`]. The subcommands that drive these stages live in [`commands`].
+//! Data flow, one module per stage (docs/architecture.md): [`scene`] (TOML → the scene model)
+//! → [`setup`] (initial particles) → [`sim`] (the simulation and its step loop, with its
+//! outputs) → [`step`] (the step: the engine on a [`launch`] launcher; physics formulas in
+//! `dustsph-device`) → [`io`] (snapshots, checkpoints, summary) with [`analysis`] (errors
+//! against [`exact`] solutions) and [`plot`]; [`dist`] runs over MPI ranks. The subcommands
+//! live in [`commands`].
 pub mod analysis;
 pub mod commands;
 pub mod decomp;

@@ -1,4 +1,4 @@
-//! The run's diagnostics, defined once (docs/outputs.md, "Conservation"): the step sizes, the
+//! The run's diagnostics, defined once (docs/validation.md, "The diagnostics in `summary.json`"): the step sizes, the
 //! steps the explicit drag's limit set, the largest CFL number, and the conservation of mass,
 //! momentum and energy. Every command that steps (run, resume, study, stiffness) reports these
 //! same quantities, updated after every step by [`crate::sim::Simulation::step`].

@@ -1,5 +1,5 @@
-//! The backend a run steps on: the one step pipeline (host/engine/gpu) on a launcher — the
-//! CPU's rayon pool, or a CUDA device. Chosen by `--device auto|cpu|cuda`.
+//! The backend a run steps on: the engine (host/step/engine) on a launcher — the CPU's rayon
+//! pool, or a CUDA device — in f64 or f32. Chosen by `--device auto|cpu|cuda`.
 use super::engine::{self, Engine, GhostSync, InitialLayer};
 use super::timers::Timers;
 use super::timestep::{Plan, PlanError, StepPlanner, Taken};
@@ -18,9 +18,6 @@ pub enum DeviceChoice {
     /// The step's kernels on this machine's cores (rayon).
     Cpu,
     Cuda,
-    /// The former name of `cpu` (the GPU kernels on the CPU): the same launcher.
-    #[value(hide = true)]
-    Emulate,
 }
 
 /// The one step on one of its two launchers, in one of its two precisions.

@@ -33,7 +33,7 @@ impl Forces {
 
 /// The total momentum of every particle (gas and dust, walls included) and its scale Σ m|v|,
 /// summed on the engine's launcher: what the run's momentum drift is measured from after every
-/// step (docs/outputs.md, "Conservation").
+/// step (docs/validation.md, "The diagnostics in `summary.json`").
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Momentum {
     pub p: [f64; 3],

@@ -553,8 +553,7 @@ fn inconsistent_lengths_are_rejected_before_writing() {
     let d = Phase::new(3, 2);
     let mut dv = d.view(0.1, false, true);
     dv.t_stop = Some(&d.t[..1]);
-    let err =
-        write_snapshot(&path, &snap(None, vec![d.view(0.1, false, true), dv])).unwrap_err();
+    let err = write_snapshot(&path, &snap(None, vec![d.view(0.1, false, true), dv])).unwrap_err();
     assert!(err.to_string().contains("dust fraction 1"), "{err}");
 
     let mut s = snap(None, vec![]);

@@ -35,6 +35,9 @@ use crate::step::Physics;
 use serde::Deserialize;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+
+mod point;
+mod report;
 use std::time::Instant;
 
 fn one() -> usize {
@@ -178,6 +181,34 @@ impl Metric {
         } else {
             format!("{}.{n}@{}", self.field, self.reference)
         }
+    }
+
+    /// The metric in words, for a plot's axis: "gas velocity error (L2) at t = 1", with the
+    /// comparison when it is not the first ("… (comparison 1)").
+    pub fn in_words(&self, t_end: f64) -> String {
+        let field = self.field.as_str();
+        let what = match field {
+            "max" => "largest error over the fields".to_string(),
+            "rho_g" => "gas density error".to_string(),
+            "v_g" => "gas velocity error".to_string(),
+            "p" => "pressure error".to_string(),
+            "e" => "internal energy error".to_string(),
+            f => match (f.strip_prefix("rho_d"), f.strip_prefix("u_d")) {
+                (Some(k), _) => format!("dust {k} density error"),
+                (_, Some(k)) => format!("dust {k} velocity error"),
+                _ => format!("{f} error"),
+            },
+        };
+        let norm = match self.norm {
+            Norm::L1 => "L1",
+            Norm::L2 => "L2",
+            Norm::Linf => "L∞",
+        };
+        let cmp = match self.reference {
+            0 => String::new(),
+            k => format!(" (comparison {k})"),
+        };
+        format!("{what} ({norm}) at t = {}{cmp}", scene::num(t_end))
     }
 
     /// The value in its reference among `all` (NaN if missing).
@@ -633,119 +664,13 @@ fn as_number(v: &toml::Value) -> Option<f64> {
     }
 }
 
-/// One run of a scene without output: (status, steps, drag-limited steps, dt range, stepping
-/// seconds, total seconds, errors at t_end, momentum drift).
-struct Once {
-    status: Status,
-    steps: u64,
-    drag_limited: u64,
-    dt: (f64, f64),
-    step_s: f64,
-    /// CPU seconds of the step loop on this thread (single-threaded runs on Linux).
-    step_cpu: f64,
-    total_s: f64,
-    errors: Vec<ExactErrors>,
-    momentum_drift: f64,
-}
-
-fn run_once(scene: &Scene, max_steps: u64) -> Once {
-    let t0 = Instant::now();
-    let mut out = Once {
-        status: Status::Ok,
-        steps: 0,
-        drag_limited: 0,
-        dt: (f64::INFINITY, 0.0),
-        step_s: 0.0,
-        step_cpu: f64::NAN,
-        total_s: 0.0,
-        errors: Vec::new(),
-        momentum_drift: f64::NAN,
-    };
-    let fail = |mut o: Once, m: String| {
-        o.status = Status::Failed(m);
-        o.total_s = t0.elapsed().as_secs_f64();
-        o
-    };
-    let su = match setup::build(scene) {
-        Ok(s) => s,
-        Err(e) => return fail(out, e.to_string()),
-    };
-    let phys = Physics::from_scene(scene, su.h, su.domain);
-    let mut sim = match Simulation::local(phys, &scene.time, su.state, DeviceChoice::Cpu) {
-        Ok((s, _)) => s,
-        Err(e) => return fail(out, e.to_string()),
-    };
-    let t_end = scene.time.t_end;
-    // A point whose first step says it needs more than max_steps steps is skipped unrun.
-    match sim.plan_next(t_end) {
-        Ok(first) => {
-            let need = (t_end / first.plan.dt_free).ceil();
-            if need > max_steps as f64 {
-                out.status = Status::Skipped(need as u64);
-                out.total_s = t0.elapsed().as_secs_f64();
-                return out;
-            }
-        }
-        Err(e) => return fail(out, e.to_string()),
-    }
-    let ts = Instant::now();
-    let cpu0 = thread_cpu_seconds();
-    let ran = sim.run(t_end, &mut [&mut StepBudget(max_steps)], None);
-    out.step_s = ts.elapsed().as_secs_f64();
-    if let (Some(a), Some(b)) = (cpu0, thread_cpu_seconds()) {
-        out.step_cpu = b - a;
-    }
-    let d = &sim.diagnostics;
-    out.steps = d.steps;
-    out.drag_limited = d.drag_limited_steps;
-    out.dt = (d.dt_min, d.dt_max);
-    if let Err(e) = ran {
-        return fail(out, e.to_string());
-    }
-    if let Err(e) = sim.refresh_dust_density() {
-        return fail(out, e.to_string());
-    }
-    out.errors = analysis::exact_errors(scene, &sim.state, scene.time.fixed_dt());
-    out.momentum_drift = sim.diagnostics.momentum_drift();
-    out.total_s = t0.elapsed().as_secs_f64();
-    out
-}
-
-/// Stops a point that would take more than its study's `max_steps` steps.
-struct StepBudget(u64);
-
-impl Observer for StepBudget {
-    fn before_step(&mut self, sim: &mut Simulation) -> Result<Flow, RunError> {
-        if sim.diagnostics.steps >= self.0 {
-            return Err(RunError::Step(format!(
-                "more than max_steps = {} steps",
-                self.0
-            )));
-        }
-        Ok(Flow::Continue)
-    }
-}
-
-/// CPU time of the calling thread (Linux: /proc/thread-self/schedstat, nanoseconds).
-fn thread_cpu_seconds() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
-    let ns: f64 = s.split_whitespace().next()?.parse().ok()?;
-    Some(ns * 1e-9)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 impl Study {
+    /// The points' end time (every point of a study ends at the same t_end unless an axis
+    /// sets it; the first point's then).
+    fn t_end(&self) -> f64 {
+        self.points.first().map_or(f64::NAN, |p| p.scene.time.t_end)
+    }
+
     /// `key=value, ...` of a point over the given axes.
     pub fn describe(&self, p: &Point, axes: &[usize], short: bool) -> String {
         axes.iter()
@@ -760,440 +685,6 @@ impl Study {
             })
             .collect::<Vec<_>>()
             .join(", ")
-    }
-
-    /// Run one point: once, and again up to `repeat` times while the first stepping took less
-    /// than `repeat_below` seconds (times are medians; errors come from the first run, the
-    /// runs being deterministic).
-    pub fn run_point(&self, p: &Point) -> PointResult {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(self.cfg.threads)
-            .build();
-        let once = || match &pool {
-            Ok(pool) => pool.install(|| run_once(&p.scene, self.cfg.max_steps)),
-            Err(_) => run_once(&p.scene, self.cfg.max_steps),
-        };
-        let single = self.cfg.threads == 1 && pool.is_ok();
-        let first = once();
-        let mut step = vec![first.step_s];
-        let mut cpu = vec![first.step_cpu];
-        let mut total = vec![first.total_s];
-        if first.status == Status::Ok && first.step_s < self.cfg.repeat_below {
-            for _ in 1..self.cfg.repeat {
-                let o = once();
-                step.push(o.step_s);
-                cpu.push(o.step_cpu);
-                total.push(o.total_s);
-            }
-        }
-        PointResult {
-            runs: step.len(),
-            step_cpu_seconds: if single { median(cpu) } else { f64::NAN },
-            step_seconds: median(step),
-            total_seconds: median(total),
-            metrics: self
-                .metrics
-                .iter()
-                .map(|m| m.of_all(&first.errors))
-                .collect(),
-            reference: first
-                .errors
-                .iter()
-                .enumerate()
-                .map(|(k, e)| format!("@{k}: {}", e.reference))
-                .collect::<Vec<_>>()
-                .join("; "),
-            status: first.status,
-            steps: first.steps,
-            drag_limited_steps: first.drag_limited,
-            dt_min: first.dt.0,
-            dt_max: first.dt.1,
-            momentum_drift: first.momentum_drift,
-        }
-    }
-
-    fn series_label(&self, p: &Point) -> String {
-        if self.series_axes.is_empty() {
-            "all points".into()
-        } else {
-            self.describe(p, &self.series_axes, true)
-        }
-    }
-
-    /// Distinct series in order of first appearance, with the points (indices) on each.
-    fn series(&self) -> Vec<(String, Vec<usize>)> {
-        let mut out: Vec<(String, Vec<usize>)> = Vec::new();
-        for (i, p) in self.points.iter().enumerate() {
-            let l = self.series_label(p);
-            match out.iter_mut().find(|s| s.0 == l) {
-                Some(s) => s.1.push(i),
-                None => out.push((l, vec![i])),
-            }
-        }
-        out
-    }
-
-    /// Write results.csv, results.md and the plots into `dir` (already prepared).
-    pub fn write(
-        &self,
-        dir: &Path,
-        results: &[PointResult],
-        command: &str,
-    ) -> Result<Vec<PathBuf>, IoError> {
-        let mut files = Vec::new();
-        // CSV (the csv crate quotes what needs quoting)
-        let mut csv = csv::Writer::from_writer(Vec::new());
-        let csv_err = |e: csv::Error| IoError::invalid(dir.join("results.csv"), e.to_string());
-        let mut head: Vec<String> = vec!["series".into()];
-        head.extend(self.axes.iter().map(|a| a.key.clone()));
-        head.extend(
-            [
-                "status",
-                "steps",
-                "drag_limited_steps",
-                "dt_min",
-                "dt_max",
-                "runs",
-                "step_seconds",
-                "step_cpu_seconds",
-                "total_seconds",
-            ]
-            .map(String::from),
-        );
-        head.extend(self.metrics.iter().map(|m| m.name()));
-        head.push("momentum_drift".into());
-        csv.write_record(&head).map_err(csv_err)?;
-        for (p, r) in self.points.iter().zip(results) {
-            let mut row = vec![self.series_label(p)];
-            row.extend(
-                self.axes
-                    .iter()
-                    .zip(&p.index)
-                    // Strings bare (the CSV quotes what needs quoting), numbers in full.
-                    .map(|(a, &i)| match &a.values[i] {
-                        toml::Value::String(s) => s.clone(),
-                        v => v.to_string(),
-                    }),
-            );
-            row.push(r.status.text(self.cfg.max_steps));
-            row.push(r.steps.to_string());
-            row.push(r.drag_limited_steps.to_string());
-            for v in [r.dt_min, r.dt_max] {
-                row.push(if r.steps > 0 {
-                    format!("{v:e}")
-                } else {
-                    String::new()
-                });
-            }
-            row.push(r.runs.to_string());
-            row.push(format!("{:.6}", r.step_seconds));
-            row.push(if r.step_cpu_seconds.is_finite() {
-                format!("{:.6}", r.step_cpu_seconds)
-            } else {
-                String::new()
-            });
-            row.push(format!("{:.6}", r.total_seconds));
-            for m in &r.metrics {
-                row.push(if m.is_finite() {
-                    format!("{m:e}")
-                } else {
-                    String::new()
-                });
-            }
-            row.push(if r.momentum_drift.is_finite() {
-                format!("{:e}", r.momentum_drift)
-            } else {
-                String::new()
-            });
-            csv.write_record(&row).map_err(csv_err)?;
-        }
-        let p = dir.join("results.csv");
-        let bytes = csv
-            .into_inner()
-            .map_err(|e| csv_err(e.into_error().into()))?;
-        io::write_bytes_atomic(&p, &bytes)?;
-        files.push(p);
-
-        // Plots
-        let series = self.series();
-        let styles = self.styles(&series);
-        let pm = self.plot_metric;
-        let title = self.cfg.title.clone().unwrap_or(self.cfg.name.clone());
-        let mk = |x: &dyn Fn(usize) -> f64| -> Vec<LogLogSeries> {
-            series
-                .iter()
-                .zip(&styles)
-                .map(|((label, idx), &(color, style))| LogLogSeries {
-                    label: label.clone(),
-                    points: idx
-                        .iter()
-                        .filter(|&&i| results[i].status == Status::Ok)
-                        .map(|&i| (x(i), results[i].metrics[pm]))
-                        .collect(),
-                    color,
-                    style,
-                })
-                .collect()
-        };
-        let p = dir.join("error_vs_time.png");
-        let x_desc = format!(
-            "wall time of the step loop, {} thread{} [s]",
-            self.cfg.threads,
-            if self.cfg.threads == 1 { "" } else { "s" }
-        );
-        let mut lines = mk(&|i| results[i].cost());
-        let n_lines = lines.len();
-        lines.extend(
-            self.references
-                .iter()
-                .enumerate()
-                .map(|(k, r)| LogLogSeries {
-                    label: r.label.clone(),
-                    points: vec![(r.wall_s, r.error)],
-                    color: n_lines + k,
-                    style: 2,
-                }),
-        );
-        fig_loglog(
-            &p,
-            &format!("{title}: error against run time"),
-            &x_desc,
-            &self.metrics[pm].name(),
-            &lines,
-        )?;
-        files.push(p);
-        for &a in &self.plot_against {
-            let key = &self.axes[a].key;
-            let p = dir.join(format!("error_vs_{}.png", key.replace('.', "_")));
-            fig_loglog(
-                &p,
-                &format!("{title}: error against {key}"),
-                key,
-                &self.metrics[pm].name(),
-                &mk(&|i| {
-                    as_number(&self.axes[a].values[self.points[i].index[a]]).unwrap_or(f64::NAN)
-                }),
-            )?;
-            files.push(p);
-        }
-
-        // Markdown
-        let p = dir.join("results.md");
-        io::write_bytes_atomic(&p, self.markdown(results, command, &files).as_bytes())?;
-        files.push(p);
-        Ok(files)
-    }
-
-    /// Colour and marker of each series: the first series axis picks the marker/dash, the
-    /// others the colour (one axis: colour and marker both follow it).
-    fn styles(&self, series: &[(String, Vec<usize>)]) -> Vec<(usize, usize)> {
-        let mut colors: Vec<String> = Vec::new();
-        series
-            .iter()
-            .map(|(_, idx)| {
-                let p = &self.points[idx[0]];
-                let style = self.series_axes.first().map_or(0, |&a| p.index[a]);
-                let rest = if self.series_axes.len() > 1 {
-                    self.describe(p, &self.series_axes[1..], true)
-                } else {
-                    self.describe(p, &self.series_axes, true)
-                };
-                let color = match colors.iter().position(|c| *c == rest) {
-                    Some(c) => c,
-                    None => {
-                        colors.push(rest);
-                        colors.len() - 1
-                    }
-                };
-                (color, style)
-            })
-            .collect()
-    }
-
-    fn markdown(&self, results: &[PointResult], command: &str, files: &[PathBuf]) -> String {
-        let c = &self.cfg;
-        let mut s = String::new();
-        let title = c.title.clone().unwrap_or(c.name.clone());
-        let _ = writeln!(s, "# {title}\n");
-        if let Some(d) = &c.description {
-            let _ = writeln!(s, "{}\n", d.trim());
-        }
-        let _ = writeln!(
-            s,
-            "Generated by `{command}` (dustsph {}, git {}).\n",
-            env!("CARGO_PKG_VERSION"),
-            env!("DUSTSPH_GIT")
-        );
-        let _ = writeln!(
-            s,
-            "- Study file: `{}`; base scene: `{}`; fixed overrides: {}",
-            self.file.display(),
-            self.scene_file.display(),
-            if c.set.is_empty() {
-                "none".to_string()
-            } else {
-                c.set
-                    .iter()
-                    .map(|x| format!("`{x}`"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            }
-        );
-        let _ = writeln!(
-            s,
-            "- Backend: CPU (rayon, {} thread(s)), {}. **step s** = wall time of the time-step loop, the cost plotted and ranked; **cpu s** = CPU time of that loop on its one thread (single-threaded studies; a cpu s well below step s means other load slowed the run; the CPU clock read here ticks in milliseconds, so it is rough for the shortest runs); **total s** (wall) adds set-up, initial densities and the error evaluation. Times are the median of up to {} runs when the first step loop took < {} s (column *runs*).",
-            c.threads,
-            {
-                let mut p: Vec<&str> = self
-                    .points
-                    .iter()
-                    .map(|p| p.scene.numerics.precision.name())
-                    .collect();
-                p.sort_unstable();
-                p.dedup();
-                p.join(" and ")
-            },
-            c.repeat,
-            c.repeat_below
-        );
-        if let Some(r) = results.iter().find(|r| !r.reference.is_empty()) {
-            let _ = writeln!(s, "- Errors at t_end against (FIELD.NORM@k uses comparison k, @0 when not given): {}. `max.*` is the largest norm over all compared fields.", r.reference);
-        }
-        let _ = writeln!(
-            s,
-            "- Points whose first step shows they would need more than {} steps are not run (status *skipped*), and say how many they would need.",
-            c.max_steps
-        );
-        let _ = writeln!(
-            s,
-            "- Momentum drift = |P(t_end) − P(0)| / max_t Σ m|v| (scenes with fixed wall particles exchange momentum with the walls: there it is not a conservation check).\n"
-        );
-        for f in files {
-            if f.extension().is_some_and(|e| e == "png") {
-                if let Some(n) = f.file_name() {
-                    let n = n.to_string_lossy();
-                    let _ = writeln!(s, "![{n}]({n})\n");
-                }
-            }
-        }
-        if !self.references.is_empty() {
-            let _ = writeln!(
-                s,
-                "Reference points (measured elsewhere, not run by this study; squares in the plot):\n\n| reference | wall time s | {} | note |\n|---|---|---|---|",
-                self.metrics[self.plot_metric].name()
-            );
-            for r in &self.references {
-                let _ = writeln!(
-                    s,
-                    "| {} | {} | {:.3e} | {} |",
-                    r.label.replace('|', "\\|"),
-                    r.wall_s,
-                    r.error,
-                    r.note.replace('|', "\\|")
-                );
-            }
-            let _ = writeln!(s);
-        }
-        // Table
-        let mut head: Vec<String> = self.axes.iter().map(|a| format!("`{}`", a.key)).collect();
-        head.extend(
-            [
-                "steps", "dt min", "dt max", "runs", "step s", "cpu s", "total s",
-            ]
-            .map(String::from),
-        );
-        head.extend(self.metrics.iter().map(|m| m.name()));
-        head.extend(["momentum drift", "status"].map(String::from));
-        let _ = writeln!(s, "| {} |", head.join(" | "));
-        let _ = writeln!(s, "|{}", "---|".repeat(head.len()));
-        let g = |v: f64| {
-            if v.is_finite() {
-                format!("{v:.3e}")
-            } else {
-                "–".into()
-            }
-        };
-        for (p, r) in self.points.iter().zip(results) {
-            let mut row: Vec<String> = self
-                .axes
-                .iter()
-                .zip(&p.index)
-                .map(|(a, &i)| label_value(&a.values[i]).replace('|', "\\|"))
-                .collect();
-            let ran = r.status == Status::Ok;
-            row.push(if r.steps > 0 {
-                r.steps.to_string()
-            } else {
-                "–".into()
-            });
-            row.push(if r.steps > 0 {
-                g(r.dt_min)
-            } else {
-                "–".into()
-            });
-            row.push(if r.steps > 0 {
-                g(r.dt_max)
-            } else {
-                "–".into()
-            });
-            row.push(r.runs.to_string());
-            row.push(if ran {
-                format!("{:.3}", r.step_seconds)
-            } else {
-                "–".into()
-            });
-            row.push(if ran && r.step_cpu_seconds.is_finite() {
-                format!("{:.3}", r.step_cpu_seconds)
-            } else {
-                "–".into()
-            });
-            row.push(if ran {
-                format!("{:.3}", r.total_seconds)
-            } else {
-                "–".into()
-            });
-            row.extend(r.metrics.iter().map(|&m| g(m)));
-            row.push(g(r.momentum_drift));
-            row.push(r.status.text(c.max_steps));
-            let _ = writeln!(s, "| {} |", row.join(" | "));
-        }
-        // Cheapest run reaching each target error, per series.
-        if !c.targets.is_empty() {
-            let pm = self.plot_metric;
-            let _ = writeln!(
-                s,
-                "\n## Cheapest run reaching a target `{}`\n\nFor each series, the run with the smallest step-loop wall time (step s) among those whose error is at or below the target (no interpolation).\n",
-                self.metrics[pm].name()
-            );
-            let mut head = vec!["series".to_string()];
-            head.extend(c.targets.iter().map(|t| format!("≤ {}", scene::num(*t))));
-            let _ = writeln!(s, "| {} |", head.join(" | "));
-            let _ = writeln!(s, "|{}", "---|".repeat(head.len()));
-            for (label, idx) in self.series() {
-                let mut row = vec![label];
-                for &t in &c.targets {
-                    let best = idx
-                        .iter()
-                        .filter(|&&i| {
-                            results[i].status == Status::Ok && results[i].metrics[pm] <= t
-                        })
-                        .min_by(|&&a, &&b| {
-                            results[a].step_seconds.total_cmp(&results[b].step_seconds)
-                        });
-                    row.push(match best {
-                        Some(&i) => format!(
-                            "{:.3} s ({}{})",
-                            results[i].cost(),
-                            self.describe(&self.points[i], &self.point_axes, true),
-                            format_args!(", {} steps", results[i].steps)
-                        ),
-                        None => "not reached".into(),
-                    });
-                }
-                let _ = writeln!(s, "| {} |", row.join(" | "));
-            }
-        }
-        s
     }
 }
 
