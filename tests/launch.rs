@@ -362,13 +362,11 @@ fn device_memory_estimate_bounds_what_the_engine_allocates() {
                 sets.push(format!("numerics.neighbour_list=\"{lists}\""));
                 let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(file);
                 let loaded = dustsph::scene::load(&path, &sets).unwrap();
-                let su = dustsph::setup::build(&loaded.scene).unwrap();
-                let phys = dustsph::step::Physics::from_scene(&loaded.scene, su.h, su.domain);
-                let state = su.state;
+                let (mut sim, _) = Simulation::of_scene(&loaded.scene, DeviceChoice::Cpu).unwrap();
+                let state = &sim.state;
                 let ng = state.gas.ph.x.len();
                 let n = ng + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
                 let time = &loaded.scene.time;
-                let (mut sim, _) = Simulation::local(phys, time, state, DeviceChoice::Cpu).unwrap();
                 for _ in 0..3 {
                     sim.step(time.t_end).unwrap();
                 }

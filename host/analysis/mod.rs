@@ -9,7 +9,9 @@ use crate::exact::dustybox::DustyBox;
 use crate::exact::dustywave::WaveGas;
 use crate::exact::riemann::{DustyRiemann, Prim};
 use crate::particles::{Phase, State};
-use crate::scene::{BallCfg, BoxCfg, GasEos, GasState, ProblemCfg, Scene, SettleCfg};
+use crate::scene::{
+    BallCfg, BoxCfg, GasEos, GasState, ProblemCfg, Scene, SettleCfg, ShockCfg, WaveCfg,
+};
 use crate::setup::dustywave;
 use norms::Norms;
 use serde::{Deserialize, Serialize};
@@ -172,166 +174,185 @@ fn all_phase_errors(
 /// Errors against the exact solution of the scene (`None` if the problem has none).
 /// `dt_fixed` enables the discrete IDIC oracle of the dusty box.
 pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<ExactErrors> {
+    match &scene.problem {
+        ProblemCfg::Dustyball(b) => ball_reference_errors(scene, b, state),
+        ProblemCfg::Dustybox(b) => box_errors(scene, b, state, dt_fixed),
+        ProblemCfg::Dustywave(w) => wave_errors(scene, w, state),
+        ProblemCfg::Dustysettle(c) => vec![settle_errors(scene, c, state)],
+        ProblemCfg::Dustyshock(s) => shock_errors(scene, s, state),
+    }
+}
+
+/// The dusty box against the exact solution of its linear drag ODE, and (fixed τ, IDIC) against
+/// IDIC's own discrete solution.
+fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -> Vec<ExactErrors> {
     let t = state.t;
     let mut out = Vec::new();
-    match &scene.problem {
-        ProblemCfg::Dustyball(b) => out.extend(ball_reference_errors(scene, b, state)),
-        ProblemCfg::Dustybox(b) => {
-            let rho = b.background.rho;
-            let (bx, v0, u0) = dustybox_model(scene, b);
-            let eps = bx.eps.clone();
-            let (vg, ud) = bx.exact(v0, &u0, t);
-            let rs = |k: usize| if k == usize::MAX { rho } else { rho * eps[k] };
-            let scale = u0
-                .iter()
-                .map(|u| (u - v0).abs())
-                .fold(0.0, f64::max)
-                .max(1e-300);
-            out.push(ExactErrors {
-                t,
-                reference: "exact (matrix) solution of the linear drag ODE; densities relative to ρ0, velocities relative to max|u0 − v0|".into(),
-                fields: all_phase_errors(state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
-            });
-            // The oracle is IDIC's own discrete solution; the explicit baseline has none here.
-            let idic = scene.drag.method == crate::scene::DragMethod::Idic;
-            if let Some(dt) = dt_fixed.filter(|_| idic) {
-                let n = (t / dt).round() as usize;
-                if ((n as f64) * dt - t).abs() <= 1e-9 * t.max(dt) {
-                    let (vg, ud) = bx.implicit_euler(v0, &u0, dt, n);
-                    out.push(ExactErrors {
-                        t,
-                        reference: format!("discrete IDIC oracle (I + τM)^-n with τ = {dt}, n = {n}; same normalisation"),
-                        fields: all_phase_errors(state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
-                    });
-                }
-            }
-        }
-        ProblemCfg::Dustywave(w) => {
-            let lw = dustywave::model(scene, w);
-            let y = lw.evolve(&dustywave::initial_amplitudes(w, &lw), t);
-            let (a, k) = (w.amplitude, lw.k);
-            let cs = lw.sound_speed();
-            let rho0 = lw.rho_g0;
-            let rd0 = lw.rho_d0.clone();
-            let rs = |kf: usize| a * if kf == usize::MAX { rho0 } else { rd0[kf] };
-            let rho_g_ex = |x: [f64; 3]| dustywave::field(rho0, a, y.rho_g, k, x[0]);
-            let rho_d_ex =
-                |kf: usize, x: [f64; 3]| dustywave::field(rd0[kf], a, y.rho_d[kf], k, x[0]);
-            // The summed density of a lattice sits a constant fraction off ρ0 (0.2 % on the 3D
-            // close-packed lattice, 20 amplitudes): the errors are measured with each phase's
-            // constant offset removed, and the offset is reported on its own line.
-            let off_g = density_offset(&state.gas.ph, rho_g_ex);
-            let off_d: Vec<f64> = state
-                .dust
-                .iter()
-                .enumerate()
-                .map(|(kf, d)| density_offset(d, |x| rho_d_ex(kf, x)))
-                .collect();
-            let mut fields = all_phase_errors(
-                state,
-                &rs,
-                a * cs,
-                |x| {
-                    (
-                        rho_g_ex(x) + off_g,
-                        dustywave::field(0.0, a, y.v_g, k, x[0]),
-                    )
-                },
-                |kf, x| {
-                    (
-                        rho_d_ex(kf, x) + off_d[kf],
-                        dustywave::field(0.0, a, y.v_d[kf], k, x[0]),
-                    )
-                },
-            );
-            let offset = |name: String, off: f64, scale: f64| FieldError {
-                field: name,
-                norms: Norms {
-                    l1: off.abs() / scale,
-                    l2: off.abs() / scale,
-                    linf: off.abs() / scale,
-                },
-            };
-            fields.push(offset("rho_g offset".into(), off_g, rs(usize::MAX)));
-            for (kf, off) in off_d.iter().enumerate() {
-                fields.push(offset(format!("rho_d{kf} offset"), *off, rs(kf)));
-            }
+    let rho = b.background.rho;
+    let (bx, v0, u0) = dustybox_model(scene, b);
+    let eps = bx.eps.clone();
+    let (vg, ud) = bx.exact(v0, &u0, t);
+    let rs = |k: usize| if k == usize::MAX { rho } else { rho * eps[k] };
+    let scale = u0
+        .iter()
+        .map(|u| (u - v0).abs())
+        .fold(0.0, f64::max)
+        .max(1e-300);
+    out.push(ExactErrors {
+            t,
+            reference: "exact (matrix) solution of the linear drag ODE; densities relative to ρ0, velocities relative to max|u0 − v0|".into(),
+            fields: all_phase_errors(state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
+        });
+    // The oracle is IDIC's own discrete solution; the explicit baseline has none here.
+    let idic = scene.drag.method == crate::scene::DragMethod::Idic;
+    if let Some(dt) = dt_fixed.filter(|_| idic) {
+        let n = (t / dt).round() as usize;
+        if ((n as f64) * dt - t).abs() <= 1e-9 * t.max(dt) {
+            let (vg, ud) = bx.implicit_euler(v0, &u0, dt, n);
             out.push(ExactErrors {
                 t,
                 reference: format!(
-                    "exact linear solution (matrix exponential), {}; ρ errors / (A ρ0) with each phase's constant lattice offset removed (the offset: `rho_* offset`), v errors / (A c_s)",
-                    match lw.gas {
-                        WaveGas::Isothermal { .. } => "isothermal",
-                        WaveGas::Adiabatic { .. } => "adiabatic",
-                    }
+                    "discrete IDIC oracle (I + τM)^-n with τ = {dt}, n = {n}; same normalisation"
                 ),
-                fields,
-            });
-            // Phantom's DUSTYWAVE metric: L2 of v_x − exact over the particles of a phase,
-            // divided by the rms of the exact v_x over the same particles.
-            let mut fields = vec![relative_velocity_error("v_g", &state.gas.ph, |x| {
-                dustywave::field(0.0, a, y.v_g, k, x[0])
-            })];
-            for (kf, d) in state.dust.iter().enumerate() {
-                fields.push(relative_velocity_error(&format!("u_d{kf}"), d, |x| {
-                    dustywave::field(0.0, a, y.v_d[kf], k, x[0])
-                }));
-            }
-            // The density perturbation in the same metric: the phase's mean density removed (the
-            // summed density of a lattice sits a fixed fraction off ρ0, far above the amplitude).
-            fields.push(relative_perturbation_error("rho_g", &state.gas.ph, |x| {
-                dustywave::field(0.0, a, y.rho_g, k, x[0])
-            }));
-            for (kf, d) in state.dust.iter().enumerate() {
-                fields.push(relative_perturbation_error(&format!("rho_d{kf}"), d, |x| {
-                    dustywave::field(0.0, a, y.rho_d[kf], k, x[0])
-                }));
-            }
-            out.push(ExactErrors {
-                t,
-                reference: "exact linear solution; v_x errors relative to the rms of the exact v_x of the phase (Phantom's DUSTYWAVE metric: l2 = L2(v_x − v_exact)/rms(v_exact)); ρ: the perturbation ρ − mean ρ of the phase against the exact perturbation, in the same metric".into(),
-                fields,
+                fields: all_phase_errors(
+                    state,
+                    &rs,
+                    scale,
+                    |_| (rho, vg),
+                    |k, _| (rho * eps[k], ud[k]),
+                ),
             });
         }
-        ProblemCfg::Dustysettle(c) => out.push(settle_errors(scene, c, state)),
-        ProblemCfg::Dustyshock(s) => {
-            let eps_k: Vec<f64> = scene.fractions().iter().map(|f| f.eps).collect();
-            let eps: f64 = eps_k.iter().sum();
-            let x0 = 0.5 * s.length;
-            let prim = |st: GasState| Prim {
-                rho: st.rho,
-                u: 0.0,
-                p: st.p,
-            };
-            let sol = match scene.gas.eos {
-                GasEos::Adiabatic { gamma } => {
-                    DustyRiemann::ideal(prim(s.left), prim(s.right), eps, gamma)
+    }
+    out
+}
+
+/// The dusty wave against the exact linear solution, in two metrics: this code's (normalised
+/// by the amplitude) and Phantom's DUSTYWAVE one.
+fn wave_errors(scene: &Scene, w: &WaveCfg, state: &State) -> Vec<ExactErrors> {
+    let t = state.t;
+    let mut out = Vec::new();
+    let lw = dustywave::model(scene, w);
+    let y = lw.evolve(&dustywave::initial_amplitudes(w, &lw), t);
+    let (a, k) = (w.amplitude, lw.k);
+    let cs = lw.sound_speed();
+    let rho0 = lw.rho_g0;
+    let rd0 = lw.rho_d0.clone();
+    let rs = |kf: usize| a * if kf == usize::MAX { rho0 } else { rd0[kf] };
+    let rho_g_ex = |x: [f64; 3]| dustywave::field(rho0, a, y.rho_g, k, x[0]);
+    let rho_d_ex = |kf: usize, x: [f64; 3]| dustywave::field(rd0[kf], a, y.rho_d[kf], k, x[0]);
+    // The summed density of a lattice sits a constant fraction off ρ0 (0.2 % on the 3D
+    // close-packed lattice, 20 amplitudes): the errors are measured with each phase's
+    // constant offset removed, and the offset is reported on its own line.
+    let off_g = density_offset(&state.gas.ph, rho_g_ex);
+    let off_d: Vec<f64> = state
+        .dust
+        .iter()
+        .enumerate()
+        .map(|(kf, d)| density_offset(d, |x| rho_d_ex(kf, x)))
+        .collect();
+    let mut fields = all_phase_errors(
+        state,
+        &rs,
+        a * cs,
+        |x| {
+            (
+                rho_g_ex(x) + off_g,
+                dustywave::field(0.0, a, y.v_g, k, x[0]),
+            )
+        },
+        |kf, x| {
+            (
+                rho_d_ex(kf, x) + off_d[kf],
+                dustywave::field(0.0, a, y.v_d[kf], k, x[0]),
+            )
+        },
+    );
+    let offset = |name: String, off: f64, scale: f64| FieldError {
+        field: name,
+        norms: Norms {
+            l1: off.abs() / scale,
+            l2: off.abs() / scale,
+            linf: off.abs() / scale,
+        },
+    };
+    fields.push(offset("rho_g offset".into(), off_g, rs(usize::MAX)));
+    for (kf, off) in off_d.iter().enumerate() {
+        fields.push(offset(format!("rho_d{kf} offset"), *off, rs(kf)));
+    }
+    out.push(ExactErrors {
+            t,
+            reference: format!(
+                "exact linear solution (matrix exponential), {}; ρ errors / (A ρ0) with each phase's constant lattice offset removed (the offset: `rho_* offset`), v errors / (A c_s)",
+                match lw.gas {
+                    WaveGas::Isothermal { .. } => "isothermal",
+                    WaveGas::Adiabatic { .. } => "adiabatic",
                 }
-                GasEos::Isothermal { cs } => {
-                    DustyRiemann::isothermal(prim(s.left), prim(s.right), eps, cs)
-                }
-            };
-            if let Some(sol) = sol {
-                out.push(ExactErrors {
-                    t,
-                    reference: "equilibrium (t_stop → 0) mixture Riemann solution; absolute errors"
-                        .into(),
-                    fields: all_phase_errors(
-                        state,
-                        &|_| 1.0,
-                        1.0,
-                        |x| {
-                            let (rg, _, v, _) = sol.sample(x[0], x0, t);
-                            (rg, v)
-                        },
-                        |kf, x| {
-                            let (rg, _, v, _) = sol.sample(x[0], x0, t);
-                            (rg * eps_k[kf], v)
-                        },
-                    ),
-                });
-            }
-        }
+            ),
+            fields,
+        });
+    // Phantom's DUSTYWAVE metric: L2 of v_x − exact over the particles of a phase,
+    // divided by the rms of the exact v_x over the same particles.
+    let mut fields = vec![relative_velocity_error("v_g", &state.gas.ph, |x| {
+        dustywave::field(0.0, a, y.v_g, k, x[0])
+    })];
+    for (kf, d) in state.dust.iter().enumerate() {
+        fields.push(relative_velocity_error(&format!("u_d{kf}"), d, |x| {
+            dustywave::field(0.0, a, y.v_d[kf], k, x[0])
+        }));
+    }
+    // The density perturbation in the same metric: the phase's mean density removed (the
+    // summed density of a lattice sits a fixed fraction off ρ0, far above the amplitude).
+    fields.push(relative_perturbation_error("rho_g", &state.gas.ph, |x| {
+        dustywave::field(0.0, a, y.rho_g, k, x[0])
+    }));
+    for (kf, d) in state.dust.iter().enumerate() {
+        fields.push(relative_perturbation_error(&format!("rho_d{kf}"), d, |x| {
+            dustywave::field(0.0, a, y.rho_d[kf], k, x[0])
+        }));
+    }
+    out.push(ExactErrors {
+            t,
+            reference: "exact linear solution; v_x errors relative to the rms of the exact v_x of the phase (Phantom's DUSTYWAVE metric: l2 = L2(v_x − v_exact)/rms(v_exact)); ρ: the perturbation ρ − mean ρ of the phase against the exact perturbation, in the same metric".into(),
+            fields,
+        });
+    out
+}
+
+/// The dusty shock tube against the equilibrium (t_stop → 0) mixture Riemann solution.
+fn shock_errors(scene: &Scene, s: &ShockCfg, state: &State) -> Vec<ExactErrors> {
+    let t = state.t;
+    let mut out = Vec::new();
+    let eps_k: Vec<f64> = scene.fractions().iter().map(|f| f.eps).collect();
+    let eps: f64 = eps_k.iter().sum();
+    let x0 = 0.5 * s.length;
+    let prim = |st: GasState| Prim {
+        rho: st.rho,
+        u: 0.0,
+        p: st.p,
+    };
+    let sol = match scene.gas.eos {
+        GasEos::Adiabatic { gamma } => DustyRiemann::ideal(prim(s.left), prim(s.right), eps, gamma),
+        GasEos::Isothermal { cs } => DustyRiemann::isothermal(prim(s.left), prim(s.right), eps, cs),
+    };
+    if let Some(sol) = sol {
+        out.push(ExactErrors {
+            t,
+            reference: "equilibrium (t_stop → 0) mixture Riemann solution; absolute errors".into(),
+            fields: all_phase_errors(
+                state,
+                &|_| 1.0,
+                1.0,
+                |x| {
+                    let (rg, _, v, _) = sol.sample(x[0], x0, t);
+                    (rg, v)
+                },
+                |kf, x| {
+                    let (rg, _, v, _) = sol.sample(x[0], x0, t);
+                    (rg * eps_k[kf], v)
+                },
+            ),
+        });
     }
     out
 }

@@ -2,7 +2,6 @@
 //! CPU or on a device.
 use crate::scene::Scene;
 use crate::scene::{ListChoice, Precision};
-use crate::setup;
 use crate::sim::Simulation;
 use crate::step::backend::{self, DeviceChoice};
 use crate::step::Physics;
@@ -49,16 +48,10 @@ pub fn bench(
         .build()
         .map_err(|e| e.to_string())?;
     pool.install(|| {
-        let su = setup::build(scene).map_err(|e| e.to_string())?;
-        let phys = Physics::from_scene(scene, su.h, su.domain);
-        let nb = mean_gas_neighbours(&phys, &su.state).map_err(|e| e.to_string())?;
         let (resolved, _) = backend::select(device)?;
         let used0 = backend::device_memory_used(resolved);
-        let (mut sim, note) =
-            Simulation::local(phys, &scene.time, su.state, device).map_err(|e| match e {
-                backend::StartError::Device(m) => m,
-                backend::StartError::Step(e) => e.to_string(),
-            })?;
+        let (mut sim, note) = Simulation::of_scene(scene, device)?;
+        let nb = mean_gas_neighbours(&sim.phys, &sim.state).map_err(|e| e.to_string())?;
         if let Some(n) = note {
             eprintln!("dustsph: {n}");
         }

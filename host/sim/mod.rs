@@ -179,6 +179,18 @@ impl Simulation {
         Ok((sim, note))
     }
 
+    /// A scene's simulation on one process: its set-up, its physics and the engine on
+    /// `device` (a note when `auto` did not use the GPU). Errors are the set-up's or the
+    /// engine's message.
+    pub fn of_scene(
+        scene: &crate::scene::Scene,
+        device: DeviceChoice,
+    ) -> Result<(Simulation, Option<String>), String> {
+        let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
+        let phys = Physics::from_scene(scene, su.h, su.domain);
+        Simulation::local(phys, &scene.time, su.state, device).map_err(|e| e.to_string())
+    }
+
     /// One step toward `t_target` (never past it); the diagnostics follow it.
     pub fn step(&mut self, t_target: f64) -> Result<Taken, StepError> {
         let taken = self

@@ -308,11 +308,7 @@ pub fn step_over_ranks(
             }
         }
     }
-    let (mut sim, _) =
-        Simulation::local(phys, &scene.time, su.state, DeviceChoice::Cpu).map_err(|e| match e {
-            crate::step::backend::StartError::Device(m) => m,
-            crate::step::backend::StartError::Step(e) => e.to_string(),
-        })?;
+    let (mut sim, _) = Simulation::of_scene(scene, DeviceChoice::Cpu)?;
     for _ in 0..steps {
         sim.step(scene.time.t_end).map_err(err)?;
     }

@@ -31,7 +31,6 @@ use crate::scene::{self, Scene};
 use crate::setup;
 use crate::sim::{Flow, Observer, RunError, Simulation};
 use crate::step::backend::DeviceChoice;
-use crate::step::Physics;
 use serde::Deserialize;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

@@ -35,14 +35,9 @@ fn run_once(scene: &Scene, max_steps: u64) -> Once {
         o.total_s = t0.elapsed().as_secs_f64();
         o
     };
-    let su = match setup::build(scene) {
-        Ok(s) => s,
-        Err(e) => return fail(out, e.to_string()),
-    };
-    let phys = Physics::from_scene(scene, su.h, su.domain);
-    let mut sim = match Simulation::local(phys, &scene.time, su.state, DeviceChoice::Cpu) {
+    let mut sim = match Simulation::of_scene(scene, DeviceChoice::Cpu) {
         Ok((s, _)) => s,
-        Err(e) => return fail(out, e.to_string()),
+        Err(e) => return fail(out, e),
     };
     let t_end = scene.time.t_end;
     // A point whose first step says it needs more than max_steps steps is skipped unrun.
