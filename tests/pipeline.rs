@@ -1,9 +1,7 @@
 //! The step is assembled from the scene, and the unbounded grid never drops a particle.
 mod common;
 use common::*;
-use dustsph::grid::Domain;
 use dustsph::particles::{Gas, Phase, State};
-use dustsph::scene::{DensityMethod, DragMethod, PositionUpdate};
 use dustsph::step::backend::{Backend, DeviceChoice};
 use dustsph::step::Physics;
 use dustsph_device::drag::StoppingLaw;
@@ -92,31 +90,11 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
         dust: vec![phase(0.5 * dx, n as u64)],
     };
     let h = 4.0 * dx;
-    let phys = Physics {
-        dim: 1,
+    let phys = Physics::open_1d(
         h,
-        eos: Eos::Adiabatic { gamma: 1.4 },
-        av: None,
-        laws: vec![StoppingLaw::Epstein { s_rho: 1e-3 }],
-        heating: false,
-        drag: DragMethod::Idic,
-        coupling: dustsph::scene::Coupling::Cell,
-        deposit_scatter: false,
-        ext_gas: [0.0; 3],
-        ext_dust: [0.0; 3],
-        cell_size: 0.5 * h,
-        domain: Domain {
-            dim: 1,
-            periodic: [None; 3],
-        },
-        position_update: PositionUpdate::New,
-        density: DensityMethod::Summation,
-        variable_h: None,
-        gradient: dustsph::scene::GradientMethod::Standard,
-        integrator: dustsph::scene::Integrator::FirstOrder,
-        precision: dustsph::scene::Precision::F64,
-        neighbour_list: dustsph::scene::ListChoice::Auto,
-    };
+        Eos::Adiabatic { gamma: 1.4 },
+        vec![StoppingLaw::Epstein { s_rho: 1e-3 }],
+    );
     let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     let mut pscale: f64 = 0.0;
     for _ in 0..300 {
@@ -195,31 +173,11 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
         }],
     };
     let h = 2.0 * dx;
-    let phys = Physics {
-        dim: 1,
+    let phys = Physics::open_1d(
         h,
-        eos: Eos::Isothermal { cs: 1.0 },
-        av: None,
-        laws: vec![StoppingLaw::ConstantTime { t_stop: 1e-9 }],
-        heating: false,
-        drag: DragMethod::Idic,
-        coupling: dustsph::scene::Coupling::Cell,
-        deposit_scatter: false,
-        ext_gas: [0.0; 3],
-        ext_dust: [0.0; 3],
-        cell_size: 0.5 * h,
-        domain: Domain {
-            dim: 1,
-            periodic: [None; 3],
-        },
-        position_update: PositionUpdate::New,
-        density: DensityMethod::Summation,
-        variable_h: None,
-        gradient: dustsph::scene::GradientMethod::Standard,
-        integrator: dustsph::scene::Integrator::FirstOrder,
-        precision: dustsph::scene::Precision::F64,
-        neighbour_list: dustsph::scene::ListChoice::Auto,
-    };
+        Eos::Isothermal { cs: 1.0 },
+        vec![StoppingLaw::ConstantTime { t_stop: 1e-9 }],
+    );
     let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     for _ in 0..10 {
         eng.forces().unwrap();

@@ -10,9 +10,8 @@
 //! on demand.
 use crate::analysis;
 use crate::exact::complex::C;
-use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
-use crate::scene::{self, DensityMethod, DragMethod, PositionUpdate, Scene};
+use crate::scene::{self, DragMethod, PositionUpdate, Scene};
 use crate::setup::{self, dustywave};
 use crate::sim::Simulation;
 use crate::step::backend::{Backend, DeviceChoice};
@@ -371,34 +370,14 @@ fn slab() -> (Physics, State, f64, f64) {
         dust: vec![dust0, dust1],
     };
     let h = 2.0 * dx;
-    let phys = Physics {
-        dim: 1,
+    let phys = Physics::open_1d(
         h,
-        eos: Eos::Isothermal { cs: 1.0 },
-        av: None,
-        laws: vec![
+        Eos::Isothermal { cs: 1.0 },
+        vec![
             StoppingLaw::ConstantTime { t_stop: 1e-3 },
             StoppingLaw::ConstantTime { t_stop: 1e-6 },
         ],
-        heating: false,
-        drag: DragMethod::Idic,
-        coupling: crate::scene::Coupling::Cell,
-        deposit_scatter: false,
-        ext_gas: [0.0; 3],
-        ext_dust: [0.0; 3],
-        cell_size: 0.5 * h,
-        domain: Domain {
-            dim: 1,
-            periodic: [None; 3],
-        },
-        position_update: PositionUpdate::New,
-        density: DensityMethod::Summation,
-        variable_h: None,
-        gradient: crate::scene::GradientMethod::Standard,
-        integrator: crate::scene::Integrator::FirstOrder,
-        precision: crate::scene::Precision::F64,
-        neighbour_list: crate::scene::ListChoice::Auto,
-    };
+    );
     (phys, st, 1e-3, 0.5)
 }
 

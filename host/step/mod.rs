@@ -91,6 +91,38 @@ impl Physics {
         }
     }
 
+    /// A one-dimensional open domain at a fixed h, with everything else as a scene's defaults
+    /// (no viscosity or heating, nearest-cell IDIC in cells of 0.5 h, summation density, the
+    /// standard gradient, the first-order step, f64): the physics of a hand-made state (the
+    /// stiffness matrix's slab, tests).
+    pub fn open_1d(h: f64, eos: Eos<f64>, laws: Vec<StoppingLaw<f64>>) -> Physics {
+        Physics {
+            dim: 1,
+            h,
+            eos,
+            av: None,
+            laws,
+            heating: false,
+            drag: DragMethod::Idic,
+            coupling: Coupling::Cell,
+            deposit_scatter: false,
+            ext_gas: [0.0; 3],
+            ext_dust: [0.0; 3],
+            cell_size: 0.5 * h,
+            domain: Domain {
+                dim: 1,
+                periodic: [None; 3],
+            },
+            position_update: PositionUpdate::New,
+            density: DensityMethod::Summation,
+            variable_h: None,
+            gradient: GradientMethod::Standard,
+            integrator: Integrator::FirstOrder,
+            precision: Precision::F64,
+            neighbour_list: crate::scene::ListChoice::Auto,
+        }
+    }
+
     pub fn support(&self) -> f64 {
         dustsph_device::kernel::SUPPORT * self.h
     }
