@@ -215,11 +215,8 @@ pub fn execute(a: BenchArgs) -> u8 {
     let mut where_ = String::new();
     for (name, file, sets) in cases {
         let name = name.as_str();
-        let loaded = crate::scene::load_shipped(file, &sets).and_then(|mut l| {
-            l.set_precision(precision)?;
-            l.set_neighbour_list(neighbour_list)?;
-            Ok(l)
-        });
+        let loaded = crate::scene::load_shipped(file, &sets)
+            .and_then(|l| l.with_numerics(Some(precision), Some(neighbour_list)));
         let loaded = match loaded {
             Ok(l) => l,
             Err(e) => {

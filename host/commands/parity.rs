@@ -501,10 +501,8 @@ pub fn execute(a: ParityArgs) -> u8 {
     let mut all_ok = true;
     for (label, file, sets, steps) in crate::parity::CASES {
         let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-        let loaded = crate::scene::load_shipped(file, &sets).and_then(|mut l| {
-            l.set_precision(precision)?;
-            Ok(l)
-        });
+        let loaded = crate::scene::load_shipped(file, &sets)
+            .and_then(|l| l.with_numerics(Some(precision), None));
         let loaded = match loaded {
             Ok(l) => l,
             Err(e) => {

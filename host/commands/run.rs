@@ -10,7 +10,9 @@ use crate::sim::progress::{CheckpointEvery, Interrupt, ProgressBar};
 use crate::sim::start;
 use crate::sim::summary;
 use crate::sim::{Observer, Simulation, Stepper};
-use crate::step::backend::{Backend, DeviceChoice};
+#[cfg(feature = "mpi")]
+use crate::step::backend::Backend;
+use crate::step::backend::DeviceChoice;
 use crate::step::Physics;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -111,7 +113,7 @@ impl Run {
             ));
         }
         // The stages of the run's summary are the steps' (not the set-up's or the check's).
-        if let Stepper::Local(eng) = &mut stepper {
+        if let Some(eng) = stepper.local() {
             *eng.timers_mut() = Default::default();
         }
         state.t = 0.0;
@@ -532,12 +534,7 @@ pub fn execute(a: RunArgs) -> u8 {
         device,
         precision,
     } = a;
-    let loaded = crate::scene::load(&scene, &set).and_then(|mut l| {
-        if let Some(p) = precision {
-            l.set_precision(p)?;
-        }
-        Ok(l)
-    });
+    let loaded = crate::scene::load(&scene, &set).and_then(|l| l.with_numerics(precision, None));
     let loaded = match loaded {
         Ok(l) => l,
         Err(e) => {

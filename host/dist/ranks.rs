@@ -368,9 +368,8 @@ impl RankStepper {
         let (forces, global, drag) = self.global_limits(&mut eng, thin, step)?;
         let mut plan = None;
         let mut next = Vec::new();
-        if let (Some(e), Some(f)) = (&mut eng, forces) {
+        if let (Some(e), Some(_)) = (&mut eng, forces) {
             let r = (|| -> Result<Plan, crate::step::StepError> {
-                let _ = f;
                 let p = match drv.plan(&global, drag, t, step, t_target) {
                     Ok(p) => p,
                     Err(PlanError::NoLimit(m)) => return Err(crate::step::StepError::Blowup(m)),

@@ -70,6 +70,7 @@ impl ParticleRecord {
     }
 }
 
+#[cfg(feature = "mpi")]
 pub(crate) fn full_pos(r: &ParticleRecord) -> [f64; 3] {
     r.x
 }

@@ -77,6 +77,22 @@ impl LoadedScene {
         Ok(())
     }
 
+    /// The command line's numerics options (`--precision`, `--neighbour-list`), where given,
+    /// set on the scene ([`Self::set_precision`]).
+    pub fn with_numerics(
+        mut self,
+        precision: Option<Precision>,
+        list: Option<ListChoice>,
+    ) -> Result<LoadedScene, SceneError> {
+        if let Some(p) = precision {
+            self.set_precision(p)?;
+        }
+        if let Some(l) = list {
+            self.set_neighbour_list(l)?;
+        }
+        Ok(self)
+    }
+
     /// `numerics.neighbour_list` set by a command-line option, as [`Self::set_precision`].
     pub fn set_neighbour_list(&mut self, l: ListChoice) -> Result<(), SceneError> {
         self.record_option("numerics.neighbour_list", l.name())?;

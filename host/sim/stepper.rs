@@ -2,9 +2,13 @@
 //! ranks ([`crate::dist::ranks`]). Either takes a step with the planner's one rule, reports the
 //! momentum after it, and brings the host state up to date for an output.
 use crate::particles::State;
-use crate::step::backend::{Backend, DeviceChoice};
+use crate::step::backend::Backend;
+#[cfg(feature = "mpi")]
+use crate::step::backend::DeviceChoice;
 use crate::step::timestep::{StepPlanner, Taken};
-use crate::step::{Forces, Momentum, StepError};
+#[cfg(feature = "mpi")]
+use crate::step::Forces;
+use crate::step::{Momentum, StepError};
 
 #[cfg(feature = "mpi")]
 pub use crate::dist::ranks::RankStepper;
@@ -82,6 +86,8 @@ impl Stepper {
 
     /// An engine on the whole (synced) state, for what an output computes from it: the
     /// stepping engine itself, or over ranks rank 0's engine rebuilt on the gathered state.
+    // The state is rank 0's gathered one over ranks; one process's engine is already on it.
+    #[cfg_attr(not(feature = "mpi"), allow(unused_variables))]
     pub fn engine(&mut self, state: &mut State) -> Result<&mut Backend, StepError> {
         match self {
             Stepper::Local(eng) => Ok(eng),
@@ -151,7 +157,3 @@ impl Stepper {
         }
     }
 }
-
-/// Keeps `DeviceChoice` in the module's vocabulary without the mpi feature.
-#[allow(dead_code)]
-const _CPU: DeviceChoice = DeviceChoice::Cpu;

@@ -173,6 +173,8 @@ pub(super) struct Ghosts<L: Launcher> {
     pub(super) only: [Option<Buf<L, u8>>; 2],
     /// Every slot's key (phase, id), per phase, in the order of the last sort.
     pub(super) slots: [Vec<(u64, u64)>; 2],
+    /// `DUSTSPH_HALO_CHECK` was set when the ghosts were (read once, not at every refresh).
+    pub(super) check: bool,
 }
 
 impl<L: Launcher, R: Float> Engine<L, R> {
@@ -204,6 +206,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             mask: [None, None],
             only: [None, None],
             slots: [Vec::new(), Vec::new()],
+            check: std::env::var_os("DUSTSPH_HALO_CHECK").is_some(),
         });
         self.ghost_masks()?;
         self.ghost_sync(&Refresh::EVERYTHING)
@@ -272,7 +275,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             return Ok(());
         }
         self.exchange_rows(refresh.fields)?;
-        if std::env::var_os("DUSTSPH_HALO_CHECK").is_some() && refresh.fields != Field::ALL {
+        let check = self.ghosts.as_ref().is_some_and(|g| g.check);
+        if check && refresh.fields != Field::ALL {
             // After this step's sort, only the fields the sort carries have values that still
             // mean something until a pass writes them again.
             let live = if self.resorted {
