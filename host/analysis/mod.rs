@@ -191,16 +191,20 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
     let rho = b.background.rho;
     let (bx, v0, u0) = dustybox_model(scene, b);
     let eps = bx.eps.clone();
-    let (vg, ud) = bx.exact(v0, &u0, t);
+    // `[external]` accelerations (x components; the errors compare v_x) drive the box toward
+    // the terminal drift w*_k = t_k (a_d − a_g)/(1 + Σε).
+    let (ag, ad) = (scene.external.gas[0], scene.external.dust[0]);
+    let (vg, ud) = bx.exact_forced(v0, &u0, ag, ad, t);
     let rs = |k: usize| if k == usize::MAX { rho } else { rho * eps[k] };
     let scale = u0
         .iter()
         .map(|u| (u - v0).abs())
+        .chain(bx.terminal_drift(ag, ad).iter().map(|w| w.abs()))
         .fold(0.0, f64::max)
         .max(1e-300);
     out.push(ExactErrors {
             t,
-            reference: "exact (matrix) solution of the linear drag ODE; densities relative to ρ0, velocities relative to max|u0 − v0|".into(),
+            reference: "exact (matrix) solution of the linear drag ODE (with the [external] accelerations along x); densities relative to ρ0, velocities relative to the largest of |u0 − v0| and the terminal drifts |w*_k|".into(),
             fields: all_phase_errors(state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
         });
     // The oracle is IDIC's own discrete solution; the explicit baseline has none here.
@@ -208,7 +212,7 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
     if let Some(dt) = dt_fixed.filter(|_| idic) {
         let n = (t / dt).round() as usize;
         if ((n as f64) * dt - t).abs() <= 1e-9 * t.max(dt) {
-            let (vg, ud) = bx.implicit_euler(v0, &u0, dt, n);
+            let (vg, ud) = bx.implicit_euler_forced(v0, &u0, ag, ad, dt, n);
             out.push(ExactErrors {
                 t,
                 reference: format!(

@@ -127,6 +127,87 @@ impl DustyBox {
         lambdas
     }
 
+    /// The steady relative velocities under constant accelerations (`a_gas` on the gas,
+    /// `a_dust` on every fraction): M w* = (a_dust − a_gas) 1 gives
+    /// w*_k = t_k (a_dust − a_gas)/(1 + Σε), the terminal drift of each fraction.
+    pub fn terminal_drift(&self, a_gas: f64, a_dust: f64) -> Vec<f64> {
+        let c = (a_dust - a_gas) / (1.0 + self.eps_total());
+        self.t_stop.iter().map(|t| t * c).collect()
+    }
+
+    /// The barycentric acceleration (a_gas + Σ ε_k a_dust)/(1 + Σε).
+    fn barycentric_acceleration(&self, a_gas: f64, a_dust: f64) -> f64 {
+        (a_gas + self.eps_total() * a_dust) / (1.0 + self.eps_total())
+    }
+
+    /// [`Self::exact`] under constant accelerations: w(t) = w* + exp(−Mt)(w(0) − w*), the
+    /// barycentric velocity grows at the barycentric acceleration.
+    pub fn exact_forced(
+        &self,
+        v0: f64,
+        u0: &[f64],
+        a_gas: f64,
+        a_dust: f64,
+        t: f64,
+    ) -> (f64, Vec<f64>) {
+        self.forced(v0, u0, a_gas, a_dust, t, |v, u| self.exact(v, u, t))
+    }
+
+    /// [`Self::implicit_euler`] under constant accelerations, as IDIC applies them (the kick
+    /// τa before the implicit drag): w^n = w* + (I + τM)^{−n}(w^0 − w*), exact for the discrete
+    /// scheme since w^{n+1} − w* = (I + τM)^{−1}(w^n − w*).
+    pub fn implicit_euler_forced(
+        &self,
+        v0: f64,
+        u0: &[f64],
+        a_gas: f64,
+        a_dust: f64,
+        tau: f64,
+        n: usize,
+    ) -> (f64, Vec<f64>) {
+        let t = tau * n as f64;
+        self.forced(v0, u0, a_gas, a_dust, t, |v, u| {
+            self.implicit_euler(v, u, tau, n)
+        })
+    }
+
+    /// The unforced solution `decay` of the deviation from the terminal drift, shifted back and
+    /// carried by the barycentric acceleration over time t.
+    fn forced(
+        &self,
+        v0: f64,
+        u0: &[f64],
+        a_gas: f64,
+        a_dust: f64,
+        t: f64,
+        decay: impl Fn(f64, &[f64]) -> (f64, Vec<f64>),
+    ) -> (f64, Vec<f64>) {
+        if a_gas == 0.0 && a_dust == 0.0 {
+            return decay(v0, u0);
+        }
+        let ws = self.terminal_drift(a_gas, a_dust);
+        // The same barycentric velocity with the relative velocities w(0) − w*.
+        let vbar = self.barycentric_velocity(v0, u0);
+        let (v, u) = self.assemble(
+            vbar,
+            &u0.iter()
+                .zip(&ws)
+                .map(|(u, w)| u - v0 - w)
+                .collect::<Vec<_>>(),
+        );
+        let (v, u) = decay(v, &u);
+        let shift = self.barycentric_acceleration(a_gas, a_dust) * t;
+        let (vd, _) = self.assemble(0.0, &ws);
+        let v_new = v + vd + shift;
+        (
+            v_new,
+            u.iter()
+                .zip(&ws)
+                .map(|(uk, w)| uk - v + v_new + w)
+                .collect(),
+        )
+    }
+
     /// Exact velocities at time t for one velocity component: (v_gas, u_k for each k).
     ///
     /// w(t) = exp(−M t) w(0) by the double-double matrix exponential: robust for equal or
@@ -237,6 +318,65 @@ mod tests {
             .zip(&b.1)
             .map(|(x, y)| (x - y).abs())
             .fold((a.0 - b.0).abs(), f64::max)
+    }
+
+    #[test]
+    fn forced_box_matches_direct_integration_and_the_discrete_scheme() {
+        let b = box4();
+        let (v0, u0) = (0.3, [1.0, -0.5, 0.2, 0.0]);
+        let (ag, ad) = (10.0, -2.0);
+        // Exact: RK4 on v' = ag + Σ ε_k (u_k − v)/t_k, u_k' = ad − (u_k − v)/t_k.
+        let (t, steps) = (0.7, 20_000);
+        let mut y: Vec<f64> = std::iter::once(v0).chain(u0).collect();
+        let rhs = |y: &[f64]| -> Vec<f64> {
+            let mut d = vec![ag; 5];
+            for k in 0..4 {
+                let r = (y[k + 1] - y[0]) / b.t_stop[k];
+                d[0] += b.eps[k] * r;
+                d[k + 1] = ad - r;
+            }
+            d
+        };
+        let h = t / steps as f64;
+        for _ in 0..steps {
+            let k1 = rhs(&y);
+            let y2: Vec<f64> = y.iter().zip(&k1).map(|(a, k)| a + 0.5 * h * k).collect();
+            let k2 = rhs(&y2);
+            let y3: Vec<f64> = y.iter().zip(&k2).map(|(a, k)| a + 0.5 * h * k).collect();
+            let k3 = rhs(&y3);
+            let y4: Vec<f64> = y.iter().zip(&k3).map(|(a, k)| a + h * k).collect();
+            let k4 = rhs(&y4);
+            for i in 0..5 {
+                y[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+            }
+        }
+        let e = b.exact_forced(v0, &u0, ag, ad, t);
+        assert!(max_diff(&e, &(y[0], y[1..].to_vec())) < 1e-11);
+        // Discrete: kick by τa, then solve (I + τM) w^{n+1} = w̃ with V carried exactly.
+        let (tau, n) = (0.05, 14);
+        let mut w: Vec<f64> = u0.iter().map(|u| u - v0).collect();
+        let mut vbar = b.barycentric_velocity(v0, &u0);
+        let m = b.drag_matrix();
+        let a: Vec<Vec<f64>> = (0..4)
+            .map(|i| {
+                (0..4)
+                    .map(|j| tau * m[i][j] + if i == j { 1.0 } else { 0.0 })
+                    .collect()
+            })
+            .collect();
+        for _ in 0..n {
+            let kicked: Vec<f64> = w.iter().map(|x| x + tau * (ad - ag)).collect();
+            w = solve_real(&a, &kicked).unwrap();
+            vbar += tau * (ag + b.eps_total() * ad) / (1.0 + b.eps_total());
+        }
+        let d = b.implicit_euler_forced(v0, &u0, ag, ad, tau, n);
+        assert!(max_diff(&d, &b.assemble(vbar, &w)) < 1e-12);
+        // Long after: the terminal drift t_k Δa/(1 + Σε).
+        let late = b.exact_forced(v0, &u0, ag, ad, 50.0);
+        for (k, w) in b.terminal_drift(ag, ad).iter().enumerate() {
+            assert!((late.1[k] - late.0 - w).abs() < 1e-12);
+            assert!((w - b.t_stop[k] * (ad - ag) / (1.0 + b.eps_total())).abs() < 1e-15);
+        }
     }
 
     #[test]

@@ -360,6 +360,11 @@ pub struct BoxSection {
     /// close-packed box keeps `length` along x and the nearest whole number of rows (even in
     /// 2D, a multiple of 6 in 3D) across, so its sides along y and z differ slightly.
     pub lattice: Option<Lattice>,
+    /// Disorder: every particle displaced by a uniform random vector of up to ±`jitter` lattice
+    /// spacings per axis, gas and each dust fraction drawn independently (0: the lattice).
+    pub jitter: Option<f64>,
+    /// The seed of the `jitter` draws (the same seed gives the same particles everywhere).
+    pub seed: Option<u64>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
@@ -407,6 +412,11 @@ pub struct WaveSection {
     /// applied along every axis (Phantom's `dust_shift`); 0 puts each dust particle on a gas
     /// particle.
     pub dust_shift: Option<f64>,
+    /// Disorder: every particle displaced by a uniform random vector of up to ±`jitter` spacings Δ
+    /// (along x) per axis, gas and each dust fraction drawn independently (0: the lattice).
+    pub jitter: Option<f64>,
+    /// The seed of the `jitter` draws (the same seed gives the same particles everywhere).
+    pub seed: Option<u64>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]

@@ -359,6 +359,9 @@ pub struct BoxCfg {
     pub u_dust: Vec<f64>,
     pub dust_shift: f64,
     pub lattice: Lattice,
+    /// Random displacements of up to ±`jitter` spacings per axis (setup/disorder.rs).
+    pub jitter: f64,
+    pub seed: u64,
 }
 
 /// DUSTYWAVE.
@@ -375,6 +378,9 @@ pub struct WaveCfg {
     /// 2D/3D only.
     pub layers: usize,
     pub dust_shift: f64,
+    /// Random displacements of up to ±`jitter` spacings per axis (setup/disorder.rs).
+    pub jitter: f64,
+    pub seed: u64,
 }
 
 /// DUSTYSHOCK: the two sides' gas states (isothermal gas: p = c_s² ρ).

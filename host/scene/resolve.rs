@@ -624,6 +624,7 @@ fn dustybox(b: &BoxSection, background: GasState, nf: usize) -> VResult<BoxCfg> 
         finite(&format!("dustybox.u_dust.{i}"), u)?;
     }
     finite("dustybox.dust_shift", dust_shift)?;
+    let jitter = disorder("dustybox.jitter", b.jitter)?;
     Ok(BoxCfg {
         background,
         length,
@@ -631,7 +632,24 @@ fn dustybox(b: &BoxSection, background: GasState, nf: usize) -> VResult<BoxCfg> 
         u_dust: b.u_dust.clone(),
         dust_shift,
         lattice: b.lattice.unwrap_or(Lattice::Cubic),
+        jitter,
+        seed: b.seed.unwrap_or(DEFAULT_SEED),
     })
+}
+
+/// The seed of the disordered set-ups when the scene names none.
+const DEFAULT_SEED: u64 = 20_181_001;
+
+/// `jitter`: 0 (the lattice) up to one spacing.
+fn disorder(key: &str, jitter: Option<f64>) -> VResult<f64> {
+    let f = jitter.unwrap_or(0.0);
+    if !(0.0..=1.0).contains(&f) {
+        return err(
+            key,
+            format!("must be in [0, 1] lattice spacings (got {})", num(f)),
+        );
+    }
+    Ok(f)
 }
 
 /// The settling column needs dust, and gravity along −x on gas and dust alike.
@@ -666,6 +684,7 @@ fn dustywave(w: &WaveSection, background: GasState, dim: u32) -> VResult<WaveCfg
     positive("dustywave.length", length)?;
     positive("dustywave.amplitude", w.amplitude)?;
     finite("dustywave.dust_shift", dust_shift)?;
+    let jitter = disorder("dustywave.jitter", w.jitter)?;
     if dim > 1 {
         let need = match (lattice, dim) {
             // Hexagonal rows alternate (period 2); fcc layers repeat every 3.
@@ -700,6 +719,8 @@ fn dustywave(w: &WaveSection, background: GasState, dim: u32) -> VResult<WaveCfg
         lattice,
         layers,
         dust_shift,
+        jitter,
+        seed: w.seed.unwrap_or(DEFAULT_SEED),
     })
 }
 

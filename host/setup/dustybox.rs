@@ -48,6 +48,9 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
     for l in &len[..dim as usize] {
         check_periodic_fits(*l, h, "dustybox.length")?;
     }
+    // jitter: the gas (phase 0) and each fraction (k + 1) displaced independently.
+    let mut x = x;
+    super::disorder::jitter(&mut x, dim, &len, dx, b.jitter, b.seed, 0);
     let gas = Phase {
         x,
         v: vec![[b.v_gas, 0.0, 0.0]; n],
@@ -59,12 +62,13 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
     let e = internal_energy(scene, b.background).map(|e| vec![e; n]);
     let mut dust = co_located_dust(scene, &gas, |k| [b.u_dust[k], 0.0, 0.0]);
     // dust_shift: the dust lattice offset by that many spacings along every axis (wrapped).
-    for d in &mut dust {
+    for (k, d) in dust.iter_mut().enumerate() {
         for p in &mut d.x {
             for (c, l) in p.iter_mut().zip(&len).take(dim as usize) {
                 *c = (*c + b.dust_shift * dx).rem_euclid(*l);
             }
         }
+        super::disorder::jitter(&mut d.x, dim, &len, dx, b.jitter, b.seed, k as u64 + 1);
     }
     let mut periodic = [None; 3];
     for (p, l) in periodic.iter_mut().zip(len).take(dim as usize) {

@@ -153,6 +153,12 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let n = n_f as usize;
     let dx = w.length / n as f64;
     let (x0, len) = lattice(dim, w.lattice, n, w.length, w.layers);
+    // jitter displaces the unperturbed points (gas: phase 0, fraction k: k + 1); the stretch
+    // then puts the wave on them in mass coordinates.
+    let disordered = |mut x: Vec<[f64; 3]>, phase: u64| {
+        super::disorder::jitter(&mut x, dim, &len, dx, w.jitter, w.seed, phase);
+        x
+    };
     let np = x0.len();
     let volume: f64 = len[..dim as usize].iter().product();
     // h = hfact × the mean spacing (V/N)^(1/d), Phantom's convention (h = hfact (m/ρ)^(1/d));
@@ -173,7 +179,14 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let lw = model(scene, w);
     let y = initial_amplitudes(w, &lw);
     let (a, k) = (w.amplitude, lw.k);
-    let x = stretch(&x0, w.length, lw.rho_g0, a, y.rho_g, k);
+    let x = stretch(
+        &disordered(x0.clone(), 0),
+        w.length,
+        lw.rho_g0,
+        a,
+        y.rho_g,
+        k,
+    );
     let v: Vec<[f64; 3]> = x
         .iter()
         .map(|p| [field(0.0, a, y.v_g, k, p[0]), 0.0, 0.0])
@@ -214,7 +227,8 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let dust = (0..lw.rho_d0.len())
         .map(|kf| {
             let rho0 = lw.rho_d0[kf];
-            let x = stretch(&x0_dust, w.length, rho0, a, y.rho_d[kf], k);
+            let x0 = disordered(x0_dust.clone(), kf as u64 + 1);
+            let x = stretch(&x0, w.length, rho0, a, y.rho_d[kf], k);
             let v = x
                 .iter()
                 .map(|p| [field(0.0, a, y.v_d[kf], k, p[0]), 0.0, 0.0])

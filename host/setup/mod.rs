@@ -1,4 +1,5 @@
 //! Scene → initial particles. One file per problem; each builds the [`Setup`] the engine starts from.
+mod disorder;
 mod dustyball;
 mod dustybox;
 pub mod dustysettle;
