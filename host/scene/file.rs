@@ -385,6 +385,9 @@ pub enum Lattice {
     Closepacked,
     /// Cubic (square in 2D).
     Cubic,
+    /// A relaxed periodic glass made by the code from the cubic lattice's count and box
+    /// (host/setup/glass.rs): disordered, its SPH density nearly uniform; each phase its own.
+    Glass,
 }
 
 impl Lattice {
@@ -393,6 +396,7 @@ impl Lattice {
         match self {
             Lattice::Closepacked => "closepacked",
             Lattice::Cubic => "cubic",
+            Lattice::Glass => "glass",
         }
     }
 }

@@ -690,7 +690,7 @@ fn dustywave(w: &WaveSection, background: GasState, dim: u32) -> VResult<WaveCfg
             // Hexagonal rows alternate (period 2); fcc layers repeat every 3.
             (Lattice::Closepacked, 2) => 2,
             (Lattice::Closepacked, _) => 6,
-            (Lattice::Cubic, _) => 1,
+            (Lattice::Cubic | Lattice::Glass, _) => 1,
         };
         if layers == 0 || layers % need != 0 {
             return err(

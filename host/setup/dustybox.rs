@@ -37,7 +37,7 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
     };
     let n = x.len();
     // h = hfact × the mean spacing (V/N)^(1/d); Δx exactly for the cubic lattice.
-    let (spacing, vol) = if b.lattice == Lattice::Cubic || dim == 1 {
+    let (spacing, vol) = if b.lattice != Lattice::Closepacked || dim == 1 {
         (dx, dx.powi(dim as i32))
     } else {
         let volume: f64 = len[..dim as usize].iter().product();
@@ -48,11 +48,12 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
     for l in &len[..dim as usize] {
         check_periodic_fits(*l, h, "dustybox.length")?;
     }
-    // jitter: the gas (phase 0) and each fraction (k + 1) displaced independently.
-    let mut x = x;
-    super::disorder::jitter(&mut x, dim, &len, dx, b.jitter, b.seed, 0);
+    // Glass or jitter: the gas (phase 0) and each fraction (k + 1) drawn independently.
+    let order = (b.lattice, b.jitter, b.seed);
+    let mut notes = Vec::new();
+    let x0 = x;
     let gas = Phase {
-        x,
+        x: arrange(x0.clone(), dim, &len, dx, h, order, 0, &mut notes)?,
         v: vec![[b.v_gas, 0.0, 0.0]; n],
         m: vec![rho * vol; n],
         rho: vec![rho; n],
@@ -63,23 +64,26 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
     let mut dust = co_located_dust(scene, &gas, |k| [b.u_dust[k], 0.0, 0.0]);
     // dust_shift: the dust lattice offset by that many spacings along every axis (wrapped).
     for (k, d) in dust.iter_mut().enumerate() {
-        for p in &mut d.x {
+        let mut x = x0.clone();
+        for p in &mut x {
             for (c, l) in p.iter_mut().zip(&len).take(dim as usize) {
                 *c = (*c + b.dust_shift * dx).rem_euclid(*l);
             }
         }
-        super::disorder::jitter(&mut d.x, dim, &len, dx, b.jitter, b.seed, k as u64 + 1);
+        d.x = arrange(x, dim, &len, dx, h, order, k as u64 + 1, &mut notes)?;
     }
     let mut periodic = [None; 3];
     for (p, l) in periodic.iter_mut().zip(len).take(dim as usize) {
         *p = Some((0.0, l));
     }
-    Ok(Setup::at_start(
+    let mut su = Setup::at_start(
         gas_phase(gas, e),
         dust,
         h,
         Domain { dim, periodic },
         dx,
         b.length,
-    ))
+    );
+    su.notes = notes;
+    Ok(su)
 }

@@ -86,7 +86,7 @@ pub fn lattice(
     let (ny, nz) = (layers, if dim == 3 { layers } else { 1 });
     let (dy, dz) = match lattice {
         Lattice::Closepacked => (dx * 0.75f64.sqrt(), dx * 6f64.sqrt() / 3.0),
-        Lattice::Cubic => (dx, dx),
+        Lattice::Cubic | Lattice::Glass => (dx, dx),
     };
     let mut x = Vec::with_capacity(nx * ny * nz);
     for k in 0..nz {
@@ -99,7 +99,7 @@ pub fn lattice(
                     0.25 + 0.5 * ((j + k % 3) % 2) as f64,
                     1.0 / 6.0 + (k % 3) as f64 / 3.0,
                 ),
-                Lattice::Cubic => (0.5, 0.5),
+                Lattice::Cubic | Lattice::Glass => (0.5, 0.5),
             };
             let y = (j as f64 + oy) * dy;
             let z = if dim == 3 { (k as f64 + 0.5) * dz } else { 0.0 };
@@ -153,12 +153,9 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let n = n_f as usize;
     let dx = w.length / n as f64;
     let (x0, len) = lattice(dim, w.lattice, n, w.length, w.layers);
-    // jitter displaces the unperturbed points (gas: phase 0, fraction k: k + 1); the stretch
-    // then puts the wave on them in mass coordinates.
-    let disordered = |mut x: Vec<[f64; 3]>, phase: u64| {
-        super::disorder::jitter(&mut x, dim, &len, dx, w.jitter, w.seed, phase);
-        x
-    };
+    // A glass or jitter replaces the unperturbed points (gas: phase 0, fraction k: k + 1,
+    // each its own draw); the stretch then puts the wave on them in mass coordinates.
+    let mut notes = Vec::new();
     let np = x0.len();
     let volume: f64 = len[..dim as usize].iter().product();
     // h = hfact × the mean spacing (V/N)^(1/d), Phantom's convention (h = hfact (m/ρ)^(1/d));
@@ -179,14 +176,9 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let lw = model(scene, w);
     let y = initial_amplitudes(w, &lw);
     let (a, k) = (w.amplitude, lw.k);
-    let x = stretch(
-        &disordered(x0.clone(), 0),
-        w.length,
-        lw.rho_g0,
-        a,
-        y.rho_g,
-        k,
-    );
+    let order = (w.lattice, w.jitter, w.seed);
+    let xg = arrange(x0.clone(), dim, &len, dx, h, order, 0, &mut notes)?;
+    let x = stretch(&xg, w.length, lw.rho_g0, a, y.rho_g, k);
     let v: Vec<[f64; 3]> = x
         .iter()
         .map(|p| [field(0.0, a, y.v_g, k, p[0]), 0.0, 0.0])
@@ -224,10 +216,20 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
             q
         })
         .collect();
-    let dust = (0..lw.rho_d0.len())
-        .map(|kf| {
+    let mut dust = Vec::new();
+    for kf in 0..lw.rho_d0.len() {
+        let x0 = arrange(
+            x0_dust.clone(),
+            dim,
+            &len,
+            dx,
+            h,
+            order,
+            kf as u64 + 1,
+            &mut notes,
+        )?;
+        dust.push({
             let rho0 = lw.rho_d0[kf];
-            let x0 = disordered(x0_dust.clone(), kf as u64 + 1);
             let x = stretch(&x0, w.length, rho0, a, y.rho_d[kf], k);
             let v = x
                 .iter()
@@ -245,20 +247,22 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
                 id: ((kf as u64 + 1) * npu..(kf as u64 + 2) * npu).collect(),
                 fixed: None,
             }
-        })
-        .collect();
+        });
+    }
     let mut periodic = [None; 3];
     for (p, &l) in periodic.iter_mut().zip(&len).take(dim as usize) {
         *p = Some((0.0, l));
     }
-    Ok(Setup::at_start(
+    let mut su = Setup::at_start(
         gas_phase(gas, e),
         dust,
         h,
         Domain { dim, periodic },
         spacing,
         w.length,
-    ))
+    );
+    su.notes = notes;
+    Ok(su)
 }
 
 #[cfg(test)]

@@ -5,6 +5,7 @@ mod dustybox;
 pub mod dustysettle;
 mod dustyshock;
 pub mod dustywave;
+pub mod glass;
 
 use crate::grid::Domain;
 use crate::particles::{Gas, Phase, State};
@@ -20,6 +21,8 @@ pub struct Setup {
     pub spacing: f64,
     /// Length of the domain along x (written as BoxSize).
     pub box_size: f64,
+    /// What the set-up made that a user should hear of (a glass's density noise).
+    pub notes: Vec<String>,
 }
 
 impl Setup {
@@ -43,8 +46,45 @@ impl Setup {
             domain,
             spacing,
             box_size,
+            notes: Vec::new(),
         }
     }
+}
+
+/// The points of one phase (`phase`: 0 gas, k + 1 fraction k) in the periodic box [0, len):
+/// the lattice `x0` itself, or a glass relaxed from it (`Lattice::Glass`, a note with its
+/// density noise), then displaced by `jitter` spacings at random.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn arrange(
+    x0: Vec<[f64; 3]>,
+    dim: u32,
+    len: &[f64; 3],
+    spacing: f64,
+    h: f64,
+    order: (crate::scene::Lattice, f64, u64),
+    phase: u64,
+    notes: &mut Vec<String>,
+) -> Result<Vec<[f64; 3]>, SetupError> {
+    let (lattice, jitter, seed) = order;
+    let mut x = if lattice == crate::scene::Lattice::Glass && dim > 1 {
+        let g = glass::glass(&x0, dim, *len, spacing, h, seed, phase)?;
+        let who = if phase == 0 {
+            "gas".to_string()
+        } else {
+            format!("dust fraction {}", phase - 1)
+        };
+        notes.push(format!(
+            "glass ({who}): SPH density noise {:.2} % rms (its random start: {:.2} %, {} relaxation steps)",
+            100.0 * g.noise,
+            100.0 * g.start_noise,
+            g.iterations
+        ));
+        g.x
+    } else {
+        x0
+    };
+    disorder::jitter(&mut x, dim, len, spacing, jitter, seed, phase);
+    Ok(x)
 }
 
 /// Memory a particle costs a run (gas or dust: the step's buffers, the host state, output

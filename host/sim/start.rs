@@ -21,6 +21,11 @@ pub fn prepare(
     let file = loaded.path.display().to_string();
     let su =
         crate::setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
+    if warn && state.is_none() {
+        for n in &su.notes {
+            eprintln!("dustsph: {n}");
+        }
+    }
     let state = state.unwrap_or(su.state);
     let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
     if warn && phys.coupling == crate::scene::Coupling::Cell {

@@ -1,0 +1,278 @@
+//! Periodic glasses (`lattice = "glass"`): a disordered arrangement whose SPH density is nearly
+//! uniform, the usual initial condition of SPH codes for a uniform medium (White 1994; Phantom's
+//! and SWIFT's relaxed glasses). Made here by the problem's own SPH: the points of a lattice are
+//! first scattered at random (±½ spacing per axis), then moved down the pressure forces of an
+//! isothermal gas at the problem's kernel and h, x ← x + κ h² A/c_s² with the velocities reset
+//! every iteration (a damped relaxation), until the summed density stops getting smoother.
+//! Each phase is relaxed from its own draw. The result is cached by a digest of everything it
+//! depends on, so a scene, a resume or a test pays for it once per machine.
+use super::{disorder, gas_phase, SetupError};
+use crate::grid::Domain;
+use crate::particles::{Phase, State};
+use crate::step::backend::{Backend, DeviceChoice};
+use crate::step::Physics;
+use dustsph_device::eos::Eos;
+use std::path::PathBuf;
+
+/// Bumped whenever the relaxation changes, so that no cache entry outlives its algorithm.
+const VERSION: u64 = 1;
+/// The relaxation's step, as a share of h·(δρ/ρ): with A ≈ c_s² ∇ρ/ρ over a scale h,
+/// κ h² A/c_s² moves a point by ≈ κ h δρ/ρ.
+const KAPPA: f64 = 0.25;
+/// No point moves more than this share of a spacing in one iteration.
+const MAX_MOVE: f64 = 0.1;
+const MAX_ITERATIONS: usize = 400;
+/// Stop when the density noise fell by less than this share over the last `WINDOW` iterations.
+const STALL: f64 = 0.005;
+const WINDOW: usize = 20;
+
+/// A relaxed glass: the points, and the rms relative deviation of their summed SPH density
+/// from its mean before and after the relaxation.
+#[derive(Debug, Clone)]
+pub struct Glass {
+    pub x: Vec<[f64; 3]>,
+    pub start_noise: f64,
+    pub noise: f64,
+    pub iterations: usize,
+}
+
+/// The glass made from the lattice `start` (in the box [0, len) on the first `dim` axes, all
+/// periodic) at smoothing length `h`, drawn by (`seed`, `phase`): from the cache when it is
+/// there, else relaxed and cached.
+pub(crate) fn glass(
+    start: &[[f64; 3]],
+    dim: u32,
+    len: [f64; 3],
+    spacing: f64,
+    h: f64,
+    seed: u64,
+    phase: u64,
+) -> Result<Glass, SetupError> {
+    let key = digest(start, dim, len, spacing, h, seed, phase);
+    let file = cache_dir().map(|d| d.join(format!("glass-{key:016x}.bin")));
+    if let Some(g) = file.as_ref().and_then(|f| read(f, start.len())) {
+        return Ok(g);
+    }
+    let g = relax(start, dim, len, spacing, h, seed, phase)?;
+    if let Some(f) = file {
+        // The cache only saves time: a machine that cannot write it relaxes again next time.
+        let _ = write(&f, &g);
+    }
+    Ok(g)
+}
+
+/// The relaxation itself (no cache).
+pub(crate) fn relax(
+    start: &[[f64; 3]],
+    dim: u32,
+    len: [f64; 3],
+    spacing: f64,
+    h: f64,
+    seed: u64,
+    phase: u64,
+) -> Result<Glass, SetupError> {
+    let fail = |e: String| SetupError {
+        key: "lattice".into(),
+        msg: format!("the glass could not be relaxed: {e}"),
+    };
+    let n = start.len();
+    let mut x = start.to_vec();
+    disorder::jitter(&mut x, dim, &len, spacing, 0.5, seed, phase);
+    let volume: f64 = len[..dim as usize].iter().product();
+    let mut phys = Physics::open_1d(h, Eos::Isothermal { cs: 1.0 }, Vec::new());
+    phys.dim = dim;
+    let mut periodic = [None; 3];
+    for (p, l) in periodic.iter_mut().zip(len).take(dim as usize) {
+        *p = Some((0.0, l));
+    }
+    phys.domain = Domain { dim, periodic };
+    let mut history: Vec<f64> = Vec::new();
+    let mut best: Option<(f64, Vec<[f64; 3]>)> = None;
+    for it in 0..=MAX_ITERATIONS {
+        let mut st = State {
+            t: 0.0,
+            step: 0,
+            gas: gas_phase(
+                Phase {
+                    x,
+                    v: vec![[0.0; 3]; n],
+                    m: vec![volume / n as f64; n],
+                    rho: vec![1.0; n],
+                    id: (0..n as u64).collect(),
+                    fixed: None,
+                },
+                None,
+            ),
+            dust: Vec::new(),
+        };
+        let mut eng = Backend::new(DeviceChoice::Cpu, phys.clone(), &mut st)
+            .map_err(|e| fail(e.to_string()))?;
+        eng.forces().map_err(|e| fail(e.to_string()))?;
+        let acc = eng.accelerations().map_err(|e| fail(e.to_string()))?;
+        eng.sync(&mut st).map_err(|e| fail(e.to_string()))?;
+        let noise = density_noise(&st.gas.ph.rho);
+        history.push(noise);
+        x = st.gas.ph.x;
+        if best.as_ref().is_none_or(|(b, _)| noise < *b) {
+            best = Some((noise, x.clone()));
+        }
+        let stalled = it >= WINDOW && noise > (1.0 - STALL) * history[it - WINDOW];
+        if stalled || it == MAX_ITERATIONS {
+            break;
+        }
+        for (p, a) in x.iter_mut().zip(&acc) {
+            let mut d = [0.0; 3];
+            for k in 0..dim as usize {
+                d[k] = KAPPA * h * h * a[k];
+            }
+            let size = d.iter().map(|c| c * c).sum::<f64>().sqrt();
+            let cap = MAX_MOVE * spacing;
+            let s = if size > cap { cap / size } else { 1.0 };
+            for k in 0..dim as usize {
+                p[k] = (p[k] + s * d[k]).rem_euclid(len[k]);
+            }
+        }
+    }
+    let (noise, x) = best.expect("at least one iteration");
+    Ok(Glass {
+        x,
+        start_noise: history[0],
+        noise,
+        iterations: history.len() - 1,
+    })
+}
+
+/// rms of ρ/⟨ρ⟩ − 1.
+pub fn density_noise(rho: &[f64]) -> f64 {
+    let n = rho.len().max(1) as f64;
+    let mean = rho.iter().sum::<f64>() / n;
+    (rho.iter().map(|r| (r / mean - 1.0).powi(2)).sum::<f64>() / n).sqrt()
+}
+
+/// FNV-1a over the bytes of everything the glass depends on.
+fn digest(
+    start: &[[f64; 3]],
+    dim: u32,
+    len: [f64; 3],
+    spacing: f64,
+    h: f64,
+    seed: u64,
+    phase: u64,
+) -> u64 {
+    let mut hsh: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |v: u64| {
+        for b in v.to_le_bytes() {
+            hsh ^= b as u64;
+            hsh = hsh.wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for v in [VERSION, dim as u64, seed, phase, start.len() as u64] {
+        eat(v);
+    }
+    for v in len.iter().chain([spacing, h].iter()) {
+        eat(v.to_bits());
+    }
+    for p in start {
+        for c in p {
+            eat(c.to_bits());
+        }
+    }
+    hsh
+}
+
+/// `DUSTSPH_CACHE`, else `$XDG_CACHE_HOME/dustsph`, else `$HOME/.cache/dustsph`.
+fn cache_dir() -> Option<PathBuf> {
+    let env = |k: &str| {
+        std::env::var_os(k)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
+    env("DUSTSPH_CACHE")
+        .or_else(|| env("XDG_CACHE_HOME").map(|d| d.join("dustsph")))
+        .or_else(|| env("HOME").map(|d| d.join(".cache").join("dustsph")))
+}
+
+/// Layout: n, iterations (u64), start noise, noise (f64), then 3n f64, little-endian.
+fn write(file: &std::path::Path, g: &Glass) -> std::io::Result<()> {
+    let mut b = Vec::with_capacity(32 + 24 * g.x.len());
+    b.extend((g.x.len() as u64).to_le_bytes());
+    b.extend((g.iterations as u64).to_le_bytes());
+    b.extend(g.start_noise.to_le_bytes());
+    b.extend(g.noise.to_le_bytes());
+    for c in g.x.iter().flatten() {
+        b.extend(c.to_le_bytes());
+    }
+    std::fs::create_dir_all(file.parent().unwrap_or(file))?;
+    // Written aside and renamed: a reader never sees half a file.
+    let tmp = file.with_extension(format!("tmp{}", std::process::id()));
+    std::fs::write(&tmp, &b)?;
+    std::fs::rename(&tmp, file)
+}
+
+fn read(file: &std::path::Path, n: usize) -> Option<Glass> {
+    let b = std::fs::read(file).ok()?;
+    if b.len() != 32 + 24 * n {
+        return None;
+    }
+    let word = |i: usize| <[u8; 8]>::try_from(&b[8 * i..8 * i + 8]).unwrap();
+    if u64::from_le_bytes(word(0)) != n as u64 {
+        return None;
+    }
+    let x: Vec<[f64; 3]> = (0..n)
+        .map(|i| std::array::from_fn(|k| f64::from_le_bytes(word(4 + 3 * i + k))))
+        .collect();
+    if x.iter().flatten().any(|c| !c.is_finite()) {
+        return None;
+    }
+    Some(Glass {
+        x,
+        iterations: u64::from_le_bytes(word(1)) as usize,
+        start_noise: f64::from_le_bytes(word(2)),
+        noise: f64::from_le_bytes(word(3)),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_relaxed_glass_is_smoother_than_its_random_start_and_reads_back_from_the_cache() {
+        let n = 10;
+        let start = super::super::lattice(3, n, 1.0);
+        let len = [1.0; 3];
+        let g = relax(&start, 3, len, 0.1, 0.12, 3, 0).unwrap();
+        assert_eq!(g.x.len(), 1000);
+        assert!(g.x.iter().flatten().all(|c| (0.0..1.0).contains(c)));
+        // The random start's noise is several %, the glass's a small fraction of it.
+        assert!(g.start_noise > 0.02, "start {}", g.start_noise);
+        assert!(
+            g.noise < 0.2 * g.start_noise,
+            "{} → {}",
+            g.start_noise,
+            g.noise
+        );
+        // It is no lattice: the points are not where the lattice put them.
+        let moved =
+            g.x.iter()
+                .filter(|p| {
+                    start
+                        .iter()
+                        .all(|q| (0..3).any(|k| (p[k] - q[k]).abs() > 1e-3))
+                })
+                .count();
+        assert!(moved > 900, "{moved}");
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("g.bin");
+        write(&f, &g).unwrap();
+        let back = read(&f, 1000).unwrap();
+        assert_eq!(back.x, g.x);
+        assert_eq!(back.noise, g.noise);
+        assert!(read(&f, 999).is_none());
+        // Another phase is another draw.
+        assert_ne!(
+            digest(&start, 3, len, 0.1, 0.12, 3, 0),
+            digest(&start, 3, len, 0.1, 0.12, 3, 1)
+        );
+    }
+}
