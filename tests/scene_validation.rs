@@ -99,6 +99,15 @@ fn impossible_values_name_their_key_and_file() {
         ),
         ("dustybox", "external.gas=[0.0, 1.0, 0.0]", "external.gas"),
         ("dustybox", "dustybox.dust_shift=nan", "dustybox.dust_shift"),
+        ("dustybox", "dustybox.jitter=-0.1", "dustybox.jitter"),
+        ("dustybox", "dustybox.jitter=1.5", "dustybox.jitter"),
+        ("dustywave", "dustywave.jitter=nan", "dustywave.jitter"),
+        ("dustybox", "dustybox.seed=-3", "dustybox.seed"),
+        (
+            "dustywave",
+            "dustywave.lattice=\"glass\"",
+            "dustywave.lattice",
+        ),
         (
             "dustysettle",
             "external.gas=[1.0, 0.0, 0.0]",

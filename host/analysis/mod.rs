@@ -196,12 +196,7 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
     let (ag, ad) = (scene.external.gas[0], scene.external.dust[0]);
     let (vg, ud) = bx.exact_forced(v0, &u0, ag, ad, t);
     let rs = |k: usize| if k == usize::MAX { rho } else { rho * eps[k] };
-    let scale = u0
-        .iter()
-        .map(|u| (u - v0).abs())
-        .chain(bx.terminal_drift(ag, ad).iter().map(|w| w.abs()))
-        .fold(0.0, f64::max)
-        .max(1e-300);
+    let scale = box_velocity_scale(&bx, v0, &u0, ag, ad);
     out.push(ExactErrors {
             t,
             reference: "exact (matrix) solution of the linear drag ODE (with the [external] accelerations along x); densities relative to ρ0, velocities relative to the largest of |u0 − v0| and the terminal drifts |w*_k|".into(),
@@ -229,6 +224,40 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
         }
     }
     out
+}
+
+/// The largest deviation of a phase's mass-weighted mean v_x from IDIC's discrete oracle (the
+/// forced drag ODE stepped by τ = `dt`), relative to the box's velocity scale as in
+/// [`exact_errors`]: the box's check on disordered particles, whose pressure noise moves each
+/// particle but not the means. `None` when t is not a whole number of steps.
+pub fn box_oracle_mean_deviation(scene: &Scene, b: &BoxCfg, state: &State, dt: f64) -> Option<f64> {
+    let t = state.t;
+    let n = (t / dt).round() as usize;
+    if ((n as f64) * dt - t).abs() > 1e-9 * t.max(dt) {
+        return None;
+    }
+    let (bx, v0, u0) = dustybox_model(scene, b);
+    let (ag, ad) = (scene.external.gas[0], scene.external.dust[0]);
+    let (vg, ud) = bx.implicit_euler_forced(v0, &u0, ag, ad, dt, n);
+    let scale = box_velocity_scale(&bx, v0, &u0, ag, ad);
+    let mean = |p: &Phase| {
+        let m: f64 = p.m.iter().sum();
+        p.m.iter().zip(&p.v).map(|(m, v)| m * v[0]).sum::<f64>() / m
+    };
+    let mut dev = (mean(&state.gas.ph) - vg).abs();
+    for (d, u) in state.dust.iter().zip(&ud) {
+        dev = dev.max((mean(d) - u).abs());
+    }
+    Some(dev / scale)
+}
+
+/// The box's velocity scale: the largest of |u0 − v0| and the terminal drifts |w*_k|.
+fn box_velocity_scale(bx: &DustyBox, v0: f64, u0: &[f64], ag: f64, ad: f64) -> f64 {
+    u0.iter()
+        .map(|u| (u - v0).abs())
+        .chain(bx.terminal_drift(ag, ad).iter().map(|w| w.abs()))
+        .fold(0.0, f64::max)
+        .max(1e-300)
 }
 
 /// The dusty wave against the exact linear solution, in two metrics: this code's (normalised

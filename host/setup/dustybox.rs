@@ -53,7 +53,7 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
     let mut notes = Vec::new();
     let x0 = x;
     let gas = Phase {
-        x: arrange(x0.clone(), dim, &len, dx, h, order, 0, &mut notes)?,
+        x: arrange(x0.clone(), dim, &len, dx, h, order, 0, scene, &mut notes)?,
         v: vec![[b.v_gas, 0.0, 0.0]; n],
         m: vec![rho * vol; n],
         rho: vec![rho; n],
@@ -70,7 +70,7 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
                 *c = (*c + b.dust_shift * dx).rem_euclid(*l);
             }
         }
-        d.x = arrange(x, dim, &len, dx, h, order, k as u64 + 1, &mut notes)?;
+        d.x = arrange(x, dim, &len, dx, h, order, k as u64 + 1, scene, &mut notes)?;
     }
     let mut periodic = [None; 3];
     for (p, l) in periodic.iter_mut().zip(len).take(dim as usize) {

@@ -177,7 +177,7 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let y = initial_amplitudes(w, &lw);
     let (a, k) = (w.amplitude, lw.k);
     let order = (w.lattice, w.jitter, w.seed);
-    let xg = arrange(x0.clone(), dim, &len, dx, h, order, 0, &mut notes)?;
+    let xg = arrange(x0.clone(), dim, &len, dx, h, order, 0, scene, &mut notes)?;
     let x = stretch(&xg, w.length, lw.rho_g0, a, y.rho_g, k);
     let v: Vec<[f64; 3]> = x
         .iter()
@@ -226,6 +226,7 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
             h,
             order,
             kf as u64 + 1,
+            scene,
             &mut notes,
         )?;
         dust.push({

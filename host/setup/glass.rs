@@ -2,7 +2,9 @@
 //! uniform, the usual initial condition of SPH codes for a uniform medium (White 1994; Phantom's
 //! and SWIFT's relaxed glasses). Made here by the problem's own SPH: the points of a lattice are
 //! first scattered at random (±½ spacing per axis), then moved down the pressure forces of an
-//! isothermal gas at the problem's kernel and h, x ← x + κ h² A/c_s² with the velocities reset
+//! isothermal gas with the problem's kernel, h (fixed or variable) and gradient (standard or
+//! IAD), so that the glass is force-free for the forces the run will use,
+//! x ← x + κ h² A/c_s² with the velocities reset
 //! every iteration (a damped relaxation), until the summed density stops getting smoother.
 //! Each phase is relaxed from its own draw. The result is cached by a digest of everything it
 //! depends on, so a scene, a resume or a test pays for it once per machine.
@@ -15,7 +17,15 @@ use dustsph_device::eos::Eos;
 use std::path::PathBuf;
 
 /// Bumped whenever the relaxation changes, so that no cache entry outlives its algorithm.
-const VERSION: u64 = 1;
+const VERSION: u64 = 2;
+
+/// The problem's SPH that a glass is relaxed with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GlassSph {
+    /// Variable h at this hfact (`None`: the fixed h).
+    pub variable_hfact: Option<f64>,
+    pub iad: bool,
+}
 /// The relaxation's step, as a share of h·(δρ/ρ): with A ≈ c_s² ∇ρ/ρ over a scale h,
 /// κ h² A/c_s² moves a point by ≈ κ h δρ/ρ.
 const KAPPA: f64 = 0.25;
@@ -47,13 +57,14 @@ pub(crate) fn glass(
     h: f64,
     seed: u64,
     phase: u64,
+    sph: GlassSph,
 ) -> Result<Glass, SetupError> {
-    let key = digest(start, dim, len, spacing, h, seed, phase);
+    let key = digest(start, dim, len, spacing, h, seed, phase, sph);
     let file = cache_dir().map(|d| d.join(format!("glass-{key:016x}.bin")));
     if let Some(g) = file.as_ref().and_then(|f| read(f, start.len())) {
         return Ok(g);
     }
-    let g = relax(start, dim, len, spacing, h, seed, phase)?;
+    let g = relax(start, dim, len, spacing, h, seed, phase, sph)?;
     if let Some(f) = file {
         // The cache only saves time: a machine that cannot write it relaxes again next time.
         let _ = write(&f, &g);
@@ -62,6 +73,7 @@ pub(crate) fn glass(
 }
 
 /// The relaxation itself (no cache).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn relax(
     start: &[[f64; 3]],
     dim: u32,
@@ -70,6 +82,7 @@ pub(crate) fn relax(
     h: f64,
     seed: u64,
     phase: u64,
+    sph: GlassSph,
 ) -> Result<Glass, SetupError> {
     let fail = |e: String| SetupError {
         key: "lattice".into(),
@@ -81,6 +94,10 @@ pub(crate) fn relax(
     let volume: f64 = len[..dim as usize].iter().product();
     let mut phys = Physics::open_1d(h, Eos::Isothermal { cs: 1.0 }, Vec::new());
     phys.dim = dim;
+    phys.variable_h = sph.variable_hfact;
+    if sph.iad {
+        phys.gradient = crate::scene::GradientMethod::Iad;
+    }
     let mut periodic = [None; 3];
     for (p, l) in periodic.iter_mut().zip(len).take(dim as usize) {
         *p = Some((0.0, l));
@@ -150,6 +167,7 @@ pub fn density_noise(rho: &[f64]) -> f64 {
 }
 
 /// FNV-1a over the bytes of everything the glass depends on.
+#[allow(clippy::too_many_arguments)]
 fn digest(
     start: &[[f64; 3]],
     dim: u32,
@@ -158,6 +176,7 @@ fn digest(
     h: f64,
     seed: u64,
     phase: u64,
+    sph: GlassSph,
 ) -> u64 {
     let mut hsh: u64 = 0xcbf2_9ce4_8422_2325;
     let mut eat = |v: u64| {
@@ -166,7 +185,16 @@ fn digest(
             hsh = hsh.wrapping_mul(0x0100_0000_01b3);
         }
     };
-    for v in [VERSION, dim as u64, seed, phase, start.len() as u64] {
+    let hfact = sph.variable_hfact.map_or(0, f64::to_bits);
+    for v in [
+        VERSION,
+        dim as u64,
+        seed,
+        phase,
+        start.len() as u64,
+        hfact,
+        sph.iad as u64,
+    ] {
         eat(v);
     }
     for v in len.iter().chain([spacing, h].iter()) {
@@ -241,7 +269,11 @@ mod tests {
         let n = 10;
         let start = super::super::lattice(3, n, 1.0);
         let len = [1.0; 3];
-        let g = relax(&start, 3, len, 0.1, 0.12, 3, 0).unwrap();
+        let sph = GlassSph {
+            variable_hfact: None,
+            iad: false,
+        };
+        let g = relax(&start, 3, len, 0.1, 0.12, 3, 0, sph).unwrap();
         assert_eq!(g.x.len(), 1000);
         assert!(g.x.iter().flatten().all(|c| (0.0..1.0).contains(c)));
         // The random start's noise is several %, the glass's a small fraction of it.
@@ -271,8 +303,8 @@ mod tests {
         assert!(read(&f, 999).is_none());
         // Another phase is another draw.
         assert_ne!(
-            digest(&start, 3, len, 0.1, 0.12, 3, 0),
-            digest(&start, 3, len, 0.1, 0.12, 3, 1)
+            digest(&start, 3, len, 0.1, 0.12, 3, 0, sph),
+            digest(&start, 3, len, 0.1, 0.12, 3, 1, sph)
         );
     }
 }

@@ -52,8 +52,8 @@ impl Setup {
 }
 
 /// The points of one phase (`phase`: 0 gas, k + 1 fraction k) in the periodic box [0, len):
-/// the lattice `x0` itself, or a glass relaxed from it (`Lattice::Glass`, a note with its
-/// density noise), then displaced by `jitter` spacings at random.
+/// the lattice `x0` itself, or a glass relaxed from it by the scene's SPH (`Lattice::Glass`, a
+/// note with its density noise), then displaced by `jitter` spacings at random.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn arrange(
     x0: Vec<[f64; 3]>,
@@ -63,11 +63,16 @@ pub(crate) fn arrange(
     h: f64,
     order: (crate::scene::Lattice, f64, u64),
     phase: u64,
+    scene: &Scene,
     notes: &mut Vec<String>,
 ) -> Result<Vec<[f64; 3]>, SetupError> {
     let (lattice, jitter, seed) = order;
     let mut x = if lattice == crate::scene::Lattice::Glass && dim > 1 {
-        let g = glass::glass(&x0, dim, *len, spacing, h, seed, phase)?;
+        let sph = glass::GlassSph {
+            variable_hfact: scene.sph.smoothing.variable_hfact(),
+            iad: scene.sph.gradient == crate::scene::GradientMethod::Iad,
+        };
+        let g = glass::glass(&x0, dim, *len, spacing, h, seed, phase, sph)?;
         let who = if phase == 0 {
             "gas".to_string()
         } else {

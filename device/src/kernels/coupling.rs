@@ -23,10 +23,10 @@ pub fn coupling_row_at<R: Real>(
     gas: &Sorted<'_, R>,
     k: &[KernelAt<R>],
     gas_fixed: &[bool],
-    x: Vec3<f64>,
+    x: Centre,
     mut f: impl FnMut(usize, R),
 ) {
-    gas.walk(x, |b, _, r2| {
+    gas.walk_at(x, |b, _, r2| {
         if !is_fixed(gas_fixed, b) {
             let w = kernel_of(k, b).w(r2.sqrt());
             if w > R::ZERO {
@@ -43,7 +43,7 @@ pub fn gas_weight_sum_at<R: Real>(
     gas: &Sorted<'_, R>,
     k: &[KernelAt<R>],
     gas_fixed: &[bool],
-    x: Vec3<f64>,
+    x: Centre,
 ) -> R {
     let mut s = R::ZERO;
     coupling_row_at(gas, k, gas_fixed, x, |_, w| s += w);
@@ -79,11 +79,11 @@ pub fn deposit_row_at<R: Real>(
     q: &Sorted<'_, R>,
     s: &[R],
     fixed: &[bool],
-    xa: Vec3<f64>,
+    xa: Centre,
     ka: &KernelAt<R>,
     mut f: impl FnMut(usize, R),
 ) {
-    q.walk(xa, |j, _, r2| {
+    q.walk_at(xa, |j, _, r2| {
         if is_fixed(fixed, j) || s[j] <= R::ZERO {
             return;
         }
@@ -104,7 +104,7 @@ pub fn deposit_at<R: Real>(
     m: &[R],
     rho: &[R],
     fixed: &[bool],
-    xa: Vec3<f64>,
+    xa: Centre,
     ka: &KernelAt<R>,
     vel: impl Fn(usize) -> Vec3<R>,
     cs: impl Fn(usize) -> R,
@@ -204,7 +204,7 @@ pub fn gather_increment_at<R: Real>(
     gas: &Sorted<'_, R>,
     k: &[KernelAt<R>],
     gas_fixed: &[bool],
-    x: Vec3<f64>,
+    x: Centre,
     s: R,
     delta: impl Fn(usize) -> Vec3<R>,
 ) -> Vec3<R> {

@@ -55,7 +55,24 @@ pub struct NeighbourList<'a> {
     pub stride: usize,
 }
 
+/// Where a walk is centred: on particle i of the walked phase itself (its neighbour list, where
+/// there is one, replays the walk: same pairs, same order, same bits), or at any point.
+#[derive(Clone, Copy, Debug)]
+pub enum Centre {
+    Own(usize),
+    Point(Vec3<f64>),
+}
+
 impl<R: Real> Sorted<'_, R> {
+    /// The neighbour walk around `c`: [`Self::walk_own`] or [`Self::walk`].
+    #[inline(always)]
+    pub fn walk_at(&self, c: Centre, f: impl FnMut(usize, Vec3<R>, R)) {
+        match c {
+            Centre::Own(i) => self.walk_own(i, f),
+            Centre::Point(x) => self.walk(x, f),
+        }
+    }
+
     /// The neighbour walk around `xi`: `f(j, xi − x_j, r²)` in R.
     #[inline(always)]
     pub fn walk(&self, xi: Vec3<f64>, mut f: impl FnMut(usize, Vec3<R>, R)) {

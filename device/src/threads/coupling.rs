@@ -1,5 +1,6 @@
 //! External dust acceleration and the kernel coupling (docs/method.md §K).
 use super::*;
+use crate::kernels::Centre;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
@@ -73,7 +74,13 @@ pub unsafe fn coupling_norm<R: Real>(t: usize, a: &NormArgs<R>) {
         R::ZERO
     } else {
         with_gas_kernels(a.kernel_at, a.gas.len(), &a.p, |k| {
-            kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), k, a.gas.fixed(), ph.x()[t])
+            // The gas's own normalisers replay its neighbour list.
+            let at = if core::ptr::eq(ph.x, a.gas.x) {
+                Centre::Own(t)
+            } else {
+                Centre::Point(ph.x()[t])
+            };
+            kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), k, a.gas.fixed(), at)
         })
     };
     *a.s.add(t) = s;
@@ -112,7 +119,7 @@ pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
         g.m(),
         g.rho(),
         g.fixed(),
-        xa,
+        Centre::Own(t),
         &k,
         |b| gas_base_velocity(a, b),
         |b| gas_sound(a, b),
@@ -127,7 +134,7 @@ pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
             d.m(),
             d.rho(),
             d.fixed(),
-            xa,
+            Centre::Point(xa),
             &k,
             |j| u[j],
             |_| R::ZERO,
@@ -240,7 +247,12 @@ pub unsafe fn coupling_scatter<R: Real>(t: usize, a: &ScatterDepositArgs<R>) {
     let (m, rho) = (*ph.m.add(t), *ph.rho.add(t));
     let stride = 1 + p.nf as usize;
     with_gas_kernels(c.cb.kernel_at, c.gas.len(), p, |k| {
-        kernels::coupling_row_at(&c.gas.sorted(p, 0), k, c.gas.fixed(), ph.x()[t], |g, w| {
+        let at = if gas {
+            Centre::Own(t)
+        } else {
+            Centre::Point(ph.x()[t])
+        };
+        kernels::coupling_row_at(&c.gas.sorted(p, 0), k, c.gas.fixed(), at, |g, w| {
             let wm = w / s * m;
             let o = a.sums.add((g * stride + slot) * DEPOSIT_SLOTS);
             atomic_add_f64(o, wm.to_f64());
@@ -315,8 +327,13 @@ pub unsafe fn coupling_return<R: Real>(t: usize, a: &ReturnArgs<R>) {
         (v, *a.cb.s_dust.add(t), ph.group_of(t))
     };
     let is_gas = a.is_gas != 0;
+    let at = if is_gas {
+        Centre::Own(t)
+    } else {
+        Centre::Point(ph.x()[t])
+    };
     let inc = with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
-        kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
+        kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), at, s, |g| {
             if is_gas {
                 *a.cb.dv.add(g)
             } else {
@@ -345,7 +362,8 @@ pub unsafe fn coupling_tstop<R: Real>(t: usize, a: &ReturnArgs<R>) {
     } else {
         let f = ph.group_of(t);
         with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
-            kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), ph.x()[t], s, |g| {
+            let at = Centre::Point(ph.x()[t]);
+            kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), at, s, |g| {
                 [*a.cb.t_stop.add(g * nf + f), R::ZERO, R::ZERO]
             })[0]
         })
@@ -387,7 +405,7 @@ pub unsafe fn coupling_heat<R: Real>(t: usize, a: &CouplingHeatArgs<R>) {
         sl(a.loss_gas, g.len()),
         g.rho(),
         g.fixed(),
-        xa,
+        Centre::Own(t),
         &ka,
         |_| zero,
         |_| R::ZERO,
@@ -401,7 +419,7 @@ pub unsafe fn coupling_heat<R: Real>(t: usize, a: &CouplingHeatArgs<R>) {
             sl(a.loss_dust, d.len()),
             d.rho(),
             d.fixed(),
-            xa,
+            Centre::Point(xa),
             &ka,
             |_| zero,
             |_| R::ZERO,

@@ -77,8 +77,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         d.run(R::CELL_STEP, self.cells.ukey.len, &ca)
     }
 
-    /// The kernel coupling's normalisers at the current positions.
-    pub(super) fn coupling_norms(&self) -> Result<(), GpuError> {
+    /// The kernel coupling's normalisers at the current positions, unless this layer has them.
+    pub(super) fn coupling_norms(&mut self) -> Result<(), GpuError> {
         let d = &self.d;
         let c = self.coupling.as_ref().expect("kernel coupling");
         if c.per_particle_kernels {
@@ -94,6 +94,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             };
             d.run(R::FORCE_PREP, self.gas.n, &a)?;
         }
+        if self.norms_fresh {
+            return Ok(());
+        }
         for (ph, s) in [(&self.gas, &c.s_gas), (&self.dust, &c.s_dust)] {
             let a = th::NormArgs {
                 gas: self.gas.bufs(d),
@@ -104,6 +107,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             };
             d.run(R::COUPLING_NORM, ph.n, &a)?;
         }
+        self.norms_fresh = true;
         Ok(())
     }
 

@@ -74,6 +74,10 @@ pub struct Engine<L: Launcher, R: Float> {
     /// This step has rebuilt the grid and sorted the particles (the halo check then compares
     /// only the fields the sort carries).
     resorted: bool,
+    /// The kernel coupling's normalisers belong to the current positions and h (they are
+    /// computed once per layer: the leapfrog's last two drag passes and the next step's first
+    /// share a layer).
+    norms_fresh: bool,
     /// The momentum sums of each chunk of particles ([`Engine::momentum`]).
     chunk_sums: Buf<L, f64>,
     dust_density_fresh: bool,
@@ -186,6 +190,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             bad: d.buf(1)?,
             chunk_sums: d.buf(1)?,
             resorted: false,
+            norms_fresh: false,
             step: state.step,
             t: state.t,
             force_sparse: false,

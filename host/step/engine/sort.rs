@@ -121,6 +121,8 @@ impl<L: Launcher, R: Float> PhaseBuffers<L, R> {
 impl<L: Launcher, R: Float> Engine<L, R> {
     /// Rebuild the grid over the current positions and sort every phase by cell.
     pub(super) fn regrid(&mut self) -> Result<(), StepError> {
+        // New positions and order: the kernel coupling's normalisers are recomputed.
+        self.norms_fresh = false;
         let d = &self.d;
         let mut b = EMPTY_BOUNDS;
         for ph in [&self.gas, &self.dust] {
