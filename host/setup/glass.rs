@@ -36,6 +36,19 @@ const MAX_ITERATIONS: usize = 400;
 const STALL: f64 = 0.005;
 const WINDOW: usize = 20;
 
+/// Everything a glass depends on besides its starting lattice: the periodic box [0, len) on
+/// the first `dim` axes, the lattice spacing, h, the draw (`seed`, `phase`) and the SPH.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GlassSpec {
+    pub dim: u32,
+    pub len: [f64; 3],
+    pub spacing: f64,
+    pub h: f64,
+    pub seed: u64,
+    pub phase: u64,
+    pub sph: GlassSph,
+}
+
 /// A relaxed glass: the points, and the rms relative deviation of their summed SPH density
 /// from its mean before and after the relaxation.
 #[derive(Debug, Clone)]
@@ -49,45 +62,35 @@ pub struct Glass {
 /// The glass made from the lattice `start` (in the box [0, len) on the first `dim` axes, all
 /// periodic) at smoothing length `h`, drawn by (`seed`, `phase`): from the cache when it is
 /// there, else relaxed and cached.
-pub(crate) fn glass(
-    start: &[[f64; 3]],
-    dim: u32,
-    len: [f64; 3],
-    spacing: f64,
-    h: f64,
-    seed: u64,
-    phase: u64,
-    sph: GlassSph,
-) -> Result<Glass, SetupError> {
-    let key = digest(start, dim, len, spacing, h, seed, phase, sph);
+pub(crate) fn glass(start: &[[f64; 3]], g: &GlassSpec) -> Result<Glass, SetupError> {
+    let key = digest(start, g);
     let file = cache_dir().map(|d| d.join(format!("glass-{key:016x}.bin")));
     if let Some(g) = file.as_ref().and_then(|f| read(f, start.len())) {
         return Ok(g);
     }
-    let g = relax(start, dim, len, spacing, h, seed, phase, sph)?;
+    let glass = relax(start, g)?;
     if let Some(f) = file {
         // The cache only saves time: a machine that cannot write it relaxes again next time.
-        let _ = write(&f, &g);
+        let _ = write(&f, &glass);
     }
-    Ok(g)
+    Ok(glass)
 }
 
 /// The relaxation itself (no cache).
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn relax(
-    start: &[[f64; 3]],
-    dim: u32,
-    len: [f64; 3],
-    spacing: f64,
-    h: f64,
-    seed: u64,
-    phase: u64,
-    sph: GlassSph,
-) -> Result<Glass, SetupError> {
+pub(crate) fn relax(start: &[[f64; 3]], g: &GlassSpec) -> Result<Glass, SetupError> {
     let fail = |e: String| SetupError {
         key: "lattice".into(),
         msg: format!("the glass could not be relaxed: {e}"),
     };
+    let GlassSpec {
+        dim,
+        len,
+        spacing,
+        h,
+        seed,
+        phase,
+        sph,
+    } = *g;
     let n = start.len();
     let mut x = start.to_vec();
     disorder::jitter(&mut x, dim, &len, spacing, 0.5, seed, phase);
@@ -167,17 +170,7 @@ pub fn density_noise(rho: &[f64]) -> f64 {
 }
 
 /// FNV-1a over the bytes of everything the glass depends on.
-#[allow(clippy::too_many_arguments)]
-fn digest(
-    start: &[[f64; 3]],
-    dim: u32,
-    len: [f64; 3],
-    spacing: f64,
-    h: f64,
-    seed: u64,
-    phase: u64,
-    sph: GlassSph,
-) -> u64 {
+fn digest(start: &[[f64; 3]], g: &GlassSpec) -> u64 {
     let mut hsh: u64 = 0xcbf2_9ce4_8422_2325;
     let mut eat = |v: u64| {
         for b in v.to_le_bytes() {
@@ -185,19 +178,20 @@ fn digest(
             hsh = hsh.wrapping_mul(0x0100_0000_01b3);
         }
     };
-    let hfact = sph.variable_hfact.map_or(0, f64::to_bits);
+    let hfact = g.sph.variable_hfact.map_or(0, f64::to_bits);
+    let iad = g.sph.iad as u64;
     for v in [
         VERSION,
-        dim as u64,
-        seed,
-        phase,
+        g.dim as u64,
+        g.seed,
+        g.phase,
         start.len() as u64,
         hfact,
-        sph.iad as u64,
+        iad,
     ] {
         eat(v);
     }
-    for v in len.iter().chain([spacing, h].iter()) {
+    for v in g.len.iter().chain([g.spacing, g.h].iter()) {
         eat(v.to_bits());
     }
     for p in start {
@@ -273,7 +267,16 @@ mod tests {
             variable_hfact: None,
             iad: false,
         };
-        let g = relax(&start, 3, len, 0.1, 0.12, 3, 0, sph).unwrap();
+        let spec = GlassSpec {
+            dim: 3,
+            len,
+            spacing: 0.1,
+            h: 0.12,
+            seed: 3,
+            phase: 0,
+            sph,
+        };
+        let g = relax(&start, &spec).unwrap();
         assert_eq!(g.x.len(), 1000);
         assert!(g.x.iter().flatten().all(|c| (0.0..1.0).contains(c)));
         // The random start's noise is several %, the glass's a small fraction of it.
@@ -303,8 +306,8 @@ mod tests {
         assert!(read(&f, 999).is_none());
         // Another phase is another draw.
         assert_ne!(
-            digest(&start, 3, len, 0.1, 0.12, 3, 0, sph),
-            digest(&start, 3, len, 0.1, 0.12, 3, 1, sph)
+            digest(&start, &spec),
+            digest(&start, &GlassSpec { phase: 1, ..spec })
         );
     }
 }

@@ -72,7 +72,16 @@ pub(crate) fn arrange(
             variable_hfact: scene.sph.smoothing.variable_hfact(),
             iad: scene.sph.gradient == crate::scene::GradientMethod::Iad,
         };
-        let g = glass::glass(&x0, dim, *len, spacing, h, seed, phase, sph)?;
+        let spec = glass::GlassSpec {
+            dim,
+            len: *len,
+            spacing,
+            h,
+            seed,
+            phase,
+            sph,
+        };
+        let g = glass::glass(&x0, &spec)?;
         let who = if phase == 0 {
             "gas".to_string()
         } else {
