@@ -5,7 +5,7 @@ pub mod profiles;
 pub mod radial;
 pub mod spherical;
 
-use crate::exact::dustybox::DustyBox;
+use crate::exact::dustybox::{DustyBox, Forcing};
 use crate::exact::dustywave::WaveGas;
 use crate::exact::riemann::{DustyRiemann, Prim};
 use crate::particles::{Phase, State};
@@ -193,10 +193,10 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
     let eps = bx.eps.clone();
     // `[external]` accelerations (x components; the errors compare v_x) drive the box toward
     // the terminal drift w*_k = t_k (a_d − a_g)/(1 + Σε).
-    let (ag, ad) = (scene.external.gas[0], scene.external.dust[0]);
-    let (vg, ud) = bx.exact_forced(v0, &u0, ag, ad, t);
+    let a = box_forcing(scene);
+    let (vg, ud) = bx.exact_forced(v0, &u0, a, t);
     let rs = |k: usize| if k == usize::MAX { rho } else { rho * eps[k] };
-    let scale = box_velocity_scale(&bx, v0, &u0, ag, ad);
+    let scale = box_velocity_scale(&bx, v0, &u0, a);
     out.push(ExactErrors {
             t,
             reference: "exact (matrix) solution of the linear drag ODE (with the [external] accelerations along x); densities relative to ρ0, velocities relative to the largest of |u0 − v0| and the terminal drifts |w*_k|".into(),
@@ -207,7 +207,7 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
     if let Some(dt) = dt_fixed.filter(|_| idic) {
         let n = (t / dt).round() as usize;
         if ((n as f64) * dt - t).abs() <= 1e-9 * t.max(dt) {
-            let (vg, ud) = bx.implicit_euler_forced(v0, &u0, ag, ad, dt, n);
+            let (vg, ud) = bx.implicit_euler_forced(v0, &u0, a, dt, n);
             out.push(ExactErrors {
                 t,
                 reference: format!(
@@ -237,9 +237,9 @@ pub fn box_oracle_mean_deviation(scene: &Scene, b: &BoxCfg, state: &State, dt: f
         return None;
     }
     let (bx, v0, u0) = dustybox_model(scene, b);
-    let (ag, ad) = (scene.external.gas[0], scene.external.dust[0]);
-    let (vg, ud) = bx.implicit_euler_forced(v0, &u0, ag, ad, dt, n);
-    let scale = box_velocity_scale(&bx, v0, &u0, ag, ad);
+    let a = box_forcing(scene);
+    let (vg, ud) = bx.implicit_euler_forced(v0, &u0, a, dt, n);
+    let scale = box_velocity_scale(&bx, v0, &u0, a);
     let mean = |p: &Phase| {
         let m: f64 = p.m.iter().sum();
         p.m.iter().zip(&p.v).map(|(m, v)| m * v[0]).sum::<f64>() / m
@@ -251,11 +251,19 @@ pub fn box_oracle_mean_deviation(scene: &Scene, b: &BoxCfg, state: &State, dt: f
     Some(dev / scale)
 }
 
+/// The `[external]` accelerations along x (the box's errors compare v_x).
+fn box_forcing(scene: &Scene) -> Forcing {
+    Forcing {
+        gas: scene.external.gas[0],
+        dust: scene.external.dust[0],
+    }
+}
+
 /// The box's velocity scale: the largest of |u0 − v0| and the terminal drifts |w*_k|.
-fn box_velocity_scale(bx: &DustyBox, v0: f64, u0: &[f64], ag: f64, ad: f64) -> f64 {
+fn box_velocity_scale(bx: &DustyBox, v0: f64, u0: &[f64], a: Forcing) -> f64 {
     u0.iter()
         .map(|u| (u - v0).abs())
-        .chain(bx.terminal_drift(ag, ad).iter().map(|w| w.abs()))
+        .chain(bx.terminal_drift(a).iter().map(|w| w.abs()))
         .fold(0.0, f64::max)
         .max(1e-300)
 }

@@ -634,14 +634,7 @@ fn check_exact(rep: &mut CaseReport, sc: &Scene, state: &State) {
                 .fixed_dt()
                 .and_then(|dt| analysis::box_oracle_mean_deviation(sc, b, state, dt))
                 .map(|e| e * box_velocity_factor(b));
-            rep.box_oracle = rel;
-            match rel {
-                Some(r) if r <= DISORDERED_MEAN_TOL => {}
-                Some(r) => rep.failures.push(format!(
-                    "phase mean velocities differ from IDIC's discrete solution by {r:.2e} > {DISORDERED_MEAN_TOL:e}"
-                )),
-                None => rep.failures.push("no discrete oracle".into()),
-            }
+            judge_box(rep, rel, DISORDERED_MEAN_TOL, "phase mean velocities");
         }
         crate::scene::ProblemCfg::Dustybox(b) => {
             // The second comparison is IDIC's discrete oracle; velocities relative to the slip.
@@ -653,16 +646,21 @@ fn check_exact(rep: &mut CaseReport, sc: &Scene, state: &State) {
                     .fold(0.0, f64::max)
             });
             let rel = e.map(|e| e * box_velocity_factor(b));
-            rep.box_oracle = rel;
-            match rel {
-                Some(r) if r <= BOX_ORACLE_TOL => {}
-                Some(r) => rep.failures.push(format!(
-                    "velocities differ from IDIC's discrete solution by {r:.2e} > {BOX_ORACLE_TOL:e}"
-                )),
-                None => rep.failures.push("no discrete oracle".into()),
-            }
+            judge_box(rep, rel, BOX_ORACLE_TOL, "velocities");
         }
         _ => {}
+    }
+}
+
+/// A box's distance `rel` from IDIC's discrete solution against `tol` (`what` differs).
+fn judge_box(rep: &mut CaseReport, rel: Option<f64>, tol: f64, what: &str) {
+    rep.box_oracle = rel;
+    match rel {
+        Some(r) if r <= tol => {}
+        Some(r) => rep.failures.push(format!(
+            "{what} differ from IDIC's discrete solution by {r:.2e} > {tol:e}"
+        )),
+        None => rep.failures.push("no discrete oracle".into()),
     }
 }
 

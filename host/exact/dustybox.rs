@@ -6,6 +6,14 @@
 //! v = V − Σ ε_k w_k/(1 + Σ ε_k), u_k = v + w_k.
 use super::linalg::{expm_real, implicit_euler_power};
 
+/// Constant accelerations along the velocity component: `gas` on the gas, `dust` on every
+/// fraction (the `[external]` section's).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Forcing {
+    pub gas: f64,
+    pub dust: f64,
+}
+
 /// Uniform box: ε_k = ρ_k/ρ_g and t_k = ρ_k/K_k (method.md §1.1 convention).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DustyBox {
@@ -130,27 +138,20 @@ impl DustyBox {
     /// The steady relative velocities under constant accelerations (`a_gas` on the gas,
     /// `a_dust` on every fraction): M w* = (a_dust − a_gas) 1 gives
     /// w*_k = t_k (a_dust − a_gas)/(1 + Σε), the terminal drift of each fraction.
-    pub fn terminal_drift(&self, a_gas: f64, a_dust: f64) -> Vec<f64> {
-        let c = (a_dust - a_gas) / (1.0 + self.eps_total());
+    pub fn terminal_drift(&self, a: Forcing) -> Vec<f64> {
+        let c = (a.dust - a.gas) / (1.0 + self.eps_total());
         self.t_stop.iter().map(|t| t * c).collect()
     }
 
     /// The barycentric acceleration (a_gas + Σ ε_k a_dust)/(1 + Σε).
-    fn barycentric_acceleration(&self, a_gas: f64, a_dust: f64) -> f64 {
-        (a_gas + self.eps_total() * a_dust) / (1.0 + self.eps_total())
+    fn barycentric_acceleration(&self, a: Forcing) -> f64 {
+        (a.gas + self.eps_total() * a.dust) / (1.0 + self.eps_total())
     }
 
     /// [`Self::exact`] under constant accelerations: w(t) = w* + exp(−Mt)(w(0) − w*), the
     /// barycentric velocity grows at the barycentric acceleration.
-    pub fn exact_forced(
-        &self,
-        v0: f64,
-        u0: &[f64],
-        a_gas: f64,
-        a_dust: f64,
-        t: f64,
-    ) -> (f64, Vec<f64>) {
-        self.forced(v0, u0, a_gas, a_dust, t, |v, u| self.exact(v, u, t))
+    pub fn exact_forced(&self, v0: f64, u0: &[f64], a: Forcing, t: f64) -> (f64, Vec<f64>) {
+        self.forced(v0, u0, a, t, |v, u| self.exact(v, u, t))
     }
 
     /// [`Self::implicit_euler`] under constant accelerations, as IDIC applies them (the kick
@@ -160,15 +161,12 @@ impl DustyBox {
         &self,
         v0: f64,
         u0: &[f64],
-        a_gas: f64,
-        a_dust: f64,
+        a: Forcing,
         tau: f64,
         n: usize,
     ) -> (f64, Vec<f64>) {
         let t = tau * n as f64;
-        self.forced(v0, u0, a_gas, a_dust, t, |v, u| {
-            self.implicit_euler(v, u, tau, n)
-        })
+        self.forced(v0, u0, a, t, |v, u| self.implicit_euler(v, u, tau, n))
     }
 
     /// The unforced solution `decay` of the deviation from the terminal drift, shifted back and
@@ -177,15 +175,14 @@ impl DustyBox {
         &self,
         v0: f64,
         u0: &[f64],
-        a_gas: f64,
-        a_dust: f64,
+        a: Forcing,
         t: f64,
         decay: impl Fn(f64, &[f64]) -> (f64, Vec<f64>),
     ) -> (f64, Vec<f64>) {
-        if a_gas == 0.0 && a_dust == 0.0 {
+        if a.gas == 0.0 && a.dust == 0.0 {
             return decay(v0, u0);
         }
-        let ws = self.terminal_drift(a_gas, a_dust);
+        let ws = self.terminal_drift(a);
         // The same barycentric velocity with the relative velocities w(0) − w*.
         let vbar = self.barycentric_velocity(v0, u0);
         let (v, u) = self.assemble(
@@ -196,7 +193,7 @@ impl DustyBox {
                 .collect::<Vec<_>>(),
         );
         let (v, u) = decay(v, &u);
-        let shift = self.barycentric_acceleration(a_gas, a_dust) * t;
+        let shift = self.barycentric_acceleration(a) * t;
         let (vd, _) = self.assemble(0.0, &ws);
         let v_new = v + vd + shift;
         (
@@ -350,7 +347,8 @@ mod tests {
                 y[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
             }
         }
-        let e = b.exact_forced(v0, &u0, ag, ad, t);
+        let f = Forcing { gas: ag, dust: ad };
+        let e = b.exact_forced(v0, &u0, f, t);
         assert!(max_diff(&e, &(y[0], y[1..].to_vec())) < 1e-11);
         // Discrete: kick by τa, then solve (I + τM) w^{n+1} = w̃ with V carried exactly.
         let (tau, n) = (0.05, 14);
@@ -369,11 +367,11 @@ mod tests {
             w = solve_real(&a, &kicked).unwrap();
             vbar += tau * (ag + b.eps_total() * ad) / (1.0 + b.eps_total());
         }
-        let d = b.implicit_euler_forced(v0, &u0, ag, ad, tau, n);
+        let d = b.implicit_euler_forced(v0, &u0, f, tau, n);
         assert!(max_diff(&d, &b.assemble(vbar, &w)) < 1e-12);
         // Long after: the terminal drift t_k Δa/(1 + Σε).
-        let late = b.exact_forced(v0, &u0, ag, ad, 50.0);
-        for (k, w) in b.terminal_drift(ag, ad).iter().enumerate() {
+        let late = b.exact_forced(v0, &u0, f, 50.0);
+        for (k, w) in b.terminal_drift(f).iter().enumerate() {
             assert!((late.1[k] - late.0 - w).abs() < 1e-12);
             assert!((w - b.t_stop[k] * (ad - ag) / (1.0 + b.eps_total())).abs() < 1e-15);
         }
