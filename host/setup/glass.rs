@@ -68,6 +68,17 @@ pub(crate) fn glass(start: &[[f64; 3]], g: &GlassSpec) -> Result<Glass, SetupErr
     if let Some(g) = file.as_ref().and_then(|f| read(f, start.len())) {
         return Ok(g);
     }
+    // A large glass takes minutes: say what is happening, and where it will be kept.
+    let kept = file
+        .as_ref()
+        .map_or("not cached: no cache folder".into(), |f| {
+            format!("cached as {}", f.display())
+        });
+    eprintln!(
+        "dustsph: relaxing a glass of {} particles (phase {}; {kept})",
+        start.len(),
+        g.phase
+    );
     let glass = relax(start, g)?;
     if let Some(f) = file {
         // The cache only saves time: a machine that cannot write it relaxes again next time.
