@@ -205,8 +205,7 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
     // The oracle is IDIC's own discrete solution; the explicit baseline has none here.
     let idic = scene.drag.method == crate::scene::DragMethod::Idic;
     if let Some(dt) = dt_fixed.filter(|_| idic) {
-        let n = (t / dt).round() as usize;
-        if ((n as f64) * dt - t).abs() <= 1e-9 * t.max(dt) {
+        if let Some(n) = whole_steps(t, dt) {
             let (vg, ud) = bx.implicit_euler_forced(v0, &u0, a, dt, n);
             out.push(ExactErrors {
                 t,
@@ -231,11 +230,7 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
 /// [`exact_errors`]: the box's check on disordered particles, whose pressure noise moves each
 /// particle but not the means. `None` when t is not a whole number of steps.
 pub fn box_oracle_mean_deviation(scene: &Scene, b: &BoxCfg, state: &State, dt: f64) -> Option<f64> {
-    let t = state.t;
-    let n = (t / dt).round() as usize;
-    if ((n as f64) * dt - t).abs() > 1e-9 * t.max(dt) {
-        return None;
-    }
+    let n = whole_steps(state.t, dt)?;
     let (bx, v0, u0) = dustybox_model(scene, b);
     let a = box_forcing(scene);
     let (vg, ud) = bx.implicit_euler_forced(v0, &u0, a, dt, n);
@@ -249,6 +244,12 @@ pub fn box_oracle_mean_deviation(scene: &Scene, b: &BoxCfg, state: &State, dt: f
         dev = dev.max((mean(d) - u).abs());
     }
     Some(dev / scale)
+}
+
+/// n when t is n fixed steps of `dt` (to 1e-9 relative): the discrete oracle's step count.
+fn whole_steps(t: f64, dt: f64) -> Option<usize> {
+    let n = (t / dt).round() as usize;
+    (((n as f64) * dt - t).abs() <= 1e-9 * t.max(dt)).then_some(n)
 }
 
 /// The `[external]` accelerations along x (the box's errors compare v_x).
