@@ -46,10 +46,10 @@ pub struct Run {
 impl Run {
     /// Validate, set up, and write the t = 0 snapshot.
     pub fn start(loaded: &LoadedScene, opts: &RunOptions) -> Result<Run, RunError> {
-        let (phys, mut state) = start::prepare(loaded, None, true)?;
+        let (phys, mut state, source) = start::prepare(loaded, None, true)?;
         let mut eng = start::engine(loaded, phys.clone(), &mut state, opts.device, opts.verbose)?;
         start::check_first_step(loaded, &mut eng, &state)?;
-        Self::begin(loaded, opts, phys, state, Stepper::Local(eng))
+        Self::begin(loaded, opts, phys, state, source, Stepper::Local(eng))
     }
 
     /// [`Run::start`] as one of several MPI ranks: rank 0 alone builds the engine on the whole
@@ -62,7 +62,7 @@ impl Run {
         world: crate::dist::comm::World,
     ) -> Result<Run, RunError> {
         let root = world.rank() == 0;
-        let (phys, mut state) = start::prepare(loaded, None, root)?;
+        let (phys, mut state, source) = start::prepare(loaded, None, root)?;
         // The set-up (and rank 0's outputs) on the CPU; the steps on each rank's device.
         let built = if root {
             start::engine(
@@ -81,7 +81,7 @@ impl Run {
             Ok(None)
         };
         let stepper = over_ranks(world, &phys, &state, built, opts.device, opts.verbose)?;
-        Self::begin(loaded, opts, phys, state, stepper)
+        Self::begin(loaded, opts, phys, state, source, stepper)
     }
 
     /// All input is valid: the output directory (rank 0's), the simulation, the first
@@ -90,7 +90,8 @@ impl Run {
         loaded: &LoadedScene,
         opts: &RunOptions,
         phys: Physics,
-        mut state: State,
+        state: State,
+        source: Option<crate::setup::file::IcSource>,
         mut stepper: Stepper,
     ) -> Result<Run, RunError> {
         let out = if stepper.is_root() {
@@ -116,14 +117,18 @@ impl Run {
         if let Some(eng) = stepper.local() {
             *eng.timers_mut() = Default::default();
         }
-        state.t = 0.0;
+        let record = OutputRecord {
+            start_time: state.t,
+            initial_conditions: source,
+            ..Default::default()
+        };
         let sim = Simulation::new(phys, &loaded.scene.time, state, stepper)
             .map_err(|e| RunError::Step(e.to_string()))?;
         let mut r = Run::with(
             loaded,
             opts.out.clone(),
             sim,
-            Default::default(),
+            record,
             None,
             0.0,
             opts.verbose,
@@ -174,7 +179,7 @@ impl Run {
     /// Continue a run from `DIR/checkpoint.h5`.
     pub fn resume(dir: &Path, verbose: bool, device: DeviceChoice) -> Result<Run, RunError> {
         let (state, loaded, progress) = checkpoint::read(dir)?;
-        let (phys, mut state) = start::prepare(&loaded, Some(state), true)?;
+        let (phys, mut state, _) = start::prepare(&loaded, Some(state), true)?;
         let eng = start::engine(&loaded, phys.clone(), &mut state, device, verbose)?;
         Ok(Self::resumed(
             &loaded,
@@ -198,7 +203,7 @@ impl Run {
     ) -> Result<Run, RunError> {
         let root = world.rank() == 0;
         let (state, loaded, progress) = checkpoint::read(dir)?;
-        let (phys, mut state) = start::prepare(&loaded, Some(state), root)?;
+        let (phys, mut state, _) = start::prepare(&loaded, Some(state), root)?;
         let built = if root {
             start::engine(
                 &loaded,

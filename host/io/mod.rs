@@ -5,7 +5,9 @@
 //! the file or directory it concerns.
 
 pub mod checkpoint;
+pub mod ics;
 pub mod output_dir;
+pub mod sha256;
 pub mod snapshot;
 pub mod xdmf;
 

@@ -127,6 +127,9 @@ pub struct SceneSource<'a> {
     pub file: &'a str,
     pub text: &'a str,
     pub overrides: &'a [String],
+    /// Initial conditions from a file: its path and SHA-256 (Header attributes
+    /// `InitialConditionsFile`, `InitialConditionsSHA256`).
+    pub initial_conditions: Option<(&'a str, &'a str)>,
 }
 
 /// One phase read back from a snapshot.
@@ -338,6 +341,10 @@ fn validate(path: &Path, snap: &SnapshotView) -> Result<SceneTexts, IoError> {
         file: text(snap.source.file)?,
         file_text: text(snap.source.text)?,
         overrides: text(&overrides)?,
+        initial_conditions: match snap.source.initial_conditions {
+            Some((p, d)) => Some((text(p)?, text(d)?)),
+            None => None,
+        },
     })
 }
 
@@ -348,6 +355,7 @@ struct SceneTexts {
     file: VarLenUnicode,
     file_text: VarLenUnicode,
     overrides: VarLenUnicode,
+    initial_conditions: Option<(VarLenUnicode, VarLenUnicode)>,
 }
 
 /// Writes the snapshot to `path` atomically: write to a temporary name in the same directory
@@ -444,6 +452,10 @@ fn write_header(
     put_scalar(&g, "SceneFile", &scene.file, path)?;
     put_scalar(&g, "SceneFileText", &scene.file_text, path)?;
     put_scalar(&g, "SceneOverrides", &scene.overrides, path)?;
+    if let Some((file, digest)) = &scene.initial_conditions {
+        put_scalar(&g, "InitialConditionsFile", file, path)?;
+        put_scalar(&g, "InitialConditionsSHA256", digest, path)?;
+    }
     // Conventional GADGET fields: older yt releases and other GADGET readers index them
     // unconditionally; OmegaLambda = 0 marks the run as non-cosmological.
     put_array(&g, "NumPart_Total_HighWord", &[0u32; 6], path)?;

@@ -27,6 +27,8 @@ pub struct SceneFile {
     pub dustyshock: Option<ShockSection>,
     pub dustyball: Option<BallSection>,
     pub dustysettle: Option<SettleSection>,
+    /// Initial conditions from an HDF5 file (`scene.problem = "file"`).
+    pub file: Option<FileSection>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -45,11 +47,14 @@ pub enum Problem {
     Dustyshock,
     Dustyball,
     Dustysettle,
+    /// The particles of an HDF5 file (`[file]`): a user's own initial conditions.
+    File,
 }
 
 impl Problem {
     pub fn name(self) -> &'static str {
         match self {
+            Problem::File => "file",
             Problem::Dustybox => "dustybox",
             Problem::Dustywave => "dustywave",
             Problem::Dustyshock => "dustyshock",
@@ -116,8 +121,9 @@ pub struct DustSection {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FractionSection {
-    /// Dust-to-gas density ratio ε_k of this fraction in the background state.
-    pub eps: f64,
+    /// Dust-to-gas density ratio ε_k of this fraction in the background state (required by
+    /// the built-in problems; initial conditions from a file take it from their masses).
+    pub eps: Option<f64>,
     pub t_stop: Option<f64>,
     pub k: Option<f64>,
     pub s_rho: Option<f64>,
@@ -127,8 +133,9 @@ pub struct FractionSection {
 #[serde(deny_unknown_fields)]
 pub struct SphSection {
     /// Gas particles per unit length along each axis (box, wave); for the shock tube, on its
-    /// denser side; for the settling column, at its base; for the ball, of its lattice.
-    pub n: usize,
+    /// denser side; for the settling column, at its base; for the ball, of its lattice. Not
+    /// used by initial conditions from a file (its particles are the resolution).
+    pub n: Option<usize>,
     /// Smoothing length in units of the scene's reference gas spacing.
     pub hfact: Option<f64>,
     /// Absolute smoothing length (instead of hfact).
@@ -455,4 +462,16 @@ pub struct SettleSection {
 #[serde(deny_unknown_fields)]
 pub struct BallSection {
     pub radius: Option<f64>,
+}
+
+/// `[file]`: initial conditions from an HDF5 file in the layout dustsph writes (GADGET/SWIFT:
+/// `PartType0` gas, `PartType3` dust with `FractionIndex`; host/io/ics.rs).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileSection {
+    /// The file, relative to the scene file's folder (or absolute).
+    pub path: String,
+    /// Which axes are periodic (the file's `Header/BoxSizePerAxis` and `CoordinateOffset`
+    /// give the period); open by default.
+    pub periodic: Option<[bool; 3]>,
 }

@@ -253,6 +253,7 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         key,
         msg,
     };
+    let folder = file.parent().unwrap_or(Path::new("")).to_path_buf();
     let table = overridden_table(text, file, overrides)?;
     check_tables(&table).map_err(|(key, msg)| err(Some(key), msg))?;
     // Another problem's section (a stray `--set dustybox.length=1` on a wave): said before the
@@ -268,6 +269,7 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
             "dustyshock",
             "dustyball",
             "dustysettle",
+            "file",
         ];
         if sections.contains(&problem) {
             if let Some(other) = sections
@@ -312,7 +314,11 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
         };
         err(key, msg)
     })?;
-    let scene = Scene::from_file(&file).map_err(|(key, msg)| err(Some(key), msg))?;
+    let mut scene = Scene::from_file(&file).map_err(|(key, msg)| err(Some(key), msg))?;
+    // A file's initial conditions are found from the scene file's folder.
+    if let ProblemCfg::File(f) = &mut scene.problem {
+        f.resolved = folder.join(&f.path);
+    }
     // A key given but not used would silently not do what its author meant.
     for (k, why) in given {
         if let Some(why) = why(&scene) {

@@ -166,10 +166,18 @@ pub struct Fraction {
     pub law: StoppingLaw<f64>,
 }
 
+impl Fraction {
+    /// Initial conditions from a file: ε comes from the file's masses, not the scene.
+    pub const EPS_FROM_FILE: f64 = f64::NAN;
+}
+
 impl Serialize for Fraction {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         let mut st = s.serialize_struct("Fraction", 2)?;
-        st.serialize_field("eps", &self.eps)?;
+        // A file's fractions have no ε in the scene (their masses are in the file).
+        if !self.eps.is_nan() {
+            st.serialize_field("eps", &self.eps)?;
+        }
         match self.law {
             StoppingLaw::ConstantTime { t_stop } => st.serialize_field("t_stop", &t_stop)?,
             StoppingLaw::ConstantK { k } => st.serialize_field("k", &k)?,
@@ -182,7 +190,9 @@ impl Serialize for Fraction {
 /// `[sph]`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Sph {
-    /// Gas particles per unit length (see the file's `sph.n` for what each problem counts).
+    /// Gas particles per unit length (see the file's `sph.n` for what each problem counts);
+    /// 0 for initial conditions from a file, whose particles are the resolution.
+    #[serde(skip_serializing_if = "is_zero")]
     pub n: usize,
     #[serde(flatten)]
     pub smoothing: SmoothingLength,
@@ -193,10 +203,17 @@ pub struct Sph {
     pub viscosity: Option<ArtificialViscosity>,
 }
 
+fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
 /// The smoothing length rule.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(untagged)]
 pub enum SmoothingLength {
+    /// Initial conditions from a file without `sph.h` or `sph.hfact`: its `SmoothingLength`
+    /// column (one value for every gas particle; host/setup/file.rs).
+    FromFile {},
     /// `sph.h`: one absolute smoothing length.
     Absolute { h: f64 },
     /// `sph.hfact`: h = hfact × the problem's reference gas spacing; with `variable_h`, the
@@ -206,8 +223,10 @@ pub enum SmoothingLength {
 
 impl SmoothingLength {
     /// The (reference) smoothing length for a reference gas spacing.
+    /// `FromFile` has no rule: the file's column is read by its set-up (NaN here).
     pub fn h(self, spacing: f64) -> f64 {
         match self {
+            SmoothingLength::FromFile {} => f64::NAN,
             SmoothingLength::Absolute { h } => h,
             SmoothingLength::Hfact { hfact, .. } => hfact * spacing,
         }
@@ -321,6 +340,7 @@ pub enum ProblemCfg {
     Dustyshock(ShockCfg),
     Dustyball(BallCfg),
     Dustysettle(SettleCfg),
+    File(FileCfg),
 }
 
 impl ProblemCfg {
@@ -331,6 +351,7 @@ impl ProblemCfg {
             ProblemCfg::Dustyshock(_) => Problem::Dustyshock,
             ProblemCfg::Dustyball(_) => Problem::Dustyball,
             ProblemCfg::Dustysettle(_) => Problem::Dustysettle,
+            ProblemCfg::File(_) => Problem::File,
         }
     }
 
@@ -343,6 +364,7 @@ impl ProblemCfg {
             ProblemCfg::Dustyshock(_) => None,
             ProblemCfg::Dustyball(b) => Some(b.background),
             ProblemCfg::Dustysettle(c) => Some(c.background),
+            ProblemCfg::File(_) => None,
         }
     }
 }
@@ -411,6 +433,17 @@ pub struct SettleCfg {
     pub cs: f64,
     pub height: f64,
     pub dust_shift: f64,
+}
+
+/// Initial conditions from an HDF5 file (host/setup/file.rs).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FileCfg {
+    /// The path as the scene gives it.
+    pub path: String,
+    /// `path` from the scene file's folder (set when the scene is parsed).
+    #[serde(skip)]
+    pub resolved: std::path::PathBuf,
+    pub periodic: [bool; 3],
 }
 
 /// The model as [`Scene::to_toml`] writes it: the scene file's sections and keys, the

@@ -80,6 +80,7 @@ enum Section<'a, B> {
     Shock(&'a ShockSection),
     Ball(&'a BallSection, B),
     Settle(&'a SettleSection, B),
+    File(&'a FileSection),
 }
 
 impl<'a> Section<'a, ()> {
@@ -93,6 +94,7 @@ impl<'a> Section<'a, ()> {
             Problem::Dustyshock => f.dustyshock.as_ref().map(Section::Shock),
             Problem::Dustyball => f.dustyball.as_ref().map(|s| Section::Ball(s, ())),
             Problem::Dustysettle => f.dustysettle.as_ref().map(|s| Section::Settle(s, ())),
+            Problem::File => f.file.as_ref().map(Section::File),
         };
         let missing = |p: Problem| {
             err(
@@ -106,6 +108,7 @@ impl<'a> Section<'a, ()> {
             (Problem::Dustyshock, f.dustyshock.is_some()),
             (Problem::Dustyball, f.dustyball.is_some()),
             (Problem::Dustysettle, f.dustysettle.is_some()),
+            (Problem::File, f.file.is_some()),
         ];
         for (p, there) in present {
             if p == problem && chosen.is_none() {
@@ -150,6 +153,18 @@ impl<'a> Section<'a, ()> {
                 }
                 Section::Shock(s)
             }
+            Section::File(s) => {
+                for (key, v) in [("gas.rho", g.rho), ("gas.p", g.p)] {
+                    if v.is_some() {
+                        return err(
+                            key,
+                            "initial conditions from a file take the gas state from the file \
+                             (Density, InternalEnergy); remove it",
+                        );
+                    }
+                }
+                Section::File(s)
+            }
             Section::Box(s, ()) => Section::Box(s, bg()?),
             Section::Wave(s, ()) => Section::Wave(s, bg()?),
             Section::Ball(s, ()) => Section::Ball(s, bg()?),
@@ -166,7 +181,7 @@ impl Scene {
         let eos = gas_eos(&f.gas)?;
         let section = section.with_background(&f.gas, eos)?;
         let dust = dust(f, eos)?;
-        let sph = sph(&f.sph)?;
+        let sph = sph(&f.sph, f.scene.problem == Problem::File)?;
         let idic_file = f.idic.as_ref();
         let cell = idic_file.and_then(|i| i.cell).unwrap_or(0.5);
         positive("idic.cell", cell)?;
@@ -320,7 +335,7 @@ fn dust(f: &SceneFile, eos: GasEos) -> VResult<Option<Dust>> {
         .fractions
         .iter()
         .enumerate()
-        .map(|(i, fr)| fraction(i, fr, d))
+        .map(|(i, fr)| fraction(i, fr, d, f.scene.problem == Problem::File))
         .collect::<VResult<Vec<_>>>()?;
     Ok(Some(Dust {
         law: d.law,
@@ -330,10 +345,28 @@ fn dust(f: &SceneFile, eos: GasEos) -> VResult<Option<Dust>> {
 }
 
 /// Fraction `i`: its ε and the law's one parameter (the constant-t law falls back on
-/// `dust.t_stop`).
-fn fraction(i: usize, f: &FractionSection, d: &DustSection) -> VResult<Fraction> {
+/// `dust.t_stop`). Initial conditions from a file (`from_file`) give ε by their masses.
+fn fraction(i: usize, f: &FractionSection, d: &DustSection, from_file: bool) -> VResult<Fraction> {
     let key = |k: &str| format!("dust.fractions.{i}.{k}");
-    positive(&key("eps"), f.eps)?;
+    let eps = match (f.eps, from_file) {
+        (Some(_), true) => {
+            return err(
+                key("eps"),
+                "initial conditions from a file take each fraction's dust-to-gas ratio from \
+                 the file's masses; remove it",
+            )
+        }
+        (None, true) => Fraction::EPS_FROM_FILE,
+        (eps, false) => {
+            let eps = required(
+                &key("eps"),
+                eps,
+                "required (the fraction's dust-to-gas ratio)",
+            )?;
+            positive(&key("eps"), eps)?;
+            eps
+        }
+    };
     let (want, other): (&str, [(&str, Option<f64>); 2]) = match d.law {
         LawKind::ConstantT => ("t_stop", [("k", f.k), ("s_rho", f.s_rho)]),
         LawKind::ConstantK => ("k", [("t_stop", f.t_stop), ("s_rho", f.s_rho)]),
@@ -359,20 +392,43 @@ fn fraction(i: usize, f: &FractionSection, d: &DustSection) -> VResult<Fraction>
         LawKind::ConstantK => StoppingLaw::ConstantK { k: v },
         LawKind::Epstein => StoppingLaw::Epstein { s_rho: v },
     };
-    Ok(Fraction { eps: f.eps, law })
+    Ok(Fraction { eps, law })
 }
 
-fn sph(s: &SphSection) -> VResult<Sph> {
-    if s.n < 2 {
-        return err(
-            "sph.n",
-            format!("must be ≥ 2 particles per unit length (got {})", s.n),
-        );
-    }
+/// `from_file`: initial conditions from a file, which has its own particles (no `sph.n`)
+/// and may give h by its `SmoothingLength` (no `sph.h`/`sph.hfact`).
+fn sph(s: &SphSection, from_file: bool) -> VResult<Sph> {
+    let n = match (s.n, from_file) {
+        (Some(_), true) => {
+            return err(
+                "sph.n",
+                "initial conditions from a file have their own particles; remove it",
+            )
+        }
+        (None, true) => 0,
+        (None, false) => return err("sph.n", "required (particles per unit length)"),
+        (Some(n), false) if n < 2 => {
+            return err(
+                "sph.n",
+                format!("must be ≥ 2 particles per unit length (got {n})"),
+            )
+        }
+        (Some(n), false) => n,
+    };
     let variable_h = s.variable_h.unwrap_or(false);
     let density = s.density.unwrap_or(DensityMethod::Summation);
     let smoothing = match (s.h, s.hfact) {
         (Some(_), Some(_)) => return err("sph.h", "give either sph.h or sph.hfact, not both"),
+        (None, None) if from_file => {
+            if variable_h {
+                return err(
+                    "sph.variable_h",
+                    "needs sph.hfact (h = hfact (m/ρ)^(1/d)); the file's SmoothingLength is \
+                     then each particle's first guess",
+                );
+            }
+            SmoothingLength::FromFile {}
+        }
         (None, None) => {
             return err(
                 "sph.hfact",
@@ -404,7 +460,7 @@ fn sph(s: &SphSection) -> VResult<Sph> {
     non_negative("sph.alpha", alpha)?;
     non_negative("sph.beta", beta)?;
     Ok(Sph {
-        n: s.n,
+        n,
         smoothing,
         density,
         gradient: s.gradient.unwrap_or(GradientMethod::Standard),
@@ -593,6 +649,25 @@ fn problem(
             positive("dustyball.radius", radius)?;
             ProblemCfg::Dustyball(BallCfg { background, radius })
         }
+        Section::File(s) => ProblemCfg::File(FileCfg {
+            path: {
+                if s.path.trim().is_empty() {
+                    return err("file.path", "must name the initial conditions' HDF5 file");
+                }
+                s.path.clone()
+            },
+            resolved: s.path.clone().into(),
+            periodic: {
+                let p = s.periodic.unwrap_or([false; 3]);
+                if let Some(k) = (f.scene.dim as usize..3).find(|&k| p[k]) {
+                    return err(
+                        format!("file.periodic.{k}"),
+                        format!("a {}D scene has no axis {k}", f.scene.dim),
+                    );
+                }
+                p
+            },
+        }),
         Section::Shock(s) => {
             let length = s.length.unwrap_or(1.0);
             positive("dustyshock.length", length)?;

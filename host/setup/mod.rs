@@ -5,6 +5,7 @@ mod dustybox;
 pub mod dustysettle;
 mod dustyshock;
 pub mod dustywave;
+pub mod file;
 pub mod glass;
 
 use crate::grid::Domain;
@@ -23,6 +24,8 @@ pub struct Setup {
     pub box_size: f64,
     /// What the set-up made that a user should hear of (a glass's density noise).
     pub notes: Vec<String>,
+    /// Initial conditions from a file: which, and its digest (every output records them).
+    pub source: Option<file::IcSource>,
 }
 
 impl Setup {
@@ -47,6 +50,7 @@ impl Setup {
             spacing,
             box_size,
             notes: Vec::new(),
+            source: None,
         }
     }
 }
@@ -174,6 +178,7 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
         ProblemCfg::Dustyshock(s) => dustyshock::build(scene, s),
         ProblemCfg::Dustyball(b) => dustyball::build(scene, b),
         ProblemCfg::Dustysettle(c) => dustysettle::build(scene, c),
+        ProblemCfg::File(f) => file::build(scene, f),
     }
 }
 

@@ -131,7 +131,7 @@ fn verify_resume(
             "its particles are not {dim}-dimensional as its scene (scene.dim = {dim}) says"
         ));
     }
-    if let Some(&t_end) = output_times(loaded).last() {
+    if let Some(&t_end) = output_times(loaded, outputs.start_time).last() {
         if state.t >= t_end {
             return Err(format!(
                 "its run already reached t_end = {t_end} (t = {}): nothing to resume, and the \

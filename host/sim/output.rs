@@ -12,9 +12,9 @@ use std::path::{Path, PathBuf};
 
 /// The times a scene writes snapshots at: t = 0, every `output_dt` or the `output_times`, and
 /// t_end.
-pub fn output_times(loaded: &LoadedScene) -> Vec<f64> {
+pub fn output_times(loaded: &LoadedScene, start: f64) -> Vec<f64> {
     let t = &loaded.scene.time;
-    let mut v = vec![0.0];
+    let mut v = vec![start];
     match &t.output {
         OutputSchedule::Every { output_dt: dt } => {
             let n = (t.t_end / dt + 1e-9).floor() as usize;
@@ -24,6 +24,8 @@ pub fn output_times(loaded: &LoadedScene) -> Vec<f64> {
         OutputSchedule::EndOnly => {}
     }
     v.push(t.t_end);
+    // A run that starts later (initial conditions at the file's time) writes what is after.
+    v.retain(|&x| x >= start);
     v.sort_by(|a, b| a.total_cmp(b));
     v.dedup_by(|a, b| (*a - *b).abs() <= 1e-12 * t.t_end);
     v
@@ -42,6 +44,12 @@ pub struct OutputRecord {
     /// The ball: the undisturbed core at each snapshot time (docs/method.md §6.1).
     #[serde(default)]
     pub ball_core: Vec<analysis::ball::CoreCheck>,
+    /// The time the run started at: 0, or an initial-conditions file's `Header/Time`.
+    #[serde(default)]
+    pub start_time: f64,
+    /// Initial conditions from a file: which, and its SHA-256.
+    #[serde(default)]
+    pub initial_conditions: Option<crate::setup::file::IcSource>,
 }
 
 /// Writes the snapshots of a run (rank 0 over MPI ranks).
@@ -56,7 +64,7 @@ pub struct Outputs {
 impl Outputs {
     pub fn new(loaded: &LoadedScene, dir: &Path, record: OutputRecord, verbose: bool) -> Outputs {
         Outputs {
-            times: output_times(loaded),
+            times: output_times(loaded, record.start_time),
             loaded: loaded.clone(),
             dir: dir.to_path_buf(),
             record,
@@ -85,7 +93,8 @@ impl Outputs {
     }
 
     fn write_files(&mut self, sim: &mut Simulation, name: &str) -> Result<(), RunError> {
-        write_snapshot(&self.dir.join(name), &self.loaded, sim)?;
+        let ics = self.record.initial_conditions.as_ref();
+        write_snapshot(&self.dir.join(name), &self.loaded, ics, sim)?;
         let fixed_dt = self.loaded.scene.time.fixed_dt();
         self.record.errors.extend(analysis::exact_errors(
             &self.loaded.scene,
@@ -142,6 +151,7 @@ impl Observer for Outputs {
 pub fn write_snapshot(
     path: &Path,
     loaded: &LoadedScene,
+    ics: Option<&crate::setup::file::IcSource>,
     sim: &mut Simulation,
 ) -> Result<(), RunError> {
     let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
@@ -193,6 +203,7 @@ pub fn write_snapshot(
             file: &scene_file,
             text: &loaded.text,
             overrides: &loaded.overrides,
+            initial_conditions: ics.map(|s| (s.path.as_str(), s.sha256.as_str())),
         },
         gas: Some(PhaseView {
             x: &g.ph.x,

@@ -3,6 +3,7 @@
 use super::RunError;
 use crate::particles::State;
 use crate::scene::LoadedScene;
+use crate::setup::file::IcSource;
 use crate::step::backend::{Backend, DeviceChoice, StartError};
 use crate::step::timestep::{dt_limits, StepPlanner};
 use crate::step::{Forces, Physics, StepError};
@@ -11,13 +12,14 @@ use crate::step::{Forces, Physics, StepError};
 /// nearest-cell coupling warns (their drag is off).
 const UNCOUPLED_WARNING: f64 = 0.05;
 
-/// The scene's physics and its initial state (or a given, checkpointed one); `warn`: say
-/// what the set-up found worth a warning (one process, or rank 0 only).
+/// The scene's physics and its initial state (or a given, checkpointed one), and the
+/// initial-conditions file it came from; `warn`: say what the set-up found worth a warning
+/// (one process, or rank 0 only).
 pub fn prepare(
     loaded: &LoadedScene,
     state: Option<State>,
     warn: bool,
-) -> Result<(Physics, State), RunError> {
+) -> Result<(Physics, State, Option<IcSource>), RunError> {
     let file = loaded.path.display().to_string();
     let su =
         crate::setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
@@ -25,6 +27,14 @@ pub fn prepare(
         for n in &su.notes {
             eprintln!("dustsph: {n}");
         }
+    }
+    let t_end = loaded.scene.time.t_end;
+    if state.is_none() && su.state.t >= t_end {
+        return Err(RunError::Input(format!(
+            "{file}: key `time.t_end`: {t_end} is not after the initial conditions' time t = {} \
+             (the file's Header/Time)",
+            su.state.t
+        )));
     }
     let state = state.unwrap_or(su.state);
     let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
@@ -41,7 +51,7 @@ pub fn prepare(
             }
         }
     }
-    Ok((phys, state))
+    Ok((phys, state, su.source))
 }
 
 /// The engine on a scene's state (sorted in place). Sorting an already sorted state is the
@@ -79,7 +89,7 @@ pub fn check_first_step(
     eng: &mut Backend,
     state: &State,
 ) -> Result<(), RunError> {
-    let Some(&t1) = super::output::output_times(loaded).get(1) else {
+    let Some(&t1) = super::output::output_times(loaded, state.t).get(1) else {
         return Ok(());
     };
     let planner = StepPlanner::new(&loaded.scene.time, eng.phys().h);

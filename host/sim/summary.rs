@@ -70,6 +70,9 @@ pub struct Summary {
     /// The resolved scene model as TOML ([`crate::scene::Scene::to_toml`]: every default
     /// applied, the same text as the snapshots' `Header/SceneModel`).
     pub scene_model: String,
+    /// Initial conditions from a file: its path and SHA-256.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub initial_conditions: Option<crate::setup::file::IcSource>,
     pub dimension: u32,
     pub backend: String,
     pub precision: &'static str,
@@ -87,6 +90,8 @@ pub struct Summary {
     pub drag_limited_steps: u64,
     pub pipeline: Vec<&'static str>,
     pub steps: u64,
+    /// The time the run started at (0, or the initial conditions' `Header/Time`).
+    pub t_start: f64,
     pub t_final: f64,
     pub dt_min: f64,
     pub dt_max: f64,
@@ -184,6 +189,7 @@ pub fn finish(
         overrides: loaded.overrides.clone(),
         scene_effective: loaded.effective.clone(),
         scene_model: scene.to_toml(),
+        initial_conditions: outputs.initial_conditions.clone(),
         dimension: scene.dim(),
         backend: sim.stepper.describe(),
         precision: phys.precision.name(),
@@ -204,6 +210,7 @@ pub fn finish(
         drag_method: phys.drag.name(),
         drag_limited_steps: d.drag_limited_steps,
         steps: state.step,
+        t_start: outputs.start_time,
         t_final: state.t,
         dt_min: d.dt_min,
         dt_max: d.dt_max,

@@ -1,0 +1,369 @@
+//! Initial conditions from an HDF5 file in the layout dustsph writes and GADGET/SWIFT readers
+//! expect: `PartType0` gas (`Coordinates`, `Velocities`, `Masses`; optional `Density`,
+//! `SmoothingLength`, `InternalEnergy`, `ParticleIDs`), `PartType3` dust (the same, with
+//! `FractionIndex`), and an optional `Header` (`Time`, `Dimension`, `BoxSize` or
+//! `BoxSizePerAxis`, `CoordinateOffset`, `SmoothingLengthPerH`, `NumPart_Total`).
+//!
+//! Everything that can be checked without the scene is checked here (shapes, lengths, finite
+//! values, positive masses, densities and smoothing lengths, unique IDs); each error names
+//! the file, the dataset and the first offending row. The scene's own checks (fractions,
+//! periodic box, dimension) are the set-up's (host/setup/file.rs).
+use std::path::Path;
+
+use hdf5::{File, Group};
+
+use super::snapshot::{
+    get_scalar, h5err, COORDINATES, DENSITY, DUST_GROUP, FRACTION_INDEX, GAS_GROUP, HEADER_GROUP,
+    INTERNAL_ENERGY, MASSES, PARTICLE_IDS, SMOOTHING_LENGTH, VELOCITIES,
+};
+use super::IoError;
+
+/// One particle type of an initial-conditions file, positions in the run's frame
+/// (`Coordinates` + `CoordinateOffset`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct IcPhase {
+    pub x: Vec<[f64; 3]>,
+    pub v: Vec<[f64; 3]>,
+    pub m: Vec<f64>,
+    pub rho: Option<Vec<f64>>,
+    /// h (the file's `SmoothingLength` divided by `SmoothingLengthPerH`).
+    pub h: Option<Vec<f64>>,
+    pub e: Option<Vec<f64>>,
+    pub id: Option<Vec<u64>>,
+    /// Dust only.
+    pub fraction: Option<Vec<i64>>,
+}
+
+impl IcPhase {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+}
+
+/// An initial-conditions file as read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ics {
+    /// `Header/Time` (0 without it).
+    pub time: f64,
+    /// `Header/Dimension`, if given.
+    pub dim: Option<u32>,
+    /// `Header/BoxSizePerAxis` (or a `BoxSize` of one or three values), if given.
+    pub box_size: Option<[f64; 3]>,
+    /// `Header/CoordinateOffset` (0 without it): the lower corner of the box.
+    pub offset: [f64; 3],
+    pub gas: IcPhase,
+    pub dust: Option<IcPhase>,
+}
+
+/// The file's `SmoothingLength` per h when the header does not say: GADGET's convention, the
+/// kernel's support radius 2h (dustsph writes the same, with `SmoothingLengthPerH` = 2).
+pub const DEFAULT_SMOOTHING_LENGTH_PER_H: f64 = 2.0;
+
+/// Reads and checks an initial-conditions file.
+pub fn read_ics(path: &Path) -> Result<Ics, IoError> {
+    std::fs::metadata(path).map_err(|e| IoError::io(path, e))?;
+    let file = File::open(path).map_err(|e| {
+        IoError::invalid(
+            path,
+            format!("cannot be opened as an HDF5 file (is it one?): {e}"),
+        )
+    })?;
+    let header = file.group(HEADER_GROUP).ok();
+    let attr_f64s = |name: &str| -> Result<Option<Vec<f64>>, IoError> {
+        let Some(h) = &header else { return Ok(None) };
+        if h.attr(name).is_err() {
+            return Ok(None);
+        }
+        let obj = format!("/{HEADER_GROUP}/{name}");
+        let v: Vec<f64> = h
+            .attr(name)
+            .and_then(|a| a.read_raw())
+            .map_err(h5err(path, &obj))?;
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(IoError::invalid(
+                path,
+                format!("{obj}[{i}] is {} (must be finite)", v[i]),
+            ));
+        }
+        Ok(Some(v))
+    };
+    let time = match attr_f64s("Time")? {
+        None => 0.0,
+        Some(v) if v.len() == 1 => v[0],
+        Some(v) => return Err(one_value(path, "Time", v.len())),
+    };
+    let dim = match &header {
+        Some(h) if h.attr("Dimension").is_ok() => {
+            let d: i64 = get_scalar(h, "Dimension", path)?;
+            match u32::try_from(d) {
+                Ok(d @ 1..=3) => Some(d),
+                _ => {
+                    return Err(IoError::invalid(
+                        path,
+                        format!("/{HEADER_GROUP}/Dimension is {d} (must be 1, 2 or 3)"),
+                    ))
+                }
+            }
+        }
+        _ => None,
+    };
+    let three = |name: &str, v: Vec<f64>| -> Result<[f64; 3], IoError> {
+        match v.len() {
+            1 => Ok([v[0]; 3]),
+            3 => Ok([v[0], v[1], v[2]]),
+            n => Err(IoError::invalid(
+                path,
+                format!("/{HEADER_GROUP}/{name} has {n} values (expected 1 or 3)"),
+            )),
+        }
+    };
+    let box_size = match attr_f64s("BoxSizePerAxis")? {
+        Some(v) => Some(three("BoxSizePerAxis", v)?),
+        None => attr_f64s("BoxSize")?
+            .map(|v| three("BoxSize", v))
+            .transpose()?,
+    };
+    let offset = attr_f64s("CoordinateOffset")?
+        .map(|v| three("CoordinateOffset", v))
+        .transpose()?
+        .unwrap_or([0.0; 3]);
+    let per_h = match attr_f64s("SmoothingLengthPerH")? {
+        None => DEFAULT_SMOOTHING_LENGTH_PER_H,
+        Some(v) if v.len() == 1 && v[0] > 0.0 => v[0],
+        Some(v) => {
+            return Err(IoError::invalid(
+                path,
+                format!("/{HEADER_GROUP}/SmoothingLengthPerH must be one value > 0 (got {v:?})"),
+            ))
+        }
+    };
+    if !file.link_exists(GAS_GROUP) {
+        return Err(IoError::invalid(
+            path,
+            format!("has no group /{GAS_GROUP} (the gas particles)"),
+        ));
+    }
+    let gas = read_phase(&file, GAS_GROUP, offset, per_h, path)?;
+    let dust = if file.link_exists(DUST_GROUP) {
+        Some(read_phase(&file, DUST_GROUP, offset, per_h, path)?)
+    } else {
+        None
+    };
+    if let Some(h) = &header {
+        if h.attr("NumPart_Total").is_ok() {
+            let obj = format!("/{HEADER_GROUP}/NumPart_Total");
+            let n: Vec<u64> = h
+                .attr("NumPart_Total")
+                .and_then(|a| a.read_raw())
+                .map_err(h5err(path, &obj))?;
+            let found = [(0, gas.len()), (3, dust.as_ref().map_or(0, IcPhase::len))];
+            for (k, len) in found {
+                if let Some(&c) = n.get(k) {
+                    if c != len as u64 {
+                        return Err(IoError::invalid(
+                            path,
+                            format!("{obj}[{k}] = {c} but PartType{k} holds {len} particles"),
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    unique_ids(&gas, dust.as_ref(), path)?;
+    Ok(Ics {
+        time,
+        dim,
+        box_size,
+        offset,
+        gas,
+        dust,
+    })
+}
+
+fn one_value(path: &Path, name: &str, n: usize) -> IoError {
+    IoError::invalid(
+        path,
+        format!("/{HEADER_GROUP}/{name} has {n} values (expected one)"),
+    )
+}
+
+/// One particle type: required columns, then the optional ones, every one the same length.
+fn read_phase(
+    file: &File,
+    name: &str,
+    offset: [f64; 3],
+    per_h: f64,
+    path: &Path,
+) -> Result<IcPhase, IoError> {
+    let g = file.group(name).map_err(h5err(path, &format!("/{name}")))?;
+    let obj = |d: &str| format!("/{name}/{d}");
+    if !g.link_exists(COORDINATES) {
+        return Err(IoError::invalid(
+            path,
+            format!("{} is missing (required)", obj(COORDINATES)),
+        ));
+    }
+    let n = rows(&g, COORDINATES, 3, path)?;
+    let vec3 = |d: &str| -> Result<Vec<[f64; 3]>, IoError> {
+        let flat: Vec<f64> = column(&g, d, n, 3, path)?;
+        finite(&flat, 3, &obj(d), path)?;
+        Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+    };
+    let scalar = |d: &str, positive: bool| -> Result<Option<Vec<f64>>, IoError> {
+        if !g.link_exists(d) {
+            return Ok(None);
+        }
+        let v: Vec<f64> = column(&g, d, n, 1, path)?;
+        finite(&v, 1, &obj(d), path)?;
+        let bad = |x: f64| if positive { x <= 0.0 } else { x < 0.0 };
+        if let Some(i) = v.iter().position(|&x| bad(x)) {
+            let want = if positive { "> 0" } else { "≥ 0" };
+            return Err(IoError::invalid(
+                path,
+                format!("{}[{i}] is {} (must be {want})", obj(d), v[i]),
+            ));
+        }
+        Ok(Some(v))
+    };
+    let required = |d: &str| -> Result<(), IoError> {
+        if g.link_exists(d) {
+            Ok(())
+        } else {
+            Err(IoError::invalid(
+                path,
+                format!("{} is missing (required)", obj(d)),
+            ))
+        }
+    };
+    required(VELOCITIES)?;
+    required(MASSES)?;
+    let x = vec3(COORDINATES)?
+        .into_iter()
+        .map(|c| [c[0] + offset[0], c[1] + offset[1], c[2] + offset[2]])
+        .collect();
+    let v = vec3(VELOCITIES)?;
+    let m = scalar(MASSES, true)?.unwrap_or_default();
+    let rho = scalar(DENSITY, true)?;
+    let h = scalar(SMOOTHING_LENGTH, true)?.map(|s| s.into_iter().map(|s| s / per_h).collect());
+    let e = scalar(INTERNAL_ENERGY, false)?;
+    let id = if g.link_exists(PARTICLE_IDS) {
+        let v: Vec<i64> = column(&g, PARTICLE_IDS, n, 1, path)?;
+        if let Some(i) = v.iter().position(|&x| x < 0) {
+            return Err(IoError::invalid(
+                path,
+                format!("{}[{i}] is {} (must be ≥ 0)", obj(PARTICLE_IDS), v[i]),
+            ));
+        }
+        Some(v.into_iter().map(|x| x as u64).collect())
+    } else {
+        None
+    };
+    let fraction = if g.link_exists(FRACTION_INDEX) {
+        Some(column::<i64>(&g, FRACTION_INDEX, n, 1, path)?)
+    } else {
+        None
+    };
+    Ok(IcPhase {
+        x,
+        v,
+        m,
+        rho,
+        h,
+        e,
+        id,
+        fraction,
+    })
+}
+
+/// The number of rows of a dataset that must be (N, `width`) (or (N) for width 1).
+fn rows(g: &Group, d: &str, width: usize, path: &Path) -> Result<usize, IoError> {
+    let obj = format!("{}/{d}", g.name());
+    let ds = g.dataset(d).map_err(h5err(path, &obj))?;
+    let shape = ds.shape();
+    let ok = match (shape.as_slice(), width) {
+        ([_], 1) => true,
+        ([_, w], _) => *w == width,
+        _ => false,
+    };
+    if !ok {
+        let want = if width == 1 {
+            "(N,)".to_string()
+        } else {
+            format!("(N, {width})")
+        };
+        return Err(IoError::invalid(
+            path,
+            format!("{obj} has shape {shape:?}; expected {want}"),
+        ));
+    }
+    Ok(shape[0])
+}
+
+/// A dataset of `n` rows of `width` values, flattened (read in the type asked for: HDF5
+/// converts floats and integers of other widths).
+fn column<T: hdf5::H5Type>(
+    g: &Group,
+    d: &str,
+    n: usize,
+    width: usize,
+    path: &Path,
+) -> Result<Vec<T>, IoError> {
+    let obj = format!("{}/{d}", g.name());
+    let found = rows(g, d, width, path)?;
+    if found != n {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{obj} has {found} rows but {}/{COORDINATES} has {n}: the columns of one \
+                 particle type must have the same length",
+                g.name()
+            ),
+        ));
+    }
+    g.dataset(d)
+        .and_then(|ds| ds.read_raw())
+        .map_err(h5err(path, &obj))
+}
+
+/// The first non-finite value of a flattened column, as its row.
+fn finite(v: &[f64], width: usize, obj: &str, path: &Path) -> Result<(), IoError> {
+    match v.iter().position(|x| !x.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(IoError::invalid(
+            path,
+            format!("{obj}[{}] holds {} (must be finite)", i / width, v[i]),
+        )),
+    }
+}
+
+/// `ParticleIDs` unique over gas and dust together (where given).
+fn unique_ids(gas: &IcPhase, dust: Option<&IcPhase>, path: &Path) -> Result<(), IoError> {
+    let mut all: Vec<(u64, &str, usize)> = Vec::new();
+    for (name, ph) in [(GAS_GROUP, Some(gas)), (DUST_GROUP, dust)] {
+        if let Some(ids) = ph.and_then(|p| p.id.as_ref()) {
+            all.extend(ids.iter().enumerate().map(|(i, &id)| (id, name, i)));
+        }
+    }
+    all.sort_unstable();
+    for w in all.windows(2) {
+        if w[0].0 == w[1].0 {
+            let (a, b) = if (w[0].1, w[0].2) < (w[1].1, w[1].2) {
+                (w[0], w[1])
+            } else {
+                (w[1], w[0])
+            };
+            return Err(IoError::invalid(
+                path,
+                format!(
+                    "ParticleIDs are not unique: /{}/{PARTICLE_IDS}[{}] and /{}/{PARTICLE_IDS}[{}] are both {}",
+                    a.1, a.2, b.1, b.2, a.0
+                ),
+            ));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,335 @@
+//! Initial conditions from a user's HDF5 file (`scene.problem = "file"`, `[file]`): the file is
+//! read and checked by host/io/ics.rs; here it meets the scene (its dimension, periodic axes,
+//! fractions, equation of state and smoothing-length rule), each failure naming the file,
+//! the dataset and the first offending row.
+use super::*;
+use crate::io::ics::{read_ics, IcPhase, Ics};
+use crate::scene::{FileCfg, GasEos, SmoothingLength};
+
+/// Where a run's particles came from: the file and the SHA-256 of its bytes (every output
+/// records both).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct IcSource {
+    pub path: String,
+    pub sha256: String,
+}
+
+pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
+    let path = &f.resolved;
+    let fail = |msg: String| SetupError {
+        key: "file.path".into(),
+        msg,
+    };
+    let io = |e: crate::io::IoError| fail(e.to_string());
+    let sha256 = crate::io::sha256::file_digest(path).map_err(io)?;
+    let ics = read_ics(path).map_err(io)?;
+    let at = |msg: String| fail(format!("{}: {msg}", path.display()));
+    let dim = scene.dim();
+    if let Some(d) = ics.dim {
+        if d != dim {
+            return Err(at(format!(
+                "Header/Dimension is {d} but the scene's scene.dim is {dim}"
+            )));
+        }
+    }
+    let nf = scene.n_fractions();
+    check_axes(&ics, dim, &at)?;
+    let periodic = periodic_box(&ics, f, &at)?;
+    let dust_rows = ics.dust.as_ref().map_or(0, IcPhase::len);
+    match (nf, dust_rows) {
+        (0, n) if n > 0 => {
+            return Err(at(format!(
+                "/PartType3 holds {n} dust particles but the scene has no [dust] section \
+                 (give each fraction's law there)"
+            )))
+        }
+        (k, 0) if k > 0 => {
+            return Err(at(format!(
+                "the scene lists {k} dust fraction(s) but the file has no dust (/PartType3)"
+            )))
+        }
+        _ => {}
+    }
+    if ics.gas.is_empty() {
+        return Err(at("/PartType0 holds no gas particles".into()));
+    }
+    let e = match scene.gas.eos {
+        GasEos::Adiabatic { .. } => Some(ics.gas.e.clone().ok_or_else(|| {
+            at("/PartType0/InternalEnergy is missing; adiabatic gas (gas.eos) needs it".into())
+        })?),
+        GasEos::Isothermal { .. } => None,
+    };
+    if scene.sph.density == crate::scene::DensityMethod::Continuity && ics.gas.rho.is_none() {
+        return Err(at(
+            "/PartType0/Density is missing; sph.density = \"continuity\" starts from it".into(),
+        ));
+    }
+    let volume = periodic_volume(&periodic, dim);
+    let spacing = mean_spacing(&ics.gas, dim, volume);
+    let h = smoothing(scene, &ics.gas, spacing, &at)?;
+    if let Some(k) = (0..dim as usize).find(|&k| periodic[k].is_some()) {
+        let (_, len) = periodic[k].expect("periodic axis");
+        check_periodic_fits(len, h, &format!("file.periodic.{k}"))?;
+    }
+    // Densities not in the file: m / spacing^d, a start only (summation replaces them before
+    // the first step; continuity needs the file's).
+    let guess = |ph: &IcPhase| -> Vec<f64> {
+        ph.rho
+            .clone()
+            .unwrap_or_else(|| ph.m.iter().map(|m| m / spacing.powi(dim as i32)).collect())
+    };
+    let ng = ics.gas.len();
+    // Ids the file does not give follow the largest it does (unique over every phase).
+    let next = |ph: Option<&IcPhase>| {
+        ph.and_then(|p| p.id.as_ref())
+            .and_then(|ids| ids.iter().max())
+            .map_or(0, |m| m + 1)
+    };
+    let gas_start = next(ics.dust.as_ref());
+    let gas = Phase {
+        x: ics.gas.x.clone(),
+        v: ics.gas.v.clone(),
+        m: ics.gas.m.clone(),
+        rho: guess(&ics.gas),
+        id: ics
+            .gas
+            .id
+            .clone()
+            .unwrap_or_else(|| (gas_start..gas_start + ng as u64).collect()),
+        fixed: None,
+    };
+    let dust = match &ics.dust {
+        Some(d) => {
+            let start = gas.id.iter().max().map_or(0, |m| m + 1);
+            fractions(d, nf, start, &guess(d), &at)?
+        }
+        None => Vec::new(),
+    };
+    let gas_mass = gas.total_mass();
+    let mut notes = vec![format!(
+        "initial conditions: {} (SHA-256 {sha256}): {ng} gas particles{}, t = {}, h = {h:.6e}",
+        path.display(),
+        dust.iter()
+            .enumerate()
+            .map(|(k, d)| format!(
+                ", fraction {k}: {} particles, ε = {:.6}",
+                d.len(),
+                d.total_mass() / gas_mass
+            ))
+            .collect::<String>(),
+        ics.time
+    )];
+    if matches!(scene.sph.smoothing, SmoothingLength::Absolute { .. }) && ics.gas.h.is_some() {
+        notes.push("the file's SmoothingLength is not used: sph.h sets h".into());
+    }
+    let mut su = Setup::at_start(
+        gas_phase(gas, e),
+        dust,
+        h,
+        crate::grid::Domain { dim, periodic },
+        spacing,
+        periodic[0].map_or(f64::NAN, |(_, len)| len),
+    );
+    su.state.t = ics.time;
+    su.notes = notes;
+    su.source = Some(IcSource {
+        path: path.display().to_string(),
+        sha256,
+    });
+    Ok(su)
+}
+
+/// Positions and velocities along axes the scene does not have must be 0.
+fn check_axes(ics: &Ics, dim: u32, at: &impl Fn(String) -> SetupError) -> Result<(), SetupError> {
+    for (name, ph) in [
+        ("PartType0", Some(&ics.gas)),
+        ("PartType3", ics.dust.as_ref()),
+    ] {
+        let Some(ph) = ph else { continue };
+        for (col, rows) in [("Coordinates", &ph.x), ("Velocities", &ph.v)] {
+            for k in dim as usize..3 {
+                if let Some(i) = rows.iter().position(|r| r[k] != 0.0) {
+                    let off = if col == "Coordinates" {
+                        " (with Header/CoordinateOffset added)"
+                    } else {
+                        ""
+                    };
+                    return Err(at(format!(
+                        "/{name}/{col}[{i}] has {} along axis {k}{off}; a {dim}D scene needs 0 there",
+                        rows[i][k]
+                    )));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The periodic axes' (lower end, length) from the header, every particle inside.
+fn periodic_box(
+    ics: &Ics,
+    f: &FileCfg,
+    at: &impl Fn(String) -> SetupError,
+) -> Result<[Option<(f64, f64)>; 3], SetupError> {
+    let mut out = [None; 3];
+    for k in 0..3 {
+        if !f.periodic[k] {
+            continue;
+        }
+        let Some(size) = ics.box_size else {
+            return Err(at(format!(
+                "file.periodic.{k} is true but the file's Header has no BoxSizePerAxis or BoxSize \
+                 to give the period"
+            )));
+        };
+        let (lo, len) = (ics.offset[k], size[k]);
+        if !(len.is_finite() && len > 0.0) {
+            return Err(at(format!(
+                "Header box size along axis {k} is {len} (a period must be > 0)"
+            )));
+        }
+        for (name, ph) in [
+            ("PartType0", Some(&ics.gas)),
+            ("PartType3", ics.dust.as_ref()),
+        ] {
+            let Some(ph) = ph else { continue };
+            if let Some(i) = ph.x.iter().position(|x| !(lo..lo + len).contains(&x[k])) {
+                return Err(at(format!(
+                    "/{name}/Coordinates[{i}] is at {} along axis {k}, outside the periodic box \
+                     [{lo}, {}) (Header CoordinateOffset and BoxSizePerAxis)",
+                    ph.x[i][k],
+                    lo + len
+                )));
+            }
+        }
+        out[k] = Some((lo, len));
+    }
+    Ok(out)
+}
+
+/// The periodic box's volume, if every axis of the scene is periodic.
+fn periodic_volume(periodic: &[Option<(f64, f64)>; 3], dim: u32) -> Option<f64> {
+    periodic[..dim as usize]
+        .iter()
+        .map(|p| p.map(|(_, len)| len))
+        .product()
+}
+
+/// The gas's mean particle spacing: mean (m/ρ)^(1/d) from the file's densities, else
+/// (V/N)^(1/d) of a periodic box, else the extent of the particles over N^(1/d).
+fn mean_spacing(gas: &IcPhase, dim: u32, volume: Option<f64>) -> f64 {
+    let n = gas.len() as f64;
+    let d = dim as f64;
+    if let Some(rho) = &gas.rho {
+        return gas
+            .m
+            .iter()
+            .zip(rho)
+            .map(|(m, r)| (m / r).powf(1.0 / d))
+            .sum::<f64>()
+            / n;
+    }
+    let v = volume.unwrap_or_else(|| {
+        (0..dim as usize)
+            .map(|k| {
+                let (lo, hi) = gas
+                    .x
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |a, x| {
+                        (a.0.min(x[k]), a.1.max(x[k]))
+                    });
+                (hi - lo).max(f64::MIN_POSITIVE)
+            })
+            .product()
+    });
+    (v / n).powf(1.0 / d)
+}
+
+/// The run's (reference) h: `sph.h`; `sph.hfact` × the mean spacing; or, with neither, the
+/// file's gas `SmoothingLength`, which a fixed-h run needs the same for every particle.
+fn smoothing(
+    scene: &Scene,
+    gas: &IcPhase,
+    spacing: f64,
+    at: &impl Fn(String) -> SetupError,
+) -> Result<f64, SetupError> {
+    match scene.sph.smoothing {
+        SmoothingLength::Absolute { h } => Ok(h),
+        SmoothingLength::Hfact { hfact, .. } => Ok(hfact * spacing),
+        SmoothingLength::FromFile {} => {
+            let Some(h) = &gas.h else {
+                return Err(at(
+                    "/PartType0/SmoothingLength is missing: give sph.h, or sph.hfact (h from \
+                     the particle spacing)"
+                        .into(),
+                ));
+            };
+            let h0 = h[0];
+            if let Some(i) = h.iter().position(|&x| x != h0) {
+                return Err(at(format!(
+                    "/PartType0/SmoothingLength varies ({} at row 0, {} at row {i}): a fixed-h run \
+                     takes one h; give sph.h, or sph.hfact with sph.variable_h = true",
+                    2.0 * h0,
+                    2.0 * h[i]
+                )));
+            }
+            Ok(h0)
+        }
+    }
+}
+
+/// The dust rows split into fractions by `FractionIndex` (kept in the file's order), with ids
+/// from `id_start` on where the file has none.
+fn fractions(
+    d: &IcPhase,
+    nf: usize,
+    id_start: u64,
+    rho: &[f64],
+    at: &impl Fn(String) -> SetupError,
+) -> Result<Vec<Phase>, SetupError> {
+    let index: Vec<usize> = match &d.fraction {
+        Some(fr) => fr
+            .iter()
+            .enumerate()
+            .map(|(i, &k)| {
+                usize::try_from(k).ok().filter(|&k| k < nf).ok_or_else(|| {
+                    at(format!(
+                        "/PartType3/FractionIndex[{i}] is {k}; the scene has {nf} fraction(s) \
+                         (0 to {})",
+                        nf - 1
+                    ))
+                })
+            })
+            .collect::<Result<_, _>>()?,
+        None if nf == 1 => vec![0; d.len()],
+        None => {
+            return Err(at(format!(
+                "/PartType3/FractionIndex is missing; the scene has {nf} fractions"
+            )))
+        }
+    };
+    let mut out: Vec<Phase> = (0..nf)
+        .map(|_| Phase {
+            x: Vec::new(),
+            v: Vec::new(),
+            m: Vec::new(),
+            rho: Vec::new(),
+            id: Vec::new(),
+            fixed: None,
+        })
+        .collect();
+    for (i, &k) in index.iter().enumerate() {
+        let p = &mut out[k];
+        p.x.push(d.x[i]);
+        p.v.push(d.v[i]);
+        p.m.push(d.m[i]);
+        p.rho.push(rho[i]);
+        p.id.push(d.id.as_ref().map_or(id_start + i as u64, |id| id[i]));
+    }
+    if let Some(k) = out.iter().position(|p| p.x.is_empty()) {
+        return Err(at(format!(
+            "/PartType3 has no particle of fraction {k} (FractionIndex); the scene lists {nf}"
+        )));
+    }
+    Ok(out)
+}
