@@ -434,3 +434,25 @@ fn the_command_line_refuses_a_bad_file_with_exit_2_and_writes_nothing() {
     );
     assert!(!out.exists(), "nothing written");
 }
+
+/// The run starts at the file's Header/Time: a time.t_end not after it is refused, naming
+/// the key, before anything is written.
+#[test]
+fn a_t_end_not_after_the_files_time_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut f, _) = good_file();
+    f.header.retain(|h| h.0 != "Time");
+    f.header.push(("Time", vec![0.5]));
+    f.write(&dir.path().join("ics.h5"));
+    let l = file_scene(dir.path(), 2, "ics.h5", "[true, true, false]", BOX_REST);
+    let opts = dustsph::run::RunOptions {
+        out: dir.path().join("out"),
+        force: false,
+        verbose: false,
+        device: dustsph::step::backend::DeviceChoice::Cpu,
+    };
+    let e = dustsph::run::run(&l, &opts).expect_err("t_end 0.05 < t = 0.5");
+    assert_eq!(e.exit_code(), 2);
+    assert!(e.to_string().contains("time.t_end"), "{e}");
+    assert!(!dir.path().join("out").exists());
+}

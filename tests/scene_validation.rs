@@ -267,3 +267,47 @@ fn absurd_sizes_are_refused_before_allocating() {
         );
     }
 }
+
+/// Initial conditions from a file: what the file gives, the scene must not (ε, sph.n, the
+/// background gas state), and what the file cannot give, it must.
+#[test]
+fn a_file_scene_refuses_what_the_file_gives_and_names_the_key() {
+    let base =
+        "[scene]\nname = \"f\"\nproblem = \"file\"\ndim = 2\n\n[file]\npath = \"ics.h5\"\n\n\
+        [gas]\neos = \"isothermal\"\ncs = 1.0\n\n[dust]\nlaw = \"constant_t\"\n\
+        [[dust.fractions]]\nt_stop = 0.1\n\n[sph]\n\n[time]\nt_end = 0.1\ndt = 0.01\n";
+    let path = std::path::Path::new("scene.toml");
+    let loaded = dustsph::scene::LoadedScene::from_text(base, path, &[]).unwrap();
+    let dustsph::scene::ProblemCfg::File(f) = &loaded.scene.problem else {
+        panic!("not a file scene")
+    };
+    assert_eq!(f.resolved, std::path::Path::new("ics.h5"));
+    assert!(!loaded.scene.to_toml().contains("eps"), "ε is the file's");
+    let cases: &[(&str, &str)] = &[
+        ("dust.fractions.0.eps=0.5", "dust.fractions.0.eps"),
+        ("sph.n=16", "sph.n"),
+        ("gas.rho=1", "gas.rho"),
+        ("file.periodic=[true, true, true]", "file.periodic.2"),
+        ("file.path=\"\"", "file.path"),
+        ("sph.variable_h=true", "sph.variable_h"),
+        ("dustybox.length=1", "dustybox"),
+    ];
+    for (set, key) in cases {
+        let e =
+            dustsph::scene::LoadedScene::from_text(base, path, &[set.to_string()]).expect_err(set);
+        assert_eq!(e.key.as_deref(), Some(*key), "{set}: {e}");
+    }
+    let e = dustsph::scene::LoadedScene::from_text(
+        &base.replace("[file]\npath = \"ics.h5\"\n", ""),
+        path,
+        &[],
+    )
+    .unwrap_err();
+    assert_eq!(e.key.as_deref(), Some("file"), "{e}");
+    // The built-in problems still need ε and sph.n.
+    assert_eq!(
+        err("dustybox", &["dust.fractions.1.eps="]).key.as_deref(),
+        Some("dust.fractions.1.eps")
+    );
+    assert_eq!(err("dustybox", &["sph.n="]).key.as_deref(), Some("sph.n"));
+}
