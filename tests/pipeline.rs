@@ -93,7 +93,10 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
     let phys = Physics::open_1d(
         h,
         Eos::Adiabatic { gamma: 1.4 },
-        vec![StoppingLaw::Epstein { s_rho: 1e-3 }],
+        vec![StoppingLaw::Epstein {
+            s_rho: 1e-3,
+            stokes: 0.0,
+        }],
     );
     let mut eng = Backend::new(DeviceChoice::Cpu, phys, &mut st).unwrap();
     let mut pscale: f64 = 0.0;

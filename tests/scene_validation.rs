@@ -282,7 +282,10 @@ fn a_file_scene_refuses_what_the_file_gives_and_names_the_key() {
         panic!("not a file scene")
     };
     assert_eq!(f.resolved, std::path::Path::new("ics.h5"));
-    assert!(!loaded.scene.to_toml().contains("eps"), "ε is the file's");
+    assert!(
+        !loaded.scene.to_toml().contains("\neps ="),
+        "ε is the file's"
+    );
     let cases: &[(&str, &str)] = &[
         ("dust.fractions.0.eps=0.5", "dust.fractions.0.eps"),
         ("sph.n=16", "sph.n"),

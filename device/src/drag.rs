@@ -11,8 +11,11 @@ pub enum StoppingLaw<R> {
     ConstantTime { t_stop: R },
     /// Constant drag coefficient K: t_k = ρ_k*/K.
     ConstantK { k: R },
-    /// Epstein (the authors' form): t_k = s ρ_s /(ρ_g* c_s*), with `s_rho` = s·ρ_s.
-    Epstein { s_rho: R },
+    /// Epstein (the authors' form): t_k = s ρ_s /(ρ_g* c_s*), with `s_rho` = s·ρ_s; with
+    /// `stokes` = 4s/(9 λρ_g) > 0 (λ the gas's mean free path, λρ_g = μ m_H/σ a constant),
+    /// grains larger than 9λ/4 take the Stokes law t = t_Epstein · 4s/(9λ) (Re < 1), which
+    /// meets Epstein's at s = 9λ/4: t_k = s ρ_s /(ρ_g* c_s*) · max(1, `stokes` ρ_g*).
+    Epstein { s_rho: R, stokes: R },
 }
 
 /// Cell means that a stopping-time law may need.
@@ -36,7 +39,15 @@ impl<R: Real> StoppingLaw<R> {
         match *self {
             StoppingLaw::ConstantTime { t_stop } => t_stop,
             StoppingLaw::ConstantK { k } => rho_dust / k,
-            StoppingLaw::Epstein { s_rho } => s_rho / (rho_gas * cs_gas),
+            StoppingLaw::Epstein { s_rho, stokes } => {
+                let regime = stokes * rho_gas;
+                let epstein = s_rho / (rho_gas * cs_gas);
+                if regime > R::ONE {
+                    epstein * regime
+                } else {
+                    epstein
+                }
+            }
         }
     }
 

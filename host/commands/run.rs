@@ -522,6 +522,12 @@ fn report(s: &Summary, out: &std::path::Path) {
         s.particle_steps_per_second,
         out.join("summary.json").display()
     );
+    if let Some(u) = &s.units {
+        println!(
+            "  units: length {:e} cm, mass {:e} g, time {:e} s (G = 1), velocity {:e} cm/s",
+            u.length_cm, u.mass_g, u.time_s, u.velocity_cm_per_s
+        );
+    }
     for last in s.errors.iter().filter(|e| e.t == s.t_final) {
         super::profile::print_errors(last);
     }

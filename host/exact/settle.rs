@@ -73,7 +73,10 @@ mod tests {
         let want = -(1.04) * c.rho_gas(x) * c.g;
         assert!((dpdx / want - 1.0).abs() < 1e-8, "{dpdx} vs {want}");
         // Epstein: t ∝ 1/ρ_g, so the fall speeds up with height by e^{x/H}.
-        let law = StoppingLaw::Epstein { s_rho: 1e-3 };
+        let law = StoppingLaw::Epstein {
+            s_rho: 1e-3,
+            stokes: 0.0,
+        };
         let r = c.u_terminal(0, law, 1.0) / c.u_terminal(0, law, 0.0);
         assert!((r - (1.0 / c.scale_height()).exp()).abs() < 1e-12);
     }

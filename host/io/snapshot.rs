@@ -130,6 +130,8 @@ pub struct SceneSource<'a> {
     /// Initial conditions from a file: its path and SHA-256 (Header attributes
     /// `InitialConditionsFile`, `InitialConditionsSHA256`).
     pub initial_conditions: Option<(&'a str, &'a str)>,
+    /// `[units]`: cm, g and s per code length, mass and time (None: no unit system).
+    pub units: Option<[f64; 3]>,
 }
 
 /// One phase read back from a snapshot.
@@ -456,6 +458,9 @@ fn write_header(
         put_scalar(&g, "InitialConditionsFile", file, path)?;
         put_scalar(&g, "InitialConditionsSHA256", digest, path)?;
     }
+    if let Some(u) = snap.source.units {
+        write_units(file, &g, u, path)?;
+    }
     // Conventional GADGET fields: older yt releases and other GADGET readers index them
     // unconditionally; OmegaLambda = 0 marks the run as non-cosmological.
     put_array(&g, "NumPart_Total_HighWord", &[0u32; 6], path)?;
@@ -463,6 +468,36 @@ fn write_header(
     put_scalar(&g, "Omega0", &0.0f64, path)?;
     put_scalar(&g, "OmegaLambda", &0.0f64, path)?;
     put_scalar(&g, "HubbleParam", &1.0f64, path)?;
+    Ok(())
+}
+
+/// The unit system where readers look for it: GADGET-4/AREPO's `UnitLength_in_cm`,
+/// `UnitMass_in_g`, `UnitVelocity_in_cm_per_s` in the Header (yt's GADGET frontend takes them
+/// as `unit_base`) and in a `Units` group, with SWIFT's names there too (`Unit length in cgs
+/// (U_L)`, …; current and temperature are 1: dustsph has neither).
+fn write_units(file: &File, header: &Group, u: [f64; 3], path: &Path) -> Result<(), IoError> {
+    let [l, m, t] = u;
+    let gadget = [
+        ("UnitLength_in_cm", l),
+        ("UnitMass_in_g", m),
+        ("UnitVelocity_in_cm_per_s", l / t),
+        ("UnitTime_in_s", t),
+    ];
+    for (name, v) in gadget {
+        put_scalar(header, name, &v, path)?;
+    }
+    let obj = "/Units";
+    let g = file.create_group("Units").map_err(h5err(path, obj))?;
+    let swift = [
+        ("Unit length in cgs (U_L)", l),
+        ("Unit mass in cgs (U_M)", m),
+        ("Unit time in cgs (U_t)", t),
+        ("Unit current in cgs (U_I)", 1.0),
+        ("Unit temperature in cgs (U_T)", 1.0),
+    ];
+    for (name, v) in gadget.into_iter().chain(swift) {
+        put_array(&g, name, &[v], path)?;
+    }
     Ok(())
 }
 

@@ -29,6 +29,8 @@ pub struct SceneFile {
     pub dustysettle: Option<SettleSection>,
     /// Initial conditions from an HDF5 file (`scene.problem = "file"`).
     pub file: Option<FileSection>,
+    /// Physical units of the scene's numbers (G = 1 sets the time unit).
+    pub units: Option<UnitsSection>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -115,7 +117,29 @@ pub struct DustSection {
     pub heating: Option<bool>,
     /// Default stopping time for fractions that give none (constant_t law).
     pub t_stop: Option<f64>,
+    /// Epstein law: the grains' material density in g cm⁻³ for fractions that give a `size`
+    /// and no density of their own (needs `[units]`).
+    pub grain_density: Option<f64>,
+    /// Epstein law: whose form (docs/scenes.md): the source report's t = sρ_s/(ρ_g c_s) or
+    /// Phantom's, with the mean thermal speed √(8/(πγ)) c_s in place of c_s.
+    pub epstein: Option<EpsteinForm>,
+    /// Epstein grains given by `size`: the gas molecules' collision cross-section in cm²
+    /// (the mean free path λ = μ m_H/(ρ_g σ) sets where the Stokes regime begins, s > 9λ/4).
+    pub cross_section: Option<f64>,
+    /// The gas's mean molecular weight μ (in m_H) for the mean free path.
+    pub mean_molecular_weight: Option<f64>,
     pub fractions: Vec<FractionSection>,
+}
+
+/// The Epstein law's speed.
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum EpsteinForm {
+    /// t = s ρ_s /(ρ_g c_s) (the source report's, Stoyanovskaya et al.).
+    Report,
+    /// t = s ρ_s /(ρ_g v_th), v_th = √(8/(πγ)) c_s (Phantom's, without its (ρ_g + ρ_d)
+    /// in dustsph's t_k convention, method.md §1.1).
+    Phantom,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -124,6 +148,11 @@ pub struct FractionSection {
     /// Dust-to-gas density ratio ε_k of this fraction in the background state (required by
     /// the built-in problems; initial conditions from a file take it from their masses).
     pub eps: Option<f64>,
+    /// Epstein law with `[units]`: the grain radius in cm (with `grain_density`, instead of
+    /// `s_rho`).
+    pub size: Option<f64>,
+    /// The grain material density in g cm⁻³ (overrides `dust.grain_density`).
+    pub grain_density: Option<f64>,
     pub t_stop: Option<f64>,
     pub k: Option<f64>,
     pub s_rho: Option<f64>,
@@ -474,4 +503,20 @@ pub struct FileSection {
     /// Which axes are periodic (the file's `Header/BoxSizePerAxis` and `CoordinateOffset`
     /// give the period); open by default.
     pub periodic: Option<[bool; 3]>,
+}
+
+/// `[units]`: what one unit of the scene's length and mass is; time follows from G = 1.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UnitsSection {
+    pub length: Option<UnitValue>,
+    pub mass: Option<UnitValue>,
+}
+
+/// A unit by name (`"au"`, `"cm"`, `"msun"`, `"g"`, …) or as a number of cm or g.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum UnitValue {
+    Cgs(f64),
+    Name(String),
 }

@@ -7,8 +7,8 @@
 //! [`Scene::to_toml`] writes the model as TOML (the summary's `scene_model`, the snapshots'
 //! `SceneModel` attribute), with the scene file's key names where the file has the key.
 use super::file::{
-    Coupling, DensityMethod, DepositForm, DragMethod, EosKind, GradientMethod, Integrator, Lattice,
-    LawKind, ListChoice, PositionUpdate, Precision, Problem, WaveMode,
+    Coupling, DensityMethod, DepositForm, DragMethod, EosKind, EpsteinForm, GradientMethod,
+    Integrator, Lattice, LawKind, ListChoice, PositionUpdate, Precision, Problem, WaveMode,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -30,6 +30,8 @@ pub struct Scene {
     pub external: External,
     pub time: Time,
     pub numerics: Numerics,
+    /// `[units]`: what the scene's numbers are in (`None`: no unit system).
+    pub units: Option<Units>,
     /// The problem's own parameters, with the gas state it starts from.
     pub problem: ProblemCfg,
 }
@@ -81,6 +83,7 @@ impl Scene {
             external: &self.external,
             time: &self.time,
             numerics: &self.numerics,
+            units: self.units.as_ref(),
             problem: &self.problem,
         };
         // Every value of a model is a finite number, a string, a bool or a table of them:
@@ -155,6 +158,17 @@ pub struct Dust {
     pub law: LawKind,
     /// Frictional heating of the gas by the drag (adiabatic gas only).
     pub heating: bool,
+    /// The Epstein law's form (its `s_rho` below already holds the factor); `None` for the
+    /// other laws.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub epstein: Option<EpsteinForm>,
+    /// Grains given by size: the cross-section σ (cm²) and mean molecular weight μ of the
+    /// mean free path λ = μ m_H/(ρ_g σ) that starts the Stokes regime (each fraction's
+    /// `stokes` holds 4s/(9λρ_g) in code units).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cross_section: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_molecular_weight: Option<f64>,
     pub fractions: Vec<Fraction>,
 }
 
@@ -181,7 +195,12 @@ impl Serialize for Fraction {
         match self.law {
             StoppingLaw::ConstantTime { t_stop } => st.serialize_field("t_stop", &t_stop)?,
             StoppingLaw::ConstantK { k } => st.serialize_field("k", &k)?,
-            StoppingLaw::Epstein { s_rho } => st.serialize_field("s_rho", &s_rho)?,
+            StoppingLaw::Epstein { s_rho, stokes } => {
+                st.serialize_field("s_rho", &s_rho)?;
+                if stokes > 0.0 {
+                    st.serialize_field("stokes", &stokes)?;
+                }
+            }
         }
         st.end()
     }
@@ -435,6 +454,38 @@ pub struct SettleCfg {
     pub dust_shift: f64,
 }
 
+/// `[units]`: one code unit of length and of mass in cgs; time from G = 1 (Phantom's code
+/// units), so T = √(L³/(G M)).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Units {
+    /// cm per code length (`units.length`).
+    #[serde(rename = "length")]
+    pub length_cm: f64,
+    /// g per code mass (`units.mass`).
+    #[serde(rename = "mass")]
+    pub mass_g: f64,
+}
+
+impl Units {
+    /// Newton's G in cgs (CODATA 2018).
+    pub const G_CGS: f64 = 6.674_30e-8;
+
+    /// Seconds per code time: √(L³/(G M)).
+    pub fn time_s(&self) -> f64 {
+        (self.length_cm.powi(3) / (Self::G_CGS * self.mass_g)).sqrt()
+    }
+
+    /// cm s⁻¹ per code velocity.
+    pub fn velocity_cm_s(&self) -> f64 {
+        self.length_cm / self.time_s()
+    }
+
+    /// g cm⁻² per code surface density (a grain's s ρ_s).
+    pub fn surface_density_g_cm2(&self) -> f64 {
+        self.mass_g / (self.length_cm * self.length_cm)
+    }
+}
+
 /// Initial conditions from an HDF5 file (host/setup/file.rs).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FileCfg {
@@ -460,6 +511,8 @@ struct ModelToml<'a> {
     external: &'a External,
     time: &'a Time,
     numerics: &'a Numerics,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    units: Option<&'a Units>,
     #[serde(flatten)]
     problem: &'a ProblemCfg,
 }

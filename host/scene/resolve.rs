@@ -180,7 +180,8 @@ impl Scene {
         let section = Section::of(f)?;
         let eos = gas_eos(&f.gas)?;
         let section = section.with_background(&f.gas, eos)?;
-        let dust = dust(f, eos)?;
+        let units = units(f.units.as_ref())?;
+        let dust = dust(f, eos, units.as_ref())?;
         let sph = sph(&f.sph, f.scene.problem == Problem::File)?;
         let idic_file = f.idic.as_ref();
         let cell = idic_file.and_then(|i| i.cell).unwrap_or(0.5);
@@ -225,6 +226,7 @@ impl Scene {
             drag,
             external,
             time,
+            units,
             numerics: Numerics {
                 precision: numerics.and_then(|n| n.precision).unwrap_or(Precision::F64),
                 neighbour_list: numerics
@@ -295,7 +297,64 @@ fn gas_eos(g: &GasSection) -> VResult<GasEos> {
     }
 }
 
-fn dust(f: &SceneFile, eos: GasEos) -> VResult<Option<Dust>> {
+/// Named units (IAU 2012 au, IAU 2015 nominal solar mass GM/G with CODATA 2018 G).
+const LENGTHS: [(&str, f64); 6] = [
+    ("cm", 1.0),
+    ("m", 100.0),
+    ("km", 1e5),
+    ("au", 1.495_978_707e13),
+    ("pc", 3.085_677_581_491_367e18),
+    ("rsun", 6.957e10),
+];
+const MASSES: [(&str, f64); 5] = [
+    ("g", 1.0),
+    ("kg", 1000.0),
+    ("msun", 1.988_409_870_698_051e33),
+    ("mjup", 1.898_124_6e30),
+    ("mearth", 5.972_167_87e27),
+];
+
+/// `[units]`: each of length and mass by name or as a number of cm / g (both required).
+fn units(u: Option<&UnitsSection>) -> VResult<Option<Units>> {
+    let Some(u) = u else { return Ok(None) };
+    let one = |key: &str, v: Option<&UnitValue>, table: &[(&str, f64)], cgs: &str| {
+        let names = table
+            .iter()
+            .map(|(n, _)| format!("\"{n}\""))
+            .collect::<Vec<_>>();
+        let v = v.ok_or_else(|| {
+            (
+                key.to_string(),
+                format!(
+                    "required in [units]: {} or a number of {cgs}",
+                    names.join(", ")
+                ),
+            )
+        })?;
+        match v {
+            UnitValue::Cgs(x) => positive(key, *x).map(|_| *x),
+            UnitValue::Name(n) => table
+                .iter()
+                .find(|(name, _)| name.eq_ignore_ascii_case(n.trim()))
+                .map(|(_, x)| *x)
+                .ok_or_else(|| {
+                    (
+                        key.to_string(),
+                        format!(
+                            "unknown unit {n:?}: give {} or a number of {cgs}",
+                            names.join(", ")
+                        ),
+                    )
+                }),
+        }
+    };
+    Ok(Some(Units {
+        length_cm: one("units.length", u.length.as_ref(), &LENGTHS, "cm")?,
+        mass_g: one("units.mass", u.mass.as_ref(), &MASSES, "g")?,
+    }))
+}
+
+fn dust(f: &SceneFile, eos: GasEos, units: Option<&Units>) -> VResult<Option<Dust>> {
     let Some(d) = &f.dust else {
         if f.scene.problem == Problem::Dustybox {
             return err(
@@ -331,14 +390,64 @@ fn dust(f: &SceneFile, eos: GasEos) -> VResult<Option<Dust>> {
             return err("dust.t_stop", "only used with law = \"constant_t\"");
         }
     }
+    if let Some(rho) = d.grain_density {
+        positive("dust.grain_density", rho)?;
+        if d.law != LawKind::Epstein {
+            return err("dust.grain_density", "only used with law = \"epstein\"");
+        }
+    }
+    if d.epstein.is_some() && d.law != LawKind::Epstein {
+        return err("dust.epstein", "only used with law = \"epstein\"");
+    }
+    let epstein = d.epstein.unwrap_or(EpsteinForm::Report);
+    // Phantom's thermal speed √(8/(πγ)) c_s in place of c_s (γ = 1 for isothermal gas).
+    let gamma = match eos {
+        GasEos::Adiabatic { gamma } => gamma,
+        GasEos::Isothermal { .. } => 1.0,
+    };
+    let speed_factor = match epstein {
+        EpsteinForm::Report => 1.0,
+        EpsteinForm::Phantom => (8.0 / (std::f64::consts::PI * gamma)).sqrt(),
+    };
+    let sized = d.fractions.iter().any(|f| f.size.is_some());
+    for (key, v) in [
+        ("dust.cross_section", d.cross_section),
+        ("dust.mean_molecular_weight", d.mean_molecular_weight),
+    ] {
+        if let Some(v) = v {
+            positive(key, v)?;
+            if !sized {
+                return err(
+                    key,
+                    "only used for grains given by size (dust.fractions.N.size, law = \"epstein\")",
+                );
+            }
+        }
+    }
+    let cross_section = sized.then(|| d.cross_section.unwrap_or(H2_CROSS_SECTION));
+    let mean_molecular_weight =
+        sized.then(|| d.mean_molecular_weight.unwrap_or(MEAN_MOLECULAR_WEIGHT));
+    let grain = Grain {
+        units,
+        speed_factor,
+        density: d.grain_density,
+        // λρ_g = μ m_H/σ (g cm⁻²), constant.
+        lambda_rho: match (cross_section, mean_molecular_weight) {
+            (Some(s), Some(mu)) => mu * HYDROGEN_MASS_G / s,
+            _ => f64::INFINITY,
+        },
+    };
     let fractions = d
         .fractions
         .iter()
         .enumerate()
-        .map(|(i, fr)| fraction(i, fr, d, f.scene.problem == Problem::File))
+        .map(|(i, fr)| fraction(i, fr, d, f.scene.problem == Problem::File, &grain))
         .collect::<VResult<Vec<_>>>()?;
     Ok(Some(Dust {
         law: d.law,
+        epstein: (d.law == LawKind::Epstein).then_some(epstein),
+        cross_section,
+        mean_molecular_weight,
         heating,
         fractions,
     }))
@@ -346,7 +455,31 @@ fn dust(f: &SceneFile, eos: GasEos) -> VResult<Option<Dust>> {
 
 /// Fraction `i`: its ε and the law's one parameter (the constant-t law falls back on
 /// `dust.t_stop`). Initial conditions from a file (`from_file`) give ε by their masses.
-fn fraction(i: usize, f: &FractionSection, d: &DustSection, from_file: bool) -> VResult<Fraction> {
+/// What an Epstein fraction's `size` needs: the units, the law's speed factor, the default
+/// grain density.
+struct Grain<'a> {
+    units: Option<&'a Units>,
+    speed_factor: f64,
+    density: Option<f64>,
+    /// λρ_g = μ m_H/σ in g cm⁻² (∞ without sized grains).
+    lambda_rho: f64,
+}
+
+/// The H₂ molecule's collision cross-section (cm²), the usual value for the mean free path
+/// in discs (e.g. Chapman & Cowling; 2e-15 cm² is a round form of it).
+const H2_CROSS_SECTION: f64 = 2e-15;
+/// Mean molecular weight of solar-composition molecular gas.
+const MEAN_MOLECULAR_WEIGHT: f64 = 2.353;
+/// The hydrogen atom's mass, g.
+const HYDROGEN_MASS_G: f64 = 1.673_557_5e-24;
+
+fn fraction(
+    i: usize,
+    f: &FractionSection,
+    d: &DustSection,
+    from_file: bool,
+    grain: &Grain,
+) -> VResult<Fraction> {
     let key = |k: &str| format!("dust.fractions.{i}.{k}");
     let eps = match (f.eps, from_file) {
         (Some(_), true) => {
@@ -380,23 +513,80 @@ fn fraction(i: usize, f: &FractionSection, d: &DustSection, from_file: bool) -> 
             );
         }
     }
+    for (name, v) in [("size", f.size), ("grain_density", f.grain_density)] {
+        if v.is_some() && d.law != LawKind::Epstein {
+            return err(key(name), "only used with law = \"epstein\"");
+        }
+    }
     let v = match d.law {
         LawKind::ConstantT => f.t_stop.or(d.t_stop),
         LawKind::ConstantK => f.k,
-        LawKind::Epstein => f.s_rho,
+        LawKind::Epstein => match (f.s_rho, f.size) {
+            (Some(_), Some(_)) => {
+                return err(
+                    key("size"),
+                    "give s_rho (code units) or size (cm, with grain_density), not both",
+                )
+            }
+            (None, Some(size)) => Some(grain_s_rho(&key, size, f, grain)?),
+            (s_rho, None) => s_rho,
+        },
     };
-    let v = required(&key(want), v, "required by dust.law")?;
+    // Sized grains: the Stokes regime's 4s/(9λρ_g), in code units (s / surface density).
+    let stokes = match (f.size, grain.units) {
+        (Some(size), Some(u)) => {
+            4.0 * (size / u.length_cm) / (9.0 * grain.lambda_rho / u.surface_density_g_cm2())
+        }
+        _ => 0.0,
+    };
+    let v = required(
+        &key(want),
+        v,
+        if d.law == LawKind::Epstein {
+            "required by dust.law (or size in cm with grain_density and [units])"
+        } else {
+            "required by dust.law"
+        },
+    )?;
     positive(&key(want), v)?;
     let law = match d.law {
         LawKind::ConstantT => StoppingLaw::ConstantTime { t_stop: v },
         LawKind::ConstantK => StoppingLaw::ConstantK { k: v },
-        LawKind::Epstein => StoppingLaw::Epstein { s_rho: v },
+        // The law divides by ρ_g c_s; Phantom's form divides by ρ_g v_th instead.
+        LawKind::Epstein => StoppingLaw::Epstein {
+            s_rho: v / grain.speed_factor,
+            stokes,
+        },
     };
     Ok(Fraction { eps, law })
 }
 
 /// `from_file`: initial conditions from a file, which has its own particles (no `sph.n`)
 /// and may give h by its `SmoothingLength` (no `sph.h`/`sph.hfact`).
+/// s ρ_s in code units from a grain radius in cm and a material density in g cm⁻³.
+fn grain_s_rho(
+    key: &impl Fn(&str) -> String,
+    size: f64,
+    f: &FractionSection,
+    grain: &Grain,
+) -> VResult<f64> {
+    positive(&key("size"), size)?;
+    let Some(units) = grain.units else {
+        return err(
+            key("size"),
+            "a grain size in cm needs [units] (length and mass) to become code units",
+        );
+    };
+    let rho = f.grain_density.or(grain.density).ok_or_else(|| {
+        (
+            key("grain_density"),
+            "required with size (g cm⁻³; or dust.grain_density for every fraction)".to_string(),
+        )
+    })?;
+    positive(&key("grain_density"), rho)?;
+    Ok(size * rho / units.surface_density_g_cm2())
+}
+
 fn sph(s: &SphSection, from_file: bool) -> VResult<Sph> {
     let n = match (s.n, from_file) {
         (Some(_), true) => {

@@ -204,6 +204,10 @@ pub fn write_snapshot(
             text: &loaded.text,
             overrides: &loaded.overrides,
             initial_conditions: ics.map(|s| (s.path.as_str(), s.sha256.as_str())),
+            units: loaded
+                .scene
+                .units
+                .map(|u| [u.length_cm, u.mass_g, u.time_s()]),
         },
         gas: Some(PhaseView {
             x: &g.ph.x,

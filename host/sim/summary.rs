@@ -55,6 +55,16 @@ pub struct BallReport {
     pub figures: Vec<String>,
 }
 
+/// One code unit of each quantity in cgs (G = 1).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct UnitsReport {
+    pub length_cm: f64,
+    pub mass_g: f64,
+    pub time_s: f64,
+    pub velocity_cm_per_s: f64,
+    pub density_g_per_cm3: f64,
+}
+
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
     pub code: &'static str,
@@ -73,6 +83,9 @@ pub struct Summary {
     /// Initial conditions from a file: its path and SHA-256.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub initial_conditions: Option<crate::setup::file::IcSource>,
+    /// `[units]`: cgs per code unit (absent: no unit system).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub units: Option<UnitsReport>,
     pub dimension: u32,
     pub backend: String,
     pub precision: &'static str,
@@ -190,6 +203,13 @@ pub fn finish(
         scene_effective: loaded.effective.clone(),
         scene_model: scene.to_toml(),
         initial_conditions: outputs.initial_conditions.clone(),
+        units: scene.units.map(|u| UnitsReport {
+            length_cm: u.length_cm,
+            mass_g: u.mass_g,
+            time_s: u.time_s(),
+            velocity_cm_per_s: u.velocity_cm_s(),
+            density_g_per_cm3: u.mass_g / u.length_cm.powi(3),
+        }),
         dimension: scene.dim(),
         backend: sim.stepper.describe(),
         precision: phys.precision.name(),

@@ -59,3 +59,24 @@ impl Rng {
         (lo.ln() + (hi.ln() - lo.ln()) * self.next()).exp()
     }
 }
+
+/// [`run_scene`], then `check` on the output folder before it is removed.
+pub fn run_scene_in(
+    name: &str,
+    sets: &[&str],
+    check: impl FnOnce(&std::path::Path),
+) -> (Summary, State) {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    let loaded = dustsph::scene::load(&config(name), &sets).unwrap_or_else(|e| panic!("{e}"));
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let opts = RunOptions {
+        out: out.clone(),
+        force: false,
+        verbose: false,
+        device: dustsph::step::backend::DeviceChoice::Cpu,
+    };
+    let r = run(&loaded, &opts).unwrap_or_else(|e| panic!("{name} {sets:?}: {e}"));
+    check(&out);
+    r
+}

@@ -40,12 +40,14 @@ pub use sort::*;
 pub use sph::*;
 
 /// A stopping-time law as plain data: `kind` 0 = constant t (value t), 1 = constant K (value K),
-/// 2 = Epstein (value s·ρ_s).
+/// 2 = Epstein (value s·ρ_s, value2 the Stokes regime's 4s/(9λρ_g), 0 without it).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LawParam<R> {
     pub kind: u32,
     pub value: R,
+    /// Epstein: the Stokes regime's 4s/(9λρ_g) (0: Epstein at every size).
+    pub value2: R,
 }
 
 impl<R: Real> LawParam<R> {
@@ -54,11 +56,17 @@ impl<R: Real> LawParam<R> {
             StoppingLaw::ConstantTime { t_stop } => LawParam {
                 kind: 0,
                 value: t_stop,
+                value2: R::ZERO,
             },
-            StoppingLaw::ConstantK { k } => LawParam { kind: 1, value: k },
-            StoppingLaw::Epstein { s_rho } => LawParam {
+            StoppingLaw::ConstantK { k } => LawParam {
+                kind: 1,
+                value: k,
+                value2: R::ZERO,
+            },
+            StoppingLaw::Epstein { s_rho, stokes } => LawParam {
                 kind: 2,
                 value: s_rho,
+                value2: stokes,
             },
         }
     }
@@ -68,7 +76,10 @@ impl<R: Real> LawParam<R> {
         match self.kind {
             0 => StoppingLaw::ConstantTime { t_stop: self.value },
             1 => StoppingLaw::ConstantK { k: self.value },
-            _ => StoppingLaw::Epstein { s_rho: self.value },
+            _ => StoppingLaw::Epstein {
+                s_rho: self.value,
+                stokes: self.value2,
+            },
         }
     }
 }
@@ -161,6 +172,7 @@ impl<R: Real> StepParams<R> {
             laws: self.laws.map(|l| LawParam {
                 kind: l.kind,
                 value: c(l.value),
+                value2: c(l.value2),
             }),
             ext_gas: self.ext_gas.map(c),
             ext_dust: self.ext_dust.map(c),
