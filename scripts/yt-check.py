@@ -10,7 +10,9 @@ t = 0 snapshots with yt's GADGET frontend and checks
   - yt's SPH density at points inside the ball, including the negative octant
     (-0.3, -0.3, -0.3), and inside the slab equals dustsph's own density there (the
     particles' `Density`, interpolated the SPH way with yt's own kernel) to 2 %;
-  - the smoothing length yt uses is the kernel support (SmoothingLength = 2h).
+  - the smoothing length yt uses is the kernel support (SmoothingLength = 2h);
+  - a run in au and solar masses ([units]) loads in physical units: yt's code length, mass
+    and time are 1 au, 1 M_sun and the file's UnitTime_in_s, and densities convert to g/cm^3.
 Prints one line per check; exit 1 if any fails.
     scripts/yt-check.py [BINARY]
 """
@@ -83,4 +85,26 @@ with tempfile.TemporaryDirectory() as tmp:
         rho = sph_density_at(ds, np.array(p) - off)
         check(abs(rho - rho_mean) < 0.02 * rho_mean,
               f"slab: yt's SPH density at {p} = {rho:.4f} (dustsph mean {rho_mean:.4f})")
+    # Physical units ([units], docs/scenes.md): yt's GADGET frontend takes them as `unit_base`,
+    # read here from the Header attributes the snapshot carries (UnitLength_in_cm, ...).
+    snap = run("configs/dusty_ball.toml",
+               ["sph.n=16", "time.t_end=0.005", "time.dt=0.005", 'units.length="au"',
+                'units.mass="msun"'], tmp + "/ball_au")
+    with h5py.File(snap) as f:
+        hdr = f["Header"].attrs
+        base = {k: float(hdr[k]) for k in
+                ["UnitLength_in_cm", "UnitMass_in_g", "UnitVelocity_in_cm_per_s"]}
+        t_unit = float(hdr["UnitTime_in_s"])
+        rho_code = f["PartType0/Density"][:]
+    ds = yt.load(snap, unit_base=base)
+    check(abs(float(ds.length_unit.to("au").d) - 1.0) < 1e-9,
+          f"units: yt's code length is 1 au ({ds.length_unit.to('cm')})")
+    check(abs(float(ds.mass_unit.to("Msun").d) - 1.0) < 1e-3,
+          f"units: yt's code mass is 1 M_sun ({ds.mass_unit.to('g')})")
+    check(abs(float(ds.time_unit.to("s").d) / t_unit - 1.0) < 1e-9,
+          f"units: yt's code time is the file's UnitTime_in_s = sqrt(L^3/(G M)) ({t_unit:.4e} s)")
+    rho_yt = ds.all_data()[("PartType0", "Density")].to("g/cm**3").d
+    want = rho_code * base["UnitMass_in_g"] / base["UnitLength_in_cm"] ** 3
+    check(np.allclose(np.sort(rho_yt), np.sort(want), rtol=1e-10),
+          f"units: yt's gas density in g/cm^3 is Density x M/L^3 ({want.mean():.3e})")
 sys.exit(1 if fails else 0)
