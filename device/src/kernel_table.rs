@@ -68,6 +68,7 @@ macro_rules! kernel_table {
                 ENERGY: energy(EnergyArgs),
                 CHECK: check(CheckArgs),
                 DUST_ACCEL: dust_accel(DustAccelArgs),
+                DUST_ACCEL_LIMIT: dust_accel_limit(DustLimitArgs),
                 COUPLING_NORM: coupling_norm(NormArgs),
                 COUPLING_SOLVE: coupling_solve(CoupleArgs),
                 COUPLING_SCATTER: coupling_scatter(ScatterDepositArgs),

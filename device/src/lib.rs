@@ -21,6 +21,7 @@
 pub mod cell;
 pub mod drag;
 pub mod eos;
+pub mod gravity;
 pub mod grid;
 pub mod kernel;
 pub mod kernel_table;

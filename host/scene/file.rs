@@ -31,6 +31,19 @@ pub struct SceneFile {
     pub file: Option<FileSection>,
     /// Physical units of the scene's numbers (G = 1 sets the time unit).
     pub units: Option<UnitsSection>,
+    /// A central point mass (G = 1).
+    pub gravity: Option<GravitySection>,
+}
+
+/// `[gravity]`: a central point mass pulling every gas and dust particle.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GravitySection {
+    /// M (G = 1: GM in code units).
+    pub central_mass: f64,
+    pub position: Option<[f64; 3]>,
+    /// Plummer softening length ε.
+    pub softening: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]

@@ -32,6 +32,8 @@ pub struct Scene {
     pub numerics: Numerics,
     /// `[units]`: what the scene's numbers are in (`None`: no unit system).
     pub units: Option<Units>,
+    /// `[gravity]`: a central point mass.
+    pub gravity: Option<Gravity>,
     /// The problem's own parameters, with the gas state it starts from.
     pub problem: ProblemCfg,
 }
@@ -84,6 +86,7 @@ impl Scene {
             time: &self.time,
             numerics: &self.numerics,
             units: self.units.as_ref(),
+            gravity: self.gravity.as_ref(),
             problem: &self.problem,
         };
         // Every value of a model is a finite number, a string, a bool or a table of them:
@@ -454,6 +457,14 @@ pub struct SettleCfg {
     pub dust_shift: f64,
 }
 
+/// `[gravity]`: a point mass M at `position`, softened over `softening` (G = 1).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Gravity {
+    pub central_mass: f64,
+    pub position: [f64; 3],
+    pub softening: f64,
+}
+
 /// `[units]`: one code unit of length and of mass in cgs; time from G = 1 (Phantom's code
 /// units), so T = √(L³/(G M)).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -513,6 +524,8 @@ struct ModelToml<'a> {
     numerics: &'a Numerics,
     #[serde(skip_serializing_if = "Option::is_none")]
     units: Option<&'a Units>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    gravity: Option<&'a Gravity>,
     #[serde(flatten)]
     problem: &'a ProblemCfg,
 }

@@ -181,6 +181,7 @@ impl Scene {
         let eos = gas_eos(&f.gas)?;
         let section = section.with_background(&f.gas, eos)?;
         let units = units(f.units.as_ref())?;
+        let gravity = gravity(f.gravity.as_ref(), f.scene.dim)?;
         let dust = dust(f, eos, units.as_ref())?;
         let sph = sph(&f.sph, f.scene.problem == Problem::File)?;
         let idic_file = f.idic.as_ref();
@@ -227,6 +228,7 @@ impl Scene {
             external,
             time,
             units,
+            gravity,
             numerics: Numerics {
                 precision: numerics.and_then(|n| n.precision).unwrap_or(Precision::F64),
                 neighbour_list: numerics
@@ -295,6 +297,29 @@ fn gas_eos(g: &GasSection) -> VResult<GasEos> {
             Ok(GasEos::Adiabatic { gamma })
         }
     }
+}
+
+/// `[gravity]`: M > 0, a position in the scene's dimensions, ε ≥ 0.
+fn gravity(g: Option<&GravitySection>, dim: u32) -> VResult<Option<Gravity>> {
+    let Some(g) = g else { return Ok(None) };
+    positive("gravity.central_mass", g.central_mass)?;
+    let position = g.position.unwrap_or([0.0; 3]);
+    for (i, v) in position.iter().enumerate() {
+        finite(&format!("gravity.position.{i}"), *v)?;
+    }
+    if position[dim as usize..].iter().any(|v| *v != 0.0) {
+        return err(
+            "gravity.position",
+            format!("has a component along an axis a {dim}D scene does not have"),
+        );
+    }
+    let softening = g.softening.unwrap_or(0.0);
+    non_negative("gravity.softening", softening)?;
+    Ok(Some(Gravity {
+        central_mass: g.central_mass,
+        position,
+        softening,
+    }))
 }
 
 /// Named units (IAU 2012 au, IAU 2015 nominal solar mass GM/G with CODATA 2018 G).

@@ -172,6 +172,21 @@ impl std::fmt::Display for SetupError {
 impl std::error::Error for SetupError {}
 
 pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
+    let su = build_problem(scene)?;
+    // A point mass's pull has no periodic image: it needs open axes.
+    if scene.gravity.is_some() && su.domain.periodic.iter().any(Option::is_some) {
+        return Err(SetupError {
+            key: "gravity".into(),
+            msg: format!(
+                "a central point mass needs open axes; problem `{}` is periodic",
+                scene.kind().name()
+            ),
+        });
+    }
+    Ok(su)
+}
+
+fn build_problem(scene: &Scene) -> Result<Setup, SetupError> {
     match &scene.problem {
         ProblemCfg::Dustybox(b) => dustybox::build(scene, b),
         ProblemCfg::Dustywave(w) => dustywave::build(scene, w),

@@ -43,6 +43,8 @@ pub struct Physics {
     /// Constant external accelerations of the gas and of every dust particle.
     pub ext_gas: [f64; 3],
     pub ext_dust: [f64; 3],
+    /// A central point mass (`[gravity]`; `gm` = 0: none), in A^n and B^n.
+    pub gravity: dustsph_device::gravity::PointMass,
     /// Nominal IDIC cell size Δc (periodic axes round it so cells tile the period).
     pub cell_size: f64,
     pub domain: Domain,
@@ -79,6 +81,13 @@ impl Physics {
             deposit_scatter: scene.idic.deposit == crate::scene::DepositForm::Scatter,
             ext_gas: scene.external.gas,
             ext_dust: scene.external.dust,
+            gravity: scene.gravity.map_or_else(Default::default, |g| {
+                dustsph_device::gravity::PointMass {
+                    gm: g.central_mass,
+                    pos: g.position,
+                    soft2: g.softening * g.softening,
+                }
+            }),
             cell_size: scene.idic.cell * h,
             domain,
             position_update: scene.time.position_update,
@@ -108,6 +117,7 @@ impl Physics {
             deposit_scatter: false,
             ext_gas: [0.0; 3],
             ext_dust: [0.0; 3],
+            gravity: Default::default(),
             cell_size: 0.5 * h,
             domain: Domain {
                 dim: 1,

@@ -1,5 +1,6 @@
 //! Shared helpers: run a scene from `configs/` with overrides into a temporary directory.
 #![allow(dead_code)]
+pub mod ics;
 use dustsph::analysis::norms::Norms;
 use dustsph::particles::State;
 use dustsph::run::{run, RunOptions, Summary};

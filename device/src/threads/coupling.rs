@@ -9,14 +9,46 @@ pub struct DustAccelArgs<R> {
     pub p: Params<R>,
 }
 
-/// ũ = u + τB of dust particle t (B = `ext_dust`; fixed particles keep u): the drag pass then
-/// reads the dust velocities as ũ, as on the CPU.
+/// ũ = u + τB of dust particle t (B = `ext_dust` + the point mass's pull; fixed particles
+/// keep u): the drag pass then reads the dust velocities as ũ, as on the CPU.
 pub unsafe fn dust_accel<R: Real>(t: usize, a: &DustAccelArgs<R>) {
     let d = &a.ph;
     if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
         return;
     }
-    *d.v.add(t) = crate::axpy(*d.v.add(t), a.p.tau, a.p.ext_dust);
+    let b = dust_external(t, a);
+    *d.v.add(t) = crate::axpy(*d.v.add(t), a.p.tau, b);
+}
+
+/// B of dust particle t: `ext_dust` plus the point mass's acceleration.
+#[inline(always)]
+unsafe fn dust_external<R: Real>(t: usize, a: &DustAccelArgs<R>) -> Vec3<R> {
+    let g = &a.p.gravity;
+    if g.is_on() {
+        crate::add(a.p.ext_dust, g.accel(a.ph.x()[t]).map(R::from_f64))
+    } else {
+        a.p.ext_dust
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct DustLimitArgs<R> {
+    pub acc: DustAccelArgs<R>,
+    /// The step's limits ([vsig, |A|] as ordered bits, as the forces kernel writes them).
+    pub limits: *mut u64,
+}
+
+/// |B| of dust particle t into the step's acceleration limit (the force limit √(h/|A|) then
+/// holds for the dust under a point mass too).
+pub unsafe fn dust_accel_limit<R: Real>(t: usize, a: &DustLimitArgs<R>) {
+    let d = &a.acc.ph;
+    if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
+        return;
+    }
+    let b = dust_external(t, &a.acc);
+    let m = Real::sqrt(crate::dot(b, b));
+    atomic_max_u64(a.limits.add(1), kernels::ordered_bits(m));
 }
 
 /// Per-particle buffers of the kernel coupling.

@@ -113,6 +113,8 @@ pub struct StepParams<R> {
     pub ext_dust: Vec3<R>,
     /// 1: the explicit (forward-Euler) drag baseline instead of IDIC.
     pub explicit_drag: u32,
+    /// A central point mass (`gm` = 0: none), added to A^n and B^n.
+    pub gravity: crate::gravity::PointMass,
 }
 
 /// Where a kernel finds its [`StepParams`]: one copy in device memory (host memory for the
@@ -177,6 +179,7 @@ impl<R: Real> StepParams<R> {
             ext_gas: self.ext_gas.map(c),
             ext_dust: self.ext_dust.map(c),
             explicit_drag: self.explicit_drag,
+            gravity: self.gravity,
         }
     }
 

@@ -108,14 +108,21 @@ pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
             av.as_ref(),
         ),
     };
-    *a.acc.add(t) = r.acc;
+    // A^n includes the central point mass (fixed particles are never kicked).
+    let acc = if a.p.gravity.is_on() {
+        let g = a.p.gravity.accel(g.x()[t]);
+        crate::add(r.acc, g.map(R::from_f64))
+    } else {
+        r.acc
+    };
+    *a.acc.add(t) = acc;
     if !a.dedt.is_null() {
         *a.dedt.add(t) = r.dedt;
     }
     if !a.vsig.is_null() {
         *a.vsig.add(t) = r.vsig;
     }
-    let am = Real::sqrt(dot(r.acc, r.acc));
+    let am = Real::sqrt(dot(acc, acc));
     atomic_max_u64(a.limits, kernels::ordered_bits(r.vsig));
     atomic_max_u64(a.limits.add(1), kernels::ordered_bits(am));
 }

@@ -548,6 +548,7 @@ pub(super) fn step_params(
         ext_gas: phys.ext_gas,
         ext_dust: phys.ext_dust,
         explicit_drag: stages.explicit_drag as u32,
+        gravity: phys.gravity,
     }
 }
 

@@ -209,7 +209,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     ) -> Result<(), StepError> {
         // The stage names are what summary.json lists as the run's pipeline.
         let drag = self.stages.drag;
-        if self.phys.ext_dust.iter().any(|a| *a != 0.0) && self.dust.n > 0 {
+        let pulled = self.phys.ext_dust.iter().any(|a| *a != 0.0) || self.phys.gravity.is_on();
+        if pulled && self.dust.n > 0 {
             let a = th::DustAccelArgs {
                 ph: self.dust.bufs(&self.d),
                 p: self.params(dt)?.dev,

@@ -131,6 +131,17 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             (true, _) => "gas forces (pressure + artificial viscosity, IAD gradient)",
         };
         timers.time(name, || d.run(R::FORCES, self.gas.n, &a))?;
+        if self.phys.gravity.is_on() && self.dust.n > 0 {
+            // The point mass pulls the dust too: its |B| joins the force limit.
+            let a = th::DustLimitArgs {
+                acc: th::DustAccelArgs {
+                    ph: self.dust.bufs(d),
+                    p: p.dev,
+                },
+                limits: d.ptr(&self.limits),
+            };
+            d.run(R::DUST_ACCEL_LIMIT, self.dust.n, &a)?;
+        }
         // The drag's cell sums read the cell-mates' accelerations.
         self.ghost_sync(&Refresh::FORCES)?;
         let l = self.d.get(&self.limits, 2)?;

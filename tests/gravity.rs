@@ -1,0 +1,172 @@
+//! A central point mass (`[gravity]`, G = 1): gas and dust particles on circular orbits keep
+//! their radius, their phase and (exactly, for a central force under the symplectic steps)
+//! their angular momentum; the dust's pull enters the step's force limit.
+mod common;
+use common::ics::*;
+use dustsph::particles::State;
+
+/// One gas particle on the circular orbit r = 1 and one dust particle on r = 2 (far beyond
+/// each other's kernels, so no drag and no pressure force act: pure orbits), in 2D.
+fn orbits(dir: &std::path::Path, dust_r: f64) {
+    let vd = (1.0 / dust_r).sqrt();
+    let f = IcFile {
+        header: vec![("Dimension", vec![2.0])],
+        groups: vec![
+            (
+                "PartType0",
+                vec![
+                    ("Coordinates", Column::F(vec![1.0, 0.0, 0.0], 3)),
+                    ("Velocities", Column::F(vec![0.0, 1.0, 0.0], 3)),
+                    ("Masses", Column::F(vec![1e-6], 1)),
+                ],
+            ),
+            (
+                "PartType3",
+                vec![
+                    ("Coordinates", Column::F(vec![0.0, dust_r, 0.0], 3)),
+                    ("Velocities", Column::F(vec![-vd, 0.0, 0.0], 3)),
+                    ("Masses", Column::F(vec![1e-8], 1)),
+                ],
+            ),
+        ],
+    };
+    f.write(&dir.join("orbits.h5"));
+}
+
+fn scene_text(time: &str) -> String {
+    format!(
+        "[gas]\neos = \"isothermal\"\ncs = 0.01\n\n[dust]\nlaw = \"constant_t\"\n\
+         [[dust.fractions]]\nt_stop = 0.1\n\n[sph]\nh = 0.1\n\n[gravity]\ncentral_mass = 1.0\n\n\
+         [time]\n{time}\n"
+    )
+}
+
+/// Radius, angle, specific angular momentum and energy of a particle.
+fn orbit_of(x: [f64; 3], v: [f64; 3]) -> (f64, f64, f64, f64) {
+    let r = (x[0] * x[0] + x[1] * x[1]).sqrt();
+    let l = x[0] * v[1] - x[1] * v[0];
+    let e = 0.5 * (v[0] * v[0] + v[1] * v[1]) - 1.0 / r;
+    (r, x[1].atan2(x[0]), l, e)
+}
+
+/// The textbook integrator of a point-mass orbit with step `dt`: kick–drift–kick, or the
+/// symplectic Euler of the first-order step (v ← v + τ g(x), x ← x + τ v).
+fn reference(x0: [f64; 2], v0: [f64; 2], dt: f64, steps: usize, kdk: bool) -> [f64; 2] {
+    let g = |x: [f64; 2]| {
+        let r3 = (x[0] * x[0] + x[1] * x[1]).powf(1.5);
+        [-x[0] / r3, -x[1] / r3]
+    };
+    let (mut x, mut v) = (x0, v0);
+    let kick = |v: &mut [f64; 2], x: [f64; 2], s: f64| {
+        let a = g(x);
+        v[0] += s * a[0];
+        v[1] += s * a[1];
+    };
+    for _ in 0..steps {
+        kick(&mut v, x, if kdk { 0.5 * dt } else { dt });
+        x = [x[0] + dt * v[0], x[1] + dt * v[1]];
+        if kdk {
+            kick(&mut v, x, 0.5 * dt);
+        }
+    }
+    x
+}
+
+fn check(s: &State, dt: f64, steps: usize, kdk: bool, tol_r: f64) {
+    let vd = 0.5f64.sqrt();
+    for (name, x, v, r0, start) in [
+        (
+            "gas",
+            s.gas.ph.x[0],
+            s.gas.ph.v[0],
+            1.0f64,
+            ([1.0, 0.0], [0.0, 1.0]),
+        ),
+        (
+            "dust",
+            s.dust[0].x[0],
+            s.dust[0].v[0],
+            2.0,
+            ([0.0, 2.0], [-vd, 0.0]),
+        ),
+    ] {
+        let (r, _, l, _) = orbit_of(x, v);
+        let want = reference(start.0, start.1, dt, steps, kdk);
+        let off = ((x[0] - want[0]).powi(2) + (x[1] - want[1]).powi(2)).sqrt();
+        assert!(
+            off < 1e-9,
+            "kdk {kdk} {name}: {off:e} from the reference integrator"
+        );
+        assert!((r / r0 - 1.0).abs() < tol_r, "kdk {kdk} {name}: r = {r}");
+        assert!(
+            (l / r0.sqrt() - 1.0).abs() < 1e-12,
+            "kdk {kdk} {name}: L = {l} (circular: √r = {})",
+            r0.sqrt()
+        );
+    }
+}
+
+/// Two gas orbits (400 steps of π/100): each particle follows the textbook integrator of its
+/// step (leapfrog for `kdk`, symplectic Euler for the first-order step) to 1e-9, keeps its
+/// radius (1e-4 leapfrog, 1e-2 symplectic Euler: O(τ)) and its angular momentum to round-off.
+#[test]
+fn gas_and_dust_keep_their_circular_orbits_about_a_point_mass() {
+    let dir = tempfile::tempdir().unwrap();
+    orbits(dir.path(), 2.0);
+    let dt = std::f64::consts::PI / 100.0;
+    let steps = 400;
+    for (integrator, tol_r) in [("kdk", 1e-4), ("first_order", 1e-2)] {
+        let time = format!(
+            "t_end = {}\ndt = {dt}\nintegrator = \"{integrator}\"",
+            steps as f64 * dt
+        );
+        let l = file_scene(
+            dir.path(),
+            2,
+            "orbits.h5",
+            "[false, false, false]",
+            &scene_text(&time),
+        );
+        let (_, s) = run_in(dir.path(), &l, integrator);
+        assert_eq!(s.step, steps as u64);
+        check(&s, dt, steps, integrator == "kdk", tol_r);
+    }
+}
+
+/// A CFL-limited step: the force limit √(h/|A|) takes the dust's pull too (dust at r = 0.5:
+/// |B| = 4, the gas's |A| = 1), so τ ≤ cfl·√(h/4).
+#[test]
+fn the_dusts_pull_limits_the_step() {
+    let dir = tempfile::tempdir().unwrap();
+    orbits(dir.path(), 0.5);
+    let l = file_scene(
+        dir.path(),
+        2,
+        "orbits.h5",
+        "[false, false, false]",
+        &scene_text("t_end = 1.0\ncfl = 0.3"),
+    );
+    let (s, _) = run_in(dir.path(), &l, "out");
+    let limit = 0.3 * (0.1f64 / 4.0).sqrt();
+    assert!(
+        s.dt_max <= limit * (1.0 + 1e-9),
+        "dt_max {} > {limit}",
+        s.dt_max
+    );
+    assert!(s.dt_max > 0.9 * limit, "dt_max {} ≪ {limit}", s.dt_max);
+}
+
+/// Periodic problems have no room for a point mass: refused, naming the key.
+#[test]
+fn a_point_mass_in_a_periodic_box_is_refused() {
+    let sets = ["gravity.central_mass=1".to_string()];
+    let l = dustsph::scene::load(&common::config("dustybox"), &sets).unwrap();
+    let e = dustsph::setup::build(&l.scene).unwrap_err();
+    assert_eq!(e.key, "gravity", "{e}");
+    let e = dustsph::scene::load(
+        &common::config("dusty_ball"),
+        &["gravity.central_mass=0".to_string()],
+    )
+    .unwrap_err();
+    assert_eq!(e.key.as_deref(), Some("gravity.central_mass"));
+}
