@@ -80,10 +80,23 @@ impl Problem {
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "snake_case")]
 pub enum EosKind {
     Isothermal,
     Adiabatic,
+    /// p = c_s(x)² ρ with c_s = cs0 (R/r_ref)^(−q) (discs; Phantom's ieos = 3 with
+    /// `radius = "spherical"`).
+    LocallyIsothermal,
+}
+
+/// Which radius a locally isothermal sound speed depends on.
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum RadiusKind {
+    /// R = √(x² + y²) about the z axis through the centre.
+    Cylindrical,
+    /// r = |x − centre| (Phantom's ieos = 3).
+    Spherical,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -98,6 +111,12 @@ pub struct GasSection {
     pub rho: Option<f64>,
     /// Background pressure (adiabatic gas, every problem but the shock tube).
     pub p: Option<f64>,
+    /// Locally isothermal gas: c_s at `r_ref`, the power q, the reference radius and which
+    /// radius (about `gravity.position`, or the origin).
+    pub cs0: Option<f64>,
+    pub q: Option<f64>,
+    pub r_ref: Option<f64>,
+    pub radius: Option<RadiusKind>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]

@@ -8,7 +8,8 @@
 //! `SceneModel` attribute), with the scene file's key names where the file has the key.
 use super::file::{
     Coupling, DensityMethod, DepositForm, DragMethod, EosKind, EpsteinForm, GradientMethod,
-    Integrator, Lattice, LawKind, ListChoice, PositionUpdate, Precision, Problem, WaveMode,
+    Integrator, Lattice, LawKind, ListChoice, PositionUpdate, Precision, Problem, RadiusKind,
+    WaveMode,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -105,12 +106,19 @@ pub struct Gas {
 
 /// The gas equation of state with its constant.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-#[serde(tag = "eos", rename_all = "lowercase")]
+#[serde(tag = "eos", rename_all = "snake_case")]
 pub enum GasEos {
     /// p = c_s² ρ.
     Isothermal { cs: f64 },
     /// p = (γ − 1) ρ e.
     Adiabatic { gamma: f64 },
+    /// p = c_s(x)² ρ, c_s = cs0 (R/r_ref)^(−q).
+    LocallyIsothermal {
+        cs0: f64,
+        q: f64,
+        r_ref: f64,
+        radius: RadiusKind,
+    },
 }
 
 impl GasEos {
@@ -118,14 +126,40 @@ impl GasEos {
         match self {
             GasEos::Isothermal { .. } => EosKind::Isothermal,
             GasEos::Adiabatic { .. } => EosKind::Adiabatic,
+            GasEos::LocallyIsothermal { .. } => EosKind::LocallyIsothermal,
         }
     }
 
-    /// The step's equation of state.
+    /// The step's equation of state (locally isothermal gas: isothermal, its c_s set per
+    /// particle by [`Self::local_sound_speed`]; cs0 stands for it here).
     pub fn eos(self) -> Eos<f64> {
         match self {
             GasEos::Isothermal { cs } => Eos::Isothermal { cs },
             GasEos::Adiabatic { gamma } => Eos::Adiabatic { gamma },
+            GasEos::LocallyIsothermal { cs0, .. } => Eos::Isothermal { cs: cs0 },
+        }
+    }
+
+    /// The step's position-dependent sound speed about `centre` (the origin without one).
+    pub fn local_sound_speed(
+        self,
+        centre: Option<[f64; 3]>,
+    ) -> dustsph_device::eos::LocalSoundSpeed {
+        match self {
+            GasEos::LocallyIsothermal {
+                cs0,
+                q,
+                r_ref,
+                radius,
+            } => dustsph_device::eos::LocalSoundSpeed {
+                cs0,
+                q,
+                r_ref,
+                centre: centre.unwrap_or([0.0; 3]),
+                spherical: u32::from(radius == RadiusKind::Spherical),
+                on: 1,
+            },
+            _ => Default::default(),
         }
     }
 
@@ -134,6 +168,7 @@ impl GasEos {
         match self {
             GasEos::Isothermal { cs } => cs,
             GasEos::Adiabatic { gamma } => (gamma * s.p / s.rho).sqrt(),
+            GasEos::LocallyIsothermal { .. } => (s.p / s.rho).sqrt(),
         }
     }
 
@@ -141,7 +176,7 @@ impl GasEos {
     /// energy equation).
     pub fn internal_energy(self, s: GasState) -> Option<f64> {
         match self {
-            GasEos::Isothermal { .. } => None,
+            GasEos::Isothermal { .. } | GasEos::LocallyIsothermal { .. } => None,
             GasEos::Adiabatic { gamma } => Some(s.p / ((gamma - 1.0) * s.rho)),
         }
     }

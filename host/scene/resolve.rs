@@ -141,6 +141,13 @@ impl<'a> Section<'a, ()> {
                     p
                 }
                 GasEos::Isothermal { cs } => cs * cs * rho,
+                GasEos::LocallyIsothermal { .. } => {
+                    return err(
+                        "gas.eos",
+                        "\"locally_isothermal\" gas needs its own particles (scene.problem = \"file\"); \
+                         the built-in problems start from a uniform state",
+                    )
+                }
             };
             Ok(GasState { rho, p })
         };
@@ -271,7 +278,52 @@ fn meta(s: &MetaSection) -> VResult {
 }
 
 fn gas_eos(g: &GasSection) -> VResult<GasEos> {
+    if g.eos != EosKind::LocallyIsothermal {
+        for (key, v) in [("gas.cs0", g.cs0), ("gas.q", g.q), ("gas.r_ref", g.r_ref)] {
+            if v.is_some() {
+                return err(key, "only used by eos = \"locally_isothermal\"");
+            }
+        }
+        if g.radius.is_some() {
+            return err("gas.radius", "only used by eos = \"locally_isothermal\"");
+        }
+    }
     match g.eos {
+        EosKind::LocallyIsothermal => {
+            let cs0 = required("gas.cs0", g.cs0, "required for locally isothermal gas")?;
+            positive("gas.cs0", cs0)?;
+            let q = g.q.unwrap_or(0.25);
+            finite("gas.q", q)?;
+            let r_ref = g.r_ref.unwrap_or(1.0);
+            positive("gas.r_ref", r_ref)?;
+            for (key, v, why) in [
+                (
+                    "gas.cs",
+                    g.cs.is_some(),
+                    "locally isothermal gas takes gas.cs0 at gas.r_ref",
+                ),
+                (
+                    "gas.gamma",
+                    g.gamma.is_some(),
+                    "not used by locally isothermal gas",
+                ),
+                (
+                    "gas.p",
+                    g.p.is_some(),
+                    "locally isothermal pressure is c_s(x)²ρ",
+                ),
+            ] {
+                if v {
+                    return err(key, format!("{why} (remove it)"));
+                }
+            }
+            Ok(GasEos::LocallyIsothermal {
+                cs0,
+                q,
+                r_ref,
+                radius: g.radius.unwrap_or(RadiusKind::Cylindrical),
+            })
+        }
         EosKind::Isothermal => {
             let cs = required("gas.cs", g.cs, "required for isothermal gas")?;
             positive("gas.cs", cs)?;
@@ -428,7 +480,7 @@ fn dust(f: &SceneFile, eos: GasEos, units: Option<&Units>) -> VResult<Option<Dus
     // Phantom's thermal speed √(8/(πγ)) c_s in place of c_s (γ = 1 for isothermal gas).
     let gamma = match eos {
         GasEos::Adiabatic { gamma } => gamma,
-        GasEos::Isothermal { .. } => 1.0,
+        GasEos::Isothermal { .. } | GasEos::LocallyIsothermal { .. } => 1.0,
     };
     let speed_factor = match epstein {
         EpsteinForm::Report => 1.0,
@@ -1028,6 +1080,13 @@ fn shock_side(side: &str, st: ShockSideSection, eos: GasEos) -> VResult<GasState
             return err(key, "isothermal pressure is cs²ρ (remove it)")
         }
         (GasEos::Isothermal { cs }, None) => cs * cs * st.rho,
+        (GasEos::LocallyIsothermal { .. }, _) => {
+            return err(
+                "gas.eos",
+                "the shock tube starts from two uniform states: locally isothermal gas needs \
+                 scene.problem = \"file\"",
+            )
+        }
     };
     Ok(GasState { rho: st.rho, p })
 }

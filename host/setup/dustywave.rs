@@ -13,6 +13,8 @@ pub fn model(scene: &Scene, w: &WaveCfg) -> LinearWave {
     let gas = match scene.gas.eos {
         GasEos::Isothermal { cs } => WaveGas::Isothermal { cs },
         GasEos::Adiabatic { gamma } => WaveGas::Adiabatic { gamma, p0: bg.p },
+        // Refused for the built-in problems (scene checks); the reference c_s stands in.
+        GasEos::LocallyIsothermal { cs0, .. } => WaveGas::Isothermal { cs: cs0 },
     };
     let cs0 = scene.gas.eos.sound_speed(bg);
     let (rho_d0, t_stop) = scene

@@ -57,7 +57,7 @@ pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
         GasEos::Adiabatic { .. } => Some(ics.gas.e.clone().ok_or_else(|| {
             at("/PartType0/InternalEnergy is missing; adiabatic gas (gas.eos) needs it".into())
         })?),
-        GasEos::Isothermal { .. } => None,
+        GasEos::Isothermal { .. } | GasEos::LocallyIsothermal { .. } => None,
     };
     if scene.sph.density == crate::scene::DensityMethod::Continuity && ics.gas.rho.is_none() {
         return Err(at(

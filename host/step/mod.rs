@@ -45,6 +45,8 @@ pub struct Physics {
     pub ext_dust: [f64; 3],
     /// A central point mass (`[gravity]`; `gm` = 0: none), in A^n and B^n.
     pub gravity: dustsph_device::gravity::PointMass,
+    /// Locally isothermal gas: c_s(x) (`on` = 0: the EOS's own).
+    pub local_cs: dustsph_device::eos::LocalSoundSpeed,
     /// Nominal IDIC cell size Δc (periodic axes round it so cells tile the period).
     pub cell_size: f64,
     pub domain: Domain,
@@ -81,6 +83,10 @@ impl Physics {
             deposit_scatter: scene.idic.deposit == crate::scene::DepositForm::Scatter,
             ext_gas: scene.external.gas,
             ext_dust: scene.external.dust,
+            local_cs: scene
+                .gas
+                .eos
+                .local_sound_speed(scene.gravity.map(|g| g.position)),
             gravity: scene.gravity.map_or_else(Default::default, |g| {
                 dustsph_device::gravity::PointMass {
                     gm: g.central_mass,
@@ -118,6 +124,7 @@ impl Physics {
             ext_gas: [0.0; 3],
             ext_dust: [0.0; 3],
             gravity: Default::default(),
+            local_cs: Default::default(),
             cell_size: 0.5 * h,
             domain: Domain {
                 dim: 1,

@@ -115,6 +115,8 @@ pub struct StepParams<R> {
     pub explicit_drag: u32,
     /// A central point mass (`gm` = 0: none), added to A^n and B^n.
     pub gravity: crate::gravity::PointMass,
+    /// A locally isothermal gas's sound speed (`on` = 0: the EOS's own, `eos_kind`).
+    pub local_cs: crate::eos::LocalSoundSpeed,
 }
 
 /// Where a kernel finds its [`StepParams`]: one copy in device memory (host memory for the
@@ -180,6 +182,7 @@ impl<R: Real> StepParams<R> {
             ext_dust: self.ext_dust.map(c),
             explicit_drag: self.explicit_drag,
             gravity: self.gravity,
+            local_cs: self.local_cs,
         }
     }
 

@@ -43,6 +43,8 @@ pub struct EosArgs<R> {
     pub pres: *mut R,
     pub c: *mut R,
     pub n: u32,
+    /// The positions, for a locally isothermal gas (null otherwise).
+    pub x: *const Vec3<f64>,
     pub p: Params<R>,
 }
 
@@ -51,7 +53,15 @@ pub unsafe fn eos<R: Real>(t: usize, a: &EosArgs<R>) {
         return;
     }
     let e = if a.e.is_null() { R::ZERO } else { *a.e.add(t) };
-    let (p, c) = kernels::eos_at(&a.p.eos(), *a.rho.add(t), e);
+    // Locally isothermal gas: isothermal at the sound speed of its place.
+    let eos = if a.p.local_cs.on != 0 && !a.x.is_null() {
+        crate::eos::Eos::Isothermal {
+            cs: R::from_f64(a.p.local_cs.at(*a.x.add(t))),
+        }
+    } else {
+        a.p.eos()
+    };
+    let (p, c) = kernels::eos_at(&eos, *a.rho.add(t), e);
     *a.pres.add(t) = p;
     *a.c.add(t) = c;
 }

@@ -549,6 +549,7 @@ pub(super) fn step_params(
         ext_dust: phys.ext_dust,
         explicit_drag: stages.explicit_drag as u32,
         gravity: phys.gravity,
+        local_cs: phys.local_cs,
     }
 }
 

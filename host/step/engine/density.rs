@@ -100,6 +100,11 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             pres: d.ptr(&self.pres),
             c: d.ptr(&self.cs),
             n: self.gas.n as u32,
+            x: if self.phys.local_cs.on != 0 {
+                d.ptr(&self.gas.x)
+            } else {
+                std::ptr::null()
+            },
             p: self.params(0.0)?.dev,
         };
         d.run(R::EOS, self.gas.n, &a)
