@@ -3,6 +3,7 @@
 //! equilibrium dusty shock tube. Pure std, f64 interfaces; the stiff matrix functions work in
 //! double-double internally (see `linalg`).
 pub mod complex;
+pub mod drift;
 pub mod dustybox;
 pub mod dustywave;
 pub mod linalg;
