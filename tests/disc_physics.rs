@@ -243,3 +243,102 @@ fn locally_isothermal_gas_has_the_sound_speed_of_its_place() {
     .unwrap_err();
     assert_eq!(e.key.as_deref(), Some("gas.eos"), "{e}");
 }
+
+/// The disc set-up (configs/dustydisc.toml with one fraction, St = 0.1 at r_ref): its rings
+/// tile the disc and carry Σ(R) (each ring ∫2πRΣ dR over its width), and every particle starts on the steady
+/// drift: for one species Nakagawa, Sekiya & Hayashi's closed form (dust u_R = −2St/D,
+/// δu_φ = −(1+ε)/D; gas v_R = 2εSt/D, δv_φ = −(1+ε+St²)/D in η v_K, D = (1+ε)² + St²).
+#[test]
+fn the_disc_starts_with_its_surface_density_on_the_steady_drift() {
+    let sets: Vec<String> = ["dust.fractions=[{eps = 0.1, t_stop = 0.1}]"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let l =
+        dustsph::scene::load(&common::config("dustydisc"), &sets).unwrap_or_else(|e| panic!("{e}"));
+    let su = dustsph::setup::build(&l.scene).unwrap_or_else(|e| panic!("{e}"));
+    let (r_in, p, q, cs0) = (0.5f64, 1.0f64, 0.25f64, 0.05f64);
+    let sigma = |r: f64| 1e-3 * r.powf(-p) * (1.0 - (r_in / r).sqrt()) / (1.0 - r_in.sqrt());
+    let g = &su.state.gas.ph;
+    let radius = |x: [f64; 3]| (x[0] * x[0] + x[1] * x[1]).sqrt();
+    // The rings: the particles of one ring share their radius.
+    let mut rings: Vec<(f64, f64)> = Vec::new();
+    let mut by_r: Vec<(f64, f64)> = (0..g.len()).map(|i| (radius(g.x[i]), g.m[i])).collect();
+    by_r.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for (r, m) in by_r {
+        match rings.last_mut() {
+            Some(last) if (r - last.0).abs() < 1e-9 * r => last.1 += m,
+            _ => rings.push((r, m)),
+        }
+    }
+    assert!(rings.len() > 20, "{} rings", rings.len());
+    // Each ring is one local spacing w = √(m/Σ(R)) wide (m = Σ_ref/n², n = 32), the rings tile
+    // [r_in, …) without gap or overlap, and each carries ∫ 2πrΣ dr over its width.
+    let m = 1e-3 / (32.0 * 32.0);
+    let integral = |a: f64, b: f64| {
+        let n = 2000;
+        (0..n)
+            .map(|k| {
+                let x = a + (b - a) * (k as f64 + 0.5) / n as f64;
+                2.0 * std::f64::consts::PI * x * sigma(x) * (b - a) / n as f64
+            })
+            .sum::<f64>()
+    };
+    let mut edge = r_in;
+    for &(r, mass) in &rings {
+        let w = (m / sigma(r)).sqrt();
+        if w < 0.25 * 1.5 {
+            assert!(
+                (r - 0.5 * w - edge).abs() < 1e-9,
+                "ring at {r} starts at {} not {edge}",
+                r - 0.5 * w
+            );
+            let want = integral(r - 0.5 * w, r + 0.5 * w);
+            assert!(
+                (mass / want - 1.0).abs() < 1e-6,
+                "ring at {r}: mass {mass} vs {want}"
+            );
+        }
+        edge = r + 0.5 * w;
+    }
+    assert!(
+        edge <= 2.0 && edge > 2.0 - 0.1,
+        "the last ring ends at {edge}"
+    );
+    let eps = 0.1;
+    let check = |ph: &dustsph::particles::Phase, dust: bool| {
+        for i in (0..ph.len()).step_by(7) {
+            let (x, v) = (ph.x[i], ph.v[i]);
+            let r = radius(x);
+            let (vr, vphi) = (
+                (x[0] * v[0] + x[1] * v[1]) / r,
+                (x[0] * v[1] - x[1] * v[0]) / r,
+            );
+            let (omega, vk) = (r.powf(-1.5), r.powf(-0.5));
+            let st = omega * 0.1;
+            let c = cs0 * r.powf(-q);
+            let s = (r_in / r).sqrt();
+            let eta_vk = -0.5 * c * c / vk * (-2.0 * q - p + 0.5 * s / (1.0 - s));
+            let den = (1.0 + eps) * (1.0 + eps) + st * st;
+            let (wr, wp) = if dust {
+                (-2.0 * st / den, -(1.0 + eps) / den)
+            } else {
+                (2.0 * eps * st / den, -(1.0 + eps + st * st) / den)
+            };
+            assert!(
+                // Cartesian velocities carry rounding of O(v_K): 1e-14 v_K beside it.
+                (vr - wr * eta_vk).abs() < 1e-12 * eta_vk.abs() + 1e-14 * vk,
+                "dust {dust} R {r}: v_R {vr} vs {}",
+                wr * eta_vk
+            );
+            assert!(
+                // v_φ − v_K is a difference of O(v_K) numbers: 1e-14 v_K beside it.
+                (vphi - vk - wp * eta_vk).abs() < 1e-12 * eta_vk.abs() + 1e-14 * vk,
+                "dust {dust} R {r}: v_φ − v_K {}",
+                vphi - vk
+            );
+        }
+    };
+    check(g, false);
+    check(&su.state.dust[0], true);
+}

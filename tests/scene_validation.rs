@@ -21,6 +21,7 @@ fn every_scene_in_configs_is_valid() {
         "dustywave_phantom_poly",
         "dustysettle",
         "dusty_ball",
+        "dustydisc",
     ] {
         load(&config(s), &[]).unwrap_or_else(|e| panic!("{e}"));
     }

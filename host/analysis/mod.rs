@@ -180,7 +180,7 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
         ProblemCfg::Dustywave(w) => wave_errors(scene, w, state),
         ProblemCfg::Dustysettle(c) => vec![settle_errors(scene, c, state)],
         ProblemCfg::Dustyshock(s) => shock_errors(scene, s, state),
-        ProblemCfg::File(_) => Vec::new(),
+        ProblemCfg::File(_) | ProblemCfg::Dustydisc(_) => Vec::new(),
     }
 }
 

@@ -112,13 +112,9 @@ mod tests {
         let den = (1.0 + l0).powi(2) + l1 * l1;
         let vp = -2.0;
         assert!((d.gas.0 - (-l1 * vp / den)).abs() < 1e-13, "{:?}", d.gas);
-        for j in 0..4 {
-            let want = vp * ((1.0 + l0) * st[j] - l1) / (den * (1.0 + st[j] * st[j]));
-            assert!(
-                (d.dust[j].0 - want).abs() < 1e-13,
-                "{j}: {} vs {want}",
-                d.dust[j].0
-            );
+        for (j, (s, u)) in st.iter().zip(&d.dust).enumerate() {
+            let want = vp * ((1.0 + l0) * s - l1) / (den * (1.0 + s * s));
+            assert!((u.0 - want).abs() < 1e-13, "{j}: {} vs {want}", u.0);
         }
         let flux = d.gas.0 + eps.iter().zip(&d.dust).map(|(e, u)| e * u.0).sum::<f64>();
         assert!(flux.abs() < 1e-13, "net radial mass flux {flux}");

@@ -29,6 +29,8 @@ pub struct SceneFile {
     pub dustysettle: Option<SettleSection>,
     /// Initial conditions from an HDF5 file (`scene.problem = "file"`).
     pub file: Option<FileSection>,
+    /// A dusty disc about the point mass of `[gravity]`.
+    pub dustydisc: Option<DiscSection>,
     /// Physical units of the scene's numbers (G = 1 sets the time unit).
     pub units: Option<UnitsSection>,
     /// A central point mass (G = 1).
@@ -64,12 +66,15 @@ pub enum Problem {
     Dustysettle,
     /// The particles of an HDF5 file (`[file]`): a user's own initial conditions.
     File,
+    /// A dusty disc about a point mass, its dust on the steady drift (`[dustydisc]`).
+    Dustydisc,
 }
 
 impl Problem {
     pub fn name(self) -> &'static str {
         match self {
             Problem::File => "file",
+            Problem::Dustydisc => "dustydisc",
             Problem::Dustybox => "dustybox",
             Problem::Dustywave => "dustywave",
             Problem::Dustyshock => "dustyshock",
@@ -551,4 +556,18 @@ pub struct UnitsSection {
 pub enum UnitValue {
     Cgs(f64),
     Name(String),
+}
+
+/// `[dustydisc]`: a 2D razor-thin disc about the `[gravity]` point mass, Σ = sigma_ref
+/// (R/r_ref)^(−p) (1 − √(r_in/R))/(1 − √(r_in/r_ref)) between `r_in` and `r_out` (r_ref is
+/// the locally isothermal gas's), gas and dust on the steady drift (host/setup/dustydisc.rs).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DiscSection {
+    pub r_in: Option<f64>,
+    pub r_out: Option<f64>,
+    /// The power of Σ.
+    pub p: Option<f64>,
+    /// Σ at r_ref (the disc's mass follows).
+    pub sigma_ref: Option<f64>,
 }

@@ -188,7 +188,7 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<LoadedScene, SceneError
 
 /// The shipped scenes, compiled in, so that `bench` and `parity` (which name them) run from
 /// any directory.
-const SHIPPED: [(&str, &str); 7] = [
+const SHIPPED: [(&str, &str); 8] = [
     (
         "configs/dustybox.toml",
         include_str!("../../configs/dustybox.toml"),
@@ -216,6 +216,10 @@ const SHIPPED: [(&str, &str); 7] = [
     (
         "configs/dustywave_phantom_poly.toml",
         include_str!("../../configs/dustywave_phantom_poly.toml"),
+    ),
+    (
+        "configs/dustydisc.toml",
+        include_str!("../../configs/dustydisc.toml"),
     ),
 ];
 
@@ -270,6 +274,7 @@ pub fn parse(text: &str, file: &Path, overrides: &[String]) -> Result<Scene, Sce
             "dustyball",
             "dustysettle",
             "file",
+            "dustydisc",
         ];
         if sections.contains(&problem) {
             if let Some(other) = sections

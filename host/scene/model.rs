@@ -398,6 +398,7 @@ pub enum ProblemCfg {
     Dustyball(BallCfg),
     Dustysettle(SettleCfg),
     File(FileCfg),
+    Dustydisc(DiscCfg),
 }
 
 impl ProblemCfg {
@@ -409,6 +410,7 @@ impl ProblemCfg {
             ProblemCfg::Dustyball(_) => Problem::Dustyball,
             ProblemCfg::Dustysettle(_) => Problem::Dustysettle,
             ProblemCfg::File(_) => Problem::File,
+            ProblemCfg::Dustydisc(_) => Problem::Dustydisc,
         }
     }
 
@@ -421,7 +423,7 @@ impl ProblemCfg {
             ProblemCfg::Dustyshock(_) => None,
             ProblemCfg::Dustyball(b) => Some(b.background),
             ProblemCfg::Dustysettle(c) => Some(c.background),
-            ProblemCfg::File(_) => None,
+            ProblemCfg::File(_) | ProblemCfg::Dustydisc(_) => None,
         }
     }
 }
@@ -530,6 +532,15 @@ impl Units {
     pub fn surface_density_g_cm2(&self) -> f64 {
         self.mass_g / (self.length_cm * self.length_cm)
     }
+}
+
+/// A 2D razor-thin dusty disc (host/setup/dustydisc.rs).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DiscCfg {
+    pub r_in: f64,
+    pub r_out: f64,
+    pub p: f64,
+    pub sigma_ref: f64,
 }
 
 /// Initial conditions from an HDF5 file (host/setup/file.rs).

@@ -81,6 +81,7 @@ enum Section<'a, B> {
     Ball(&'a BallSection, B),
     Settle(&'a SettleSection, B),
     File(&'a FileSection),
+    Disc(&'a DiscSection),
 }
 
 impl<'a> Section<'a, ()> {
@@ -95,6 +96,7 @@ impl<'a> Section<'a, ()> {
             Problem::Dustyball => f.dustyball.as_ref().map(|s| Section::Ball(s, ())),
             Problem::Dustysettle => f.dustysettle.as_ref().map(|s| Section::Settle(s, ())),
             Problem::File => f.file.as_ref().map(Section::File),
+            Problem::Dustydisc => f.dustydisc.as_ref().map(Section::Disc),
         };
         let missing = |p: Problem| {
             err(
@@ -109,6 +111,7 @@ impl<'a> Section<'a, ()> {
             (Problem::Dustyball, f.dustyball.is_some()),
             (Problem::Dustysettle, f.dustysettle.is_some()),
             (Problem::File, f.file.is_some()),
+            (Problem::Dustydisc, f.dustydisc.is_some()),
         ];
         for (p, there) in present {
             if p == problem && chosen.is_none() {
@@ -171,6 +174,18 @@ impl<'a> Section<'a, ()> {
                     }
                 }
                 Section::File(s)
+            }
+            Section::Disc(s) => {
+                for (key, v) in [("gas.rho", g.rho), ("gas.p", g.p)] {
+                    if v.is_some() {
+                        return err(
+                            key,
+                            "the disc's gas state is its Σ profile (dustydisc.sigma_ref) and \
+                             its locally isothermal c_s; remove it",
+                        );
+                    }
+                }
+                Section::Disc(s)
             }
             Section::Box(s, ()) => Section::Box(s, bg()?),
             Section::Wave(s, ()) => Section::Wave(s, bg()?),
@@ -916,6 +931,7 @@ fn problem(
             positive("dustyball.radius", radius)?;
             ProblemCfg::Dustyball(BallCfg { background, radius })
         }
+        Section::Disc(d) => ProblemCfg::Dustydisc(disc(d, f, eos)?),
         Section::File(s) => ProblemCfg::File(FileCfg {
             path: {
                 if s.path.trim().is_empty() {
@@ -944,6 +960,62 @@ fn problem(
                 right: shock_side("right", s.right, eos)?,
             })
         }
+    })
+}
+
+/// The disc: 0 < r_in < r_out, Σ > 0; a 2D scene with a point mass and locally isothermal gas.
+fn disc(d: &DiscSection, f: &SceneFile, eos: GasEos) -> VResult<DiscCfg> {
+    if f.scene.dim != 2 {
+        return err(
+            "scene.dim",
+            "the dusty disc is built as a 2D razor-thin disc (dim = 2); a 3D disc is not built yet",
+        );
+    }
+    if f.gravity.is_none() {
+        return err(
+            "gravity",
+            "the dusty disc orbits a point mass: give [gravity] central_mass",
+        );
+    }
+    let GasEos::LocallyIsothermal { r_ref, .. } = eos else {
+        return err(
+            "gas.eos",
+            "the dusty disc's gas is locally isothermal: eos = \"locally_isothermal\" with cs0, q, r_ref",
+        );
+    };
+    let r_in = d.r_in.unwrap_or(0.5 * r_ref);
+    let r_out = d.r_out.unwrap_or(2.0 * r_ref);
+    let p = d.p.unwrap_or(1.0);
+    let sigma_ref = d.sigma_ref.unwrap_or(1e-3);
+    positive("dustydisc.r_in", r_in)?;
+    positive("dustydisc.r_out", r_out)?;
+    if r_out <= r_in {
+        return err(
+            "dustydisc.r_out",
+            format!(
+                "must be beyond dustydisc.r_in = {} (got {})",
+                num(r_in),
+                num(r_out)
+            ),
+        );
+    }
+    finite("dustydisc.p", p)?;
+    positive("dustydisc.sigma_ref", sigma_ref)?;
+    if r_ref <= r_in {
+        return err(
+            "gas.r_ref",
+            format!(
+                "the disc's Σ is set at gas.r_ref = {}, which must be beyond dustydisc.r_in = {}",
+                num(r_ref),
+                num(r_in)
+            ),
+        );
+    }
+    Ok(DiscCfg {
+        r_in,
+        r_out,
+        p,
+        sigma_ref,
     })
 }
 

@@ -2,6 +2,7 @@
 mod disorder;
 mod dustyball;
 mod dustybox;
+mod dustydisc;
 pub mod dustysettle;
 mod dustyshock;
 pub mod dustywave;
@@ -194,6 +195,7 @@ fn build_problem(scene: &Scene) -> Result<Setup, SetupError> {
         ProblemCfg::Dustyball(b) => dustyball::build(scene, b),
         ProblemCfg::Dustysettle(c) => dustysettle::build(scene, c),
         ProblemCfg::File(f) => file::build(scene, f),
+        ProblemCfg::Dustydisc(d) => dustydisc::build(scene, d),
     }
 }
 
