@@ -168,6 +168,12 @@ fn refusal(spoil: impl FnOnce(&mut IcFile)) -> String {
     msg
 }
 
+fn set_i(f: &mut IcFile, group: &str, name: &str, row: usize, value: i64) {
+    if let Column::I(v) = f.column(group, name) {
+        v[row] = value;
+    }
+}
+
 fn set_f(f: &mut IcFile, group: &str, name: &str, row: usize, value: f64) {
     if let Column::F(v, w) = f.column(group, name) {
         v[row * *w] = value;
@@ -245,11 +251,7 @@ fn non_positive_masses_and_densities_are_named_with_their_row() {
 
 #[test]
 fn duplicate_particle_ids_are_named() {
-    let msg = refusal(|f| {
-        if let Column::I(v) = f.column("PartType3", "ParticleIDs") {
-            v[5] = 2;
-        }
-    });
+    let msg = refusal(|f| set_i(f, "PartType3", "ParticleIDs", 5, 2));
     assert!(
         msg.contains("/PartType0/ParticleIDs[2]") && msg.contains("/PartType3/ParticleIDs[5]"),
         "{msg}"
@@ -258,11 +260,7 @@ fn duplicate_particle_ids_are_named() {
 
 #[test]
 fn a_fraction_index_beyond_the_scenes_fractions_is_named() {
-    let msg = refusal(|f| {
-        if let Column::I(v) = f.column("PartType3", "FractionIndex") {
-            v[40] = 4;
-        }
-    });
+    let msg = refusal(|f| set_i(f, "PartType3", "FractionIndex", 40, 4));
     assert!(
         msg.contains("/PartType3/FractionIndex[40] is 4") && msg.contains("4 fraction"),
         "{msg}"

@@ -47,8 +47,8 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
     };
     let fr = scene.fractions();
     let eps: Vec<f64> = fr.iter().map(|f| f.eps).collect();
-    let mut gas = empty();
-    let mut dust: Vec<Phase> = fr.iter().map(|_| empty()).collect();
+    let mut gas = Phase::default();
+    let mut dust: Vec<Phase> = fr.iter().map(|_| Phase::default()).collect();
     for (i, ring) in rings.iter().enumerate() {
         let r = ring.r;
         let omega = (gm / (r * r * r)).sqrt();
@@ -125,17 +125,6 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
 /// 1 − √(r_in/R): Σ's inner taper (0 at r_in).
 fn taper(r: f64, r_in: f64) -> f64 {
     1.0 - (r_in / r).sqrt()
-}
-
-fn empty() -> Phase {
-    Phase {
-        x: Vec::new(),
-        v: Vec::new(),
-        m: Vec::new(),
-        rho: Vec::new(),
-        id: Vec::new(),
-        fixed: None,
-    }
 }
 
 /// One ring of particles: its mid-radius, particle count and mass.

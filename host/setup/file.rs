@@ -308,16 +308,7 @@ fn fractions(
             )))
         }
     };
-    let mut out: Vec<Phase> = (0..nf)
-        .map(|_| Phase {
-            x: Vec::new(),
-            v: Vec::new(),
-            m: Vec::new(),
-            rho: Vec::new(),
-            id: Vec::new(),
-            fixed: None,
-        })
-        .collect();
+    let mut out: Vec<Phase> = (0..nf).map(|_| Phase::default()).collect();
     for (i, &k) in index.iter().enumerate() {
         let p = &mut out[k];
         p.x.push(d.x[i]);
