@@ -194,6 +194,19 @@ pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
         .unwrap_or(0.05);
     plot::fig_scatter_xy(&f, &snap, h, &title)?;
     files.push(f);
+    // A disc (a point mass and locally isothermal gas): its bins against the steady drift.
+    if let Some(d) = scene
+        .as_ref()
+        .and_then(|s| crate::analysis::disc::disc_bins(&snap, s, bins.min(40)))
+    {
+        let csv = sibling(path, "disc.csv");
+        std::fs::write(&csv, crate::analysis::disc::disc_csv(&d))
+            .map_err(|e| IoError::io(&csv, e))?;
+        files.push(csv);
+        let f = sibling(path, "disc.png");
+        plot::fig_disc(&f, &d, &title)?;
+        files.push(f);
+    }
     let (errors, symmetry) = match &scene {
         Some(s) if s.kind() == Problem::Dustyball => {
             let state = state_from_snapshot(&snap);

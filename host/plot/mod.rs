@@ -635,3 +635,96 @@ fn equal_aspect(
 
 #[cfg(test)]
 mod tests;
+
+/// A disc snapshot in radial bins (`analysis::disc`): Σ of every phase, and its ⟨v_R⟩ and
+/// ⟨v_φ⟩ − v_K as markers beside the exact steady drift from the bins' own ε, St and pressure
+/// gradient as lines. 1400×1000 px.
+pub fn fig_disc(
+    path: &Path,
+    d: &crate::analysis::disc::DiscBins,
+    title: &str,
+) -> Result<(), IoError> {
+    // Gas, then the fractions: a colour per phase, its exact line darker.
+    const PALETTE: [(RGBColor, RGBColor); 5] = [
+        (GAS, GAS_REF),
+        (DUST, DUST_REF),
+        (RGBColor(44, 160, 44), RGBColor(0, 80, 0)),
+        (RGBColor(255, 127, 14), RGBColor(140, 60, 0)),
+        (RGBColor(148, 103, 189), RGBColor(70, 40, 110)),
+    ];
+    let pick = |k: usize| PALETTE[k % PALETTE.len()];
+    let labels: Vec<(String, String)> = d
+        .phases
+        .iter()
+        .map(|p| (p.name.clone(), format!("{} exact", p.name)))
+        .collect();
+    let mut sigma = Vec::new();
+    let (mut vr, mut vp) = (Vec::new(), Vec::new());
+    for (k, p) in d.phases.iter().enumerate() {
+        let (c, c_ref) = pick(k);
+        sigma.push(Curve {
+            label: &labels[k].0,
+            r: &d.r,
+            y: p.sigma.clone(),
+            color: c,
+            style: Style::Points,
+        });
+        for (out, y, y_ref) in [
+            (&mut vr, &p.v_r, &p.exact_v_r),
+            (&mut vp, &p.dv_phi, &p.exact_dv_phi),
+        ] {
+            out.push(Curve {
+                label: &labels[k].0,
+                r: &d.r,
+                y: y.clone(),
+                color: c,
+                style: Style::Points,
+            });
+            out.push(Curve {
+                label: &labels[k].1,
+                r: &d.r,
+                y: y_ref.clone(),
+                color: c_ref,
+                style: Style::Line,
+            });
+        }
+    }
+    let span = finite_span(d.r.iter().copied()).unwrap_or((0.0, 1.0));
+    let half = if d.r.len() > 1 {
+        0.5 * (d.r[1] - d.r[0])
+    } else {
+        0.0
+    };
+    let x_range = (span.0 - half)..(span.1 + half);
+    render_png(path, (1400, 1000), |root| {
+        let area = root.titled(title, (FONT, 28))?;
+        let panels = area.split_evenly((2, 2));
+        use SeriesLabelPosition::{LowerRight, UpperRight};
+        let r = x_range.clone();
+        curve_panel(
+            &panels[0],
+            "surface density",
+            "Σ",
+            r.clone(),
+            &sigma,
+            UpperRight,
+        )?;
+        curve_panel(
+            &panels[1],
+            "radial velocity",
+            "v_R",
+            r.clone(),
+            &vr,
+            LowerRight,
+        )?;
+        curve_panel(
+            &panels[2],
+            "azimuthal velocity − v_K",
+            "v_φ − v_K",
+            r,
+            &vp,
+            LowerRight,
+        )?;
+        Ok(())
+    })
+}
