@@ -7,11 +7,16 @@ use crate::io::ics::{read_ics, IcPhase, Ics};
 use crate::scene::{FileCfg, GasEos, SmoothingLength};
 
 /// Where a run's particles came from: the file and the SHA-256 of its bytes (every output
-/// records both).
+/// records both), and what the set-up made of it that a resumed run needs instead of reading
+/// the file again: the (reference) h and the periodic axes.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct IcSource {
     pub path: String,
     pub sha256: String,
+    #[serde(default)]
+    pub h: f64,
+    #[serde(default)]
+    pub periodic: [Option<(f64, f64)>; 3],
 }
 
 pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
@@ -135,6 +140,8 @@ pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
     su.source = Some(IcSource {
         path: path.display().to_string(),
         sha256,
+        h,
+        periodic,
     });
     Ok(su)
 }

@@ -12,6 +12,27 @@ use crate::step::{Forces, Physics, StepError};
 /// nearest-cell coupling warns (their drag is off).
 const UNCOUPLED_WARNING: f64 = 0.05;
 
+/// A checkpointed run's physics and state. A run from an initial-conditions file takes its h
+/// and periodic axes from the checkpoint's record (`source`) rather than the file, which may
+/// have moved since; every other run sets its scene up again for them.
+pub fn prepare_resumed(
+    loaded: &LoadedScene,
+    state: State,
+    source: Option<&IcSource>,
+    warn: bool,
+) -> Result<(Physics, State), RunError> {
+    match source {
+        Some(s) if s.h > 0.0 => {
+            let domain = crate::grid::Domain {
+                dim: loaded.scene.dim(),
+                periodic: s.periodic,
+            };
+            Ok((Physics::from_scene(&loaded.scene, s.h, domain), state))
+        }
+        _ => prepare(loaded, Some(state), warn).map(|(p, s, _)| (p, s)),
+    }
+}
+
 /// The scene's physics and its initial state (or a given, checkpointed one), and the
 /// initial-conditions file it came from; `warn`: say what the set-up found worth a warning
 /// (one process, or rank 0 only).
