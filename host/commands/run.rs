@@ -179,8 +179,8 @@ impl Run {
     /// Continue a run from `DIR/checkpoint.h5`.
     pub fn resume(dir: &Path, verbose: bool, device: DeviceChoice) -> Result<Run, RunError> {
         let (state, loaded, progress) = checkpoint::read(dir)?;
-        let ics = progress.outputs.initial_conditions.clone();
-        let (phys, mut state) = start::prepare_resumed(&loaded, state, ics.as_ref(), true)?;
+        let layout = progress.layout;
+        let (phys, mut state) = start::prepare_resumed(&loaded, state, layout.as_ref(), true)?;
         let eng = start::engine(&loaded, phys.clone(), &mut state, device, verbose)?;
         Ok(Self::resumed(
             &loaded,
@@ -204,8 +204,8 @@ impl Run {
     ) -> Result<Run, RunError> {
         let root = world.rank() == 0;
         let (state, loaded, progress) = checkpoint::read(dir)?;
-        let ics = progress.outputs.initial_conditions.clone();
-        let (phys, mut state) = start::prepare_resumed(&loaded, state, ics.as_ref(), root)?;
+        let layout = progress.layout;
+        let (phys, mut state) = start::prepare_resumed(&loaded, state, layout.as_ref(), root)?;
         let built = if root {
             start::engine(
                 &loaded,

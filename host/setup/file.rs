@@ -7,16 +7,11 @@ use crate::io::ics::{read_ics, IcPhase, Ics};
 use crate::scene::{FileCfg, GasEos, SmoothingLength};
 
 /// Where a run's particles came from: the file and the SHA-256 of its bytes (every output
-/// records both), and what the set-up made of it that a resumed run needs instead of reading
-/// the file again: the (reference) h and the periodic axes.
+/// records both).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct IcSource {
     pub path: String,
     pub sha256: String,
-    #[serde(default)]
-    pub h: f64,
-    #[serde(default)]
-    pub periodic: [Option<(f64, f64)>; 3],
 }
 
 pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
@@ -72,9 +67,10 @@ pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
     let volume = periodic_volume(&periodic, dim);
     let spacing = mean_spacing(&ics.gas, dim, volume);
     let h = smoothing(scene, &ics.gas, spacing, &at)?;
-    if let Some(k) = (0..dim as usize).find(|&k| periodic[k].is_some()) {
-        let (_, len) = periodic[k].expect("periodic axis");
-        check_periodic_fits(len, h, &format!("file.periodic.{k}"))?;
+    for (k, p) in periodic.iter().enumerate() {
+        if let Some((_, len)) = p {
+            check_periodic_fits(*len, h, &format!("file.periodic.{k}"))?;
+        }
     }
     // Densities not in the file: m / spacing^d, a start only (summation replaces them before
     // the first step; continuity needs the file's).
@@ -140,8 +136,6 @@ pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
     su.source = Some(IcSource {
         path: path.display().to_string(),
         sha256,
-        h,
-        periodic,
     });
     Ok(su)
 }

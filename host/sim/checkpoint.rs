@@ -18,6 +18,18 @@ pub struct Progress {
     pub ball: BallRecord,
     /// Wall seconds of the run's earlier sessions.
     pub wall_before: f64,
+    /// What the set-up gave the run's physics (None in checkpoints written before it was kept):
+    /// a resume takes it from here instead of setting the scene up again, so a run from a file
+    /// resumes without the file.
+    #[serde(default)]
+    pub layout: Option<Layout>,
+}
+
+/// The set-up's part of a run's physics: the reference h and the periodic axes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Layout {
+    pub h: f64,
+    pub periodic: [Option<(f64, f64)>; 3],
 }
 
 /// Writes the run's checkpoint into its output directory (rank 0 over ranks).
@@ -50,6 +62,10 @@ impl Checkpointer for RunCheckpoints {
             outputs: serde_json::from_value(part("outputs")).map_err(io_err)?,
             ball: serde_json::from_value(part("ball")).unwrap_or_default(),
             wall_before: self.wall_before + self.started.elapsed().as_secs_f64(),
+            layout: Some(Layout {
+                h: sim.phys.h,
+                periodic: sim.phys.domain.periodic,
+            }),
         };
         let meta = io::checkpoint::CheckpointMeta {
             scene_text: self.loaded.text.clone(),

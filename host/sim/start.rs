@@ -12,24 +12,24 @@ use crate::step::{Forces, Physics, StepError};
 /// nearest-cell coupling warns (their drag is off).
 const UNCOUPLED_WARNING: f64 = 0.05;
 
-/// A checkpointed run's physics and state. A run from an initial-conditions file takes its h
-/// and periodic axes from the checkpoint's record (`source`) rather than the file, which may
-/// have moved since; every other run sets its scene up again for them.
+/// A checkpointed run's physics and state: the set-up's h and periodic axes from the
+/// checkpoint (`layout`), so nothing is set up again (a run from a file needs no file); a
+/// checkpoint without them sets its scene up again.
 pub fn prepare_resumed(
     loaded: &LoadedScene,
     state: State,
-    source: Option<&IcSource>,
+    layout: Option<&super::checkpoint::Layout>,
     warn: bool,
 ) -> Result<(Physics, State), RunError> {
-    match source {
-        Some(s) if s.h > 0.0 => {
+    match layout {
+        Some(l) => {
             let domain = crate::grid::Domain {
                 dim: loaded.scene.dim(),
-                periodic: s.periodic,
+                periodic: l.periodic,
             };
-            Ok((Physics::from_scene(&loaded.scene, s.h, domain), state))
+            Ok((Physics::from_scene(&loaded.scene, l.h, domain), state))
         }
-        _ => prepare(loaded, Some(state), warn).map(|(p, s, _)| (p, s)),
+        None => prepare(loaded, Some(state), warn).map(|(p, s, _)| (p, s)),
     }
 }
 
