@@ -346,6 +346,17 @@ fn over_ranks(
     device: DeviceChoice,
     verbose: bool,
 ) -> Result<Stepper, RunError> {
+    if phys.accretion_radius > 0.0 {
+        // Removing particles rebuilds one process's engine; a rank's share cannot yet.
+        if world.rank() == 0 {
+            eprintln!(
+                "error: gravity.accretion_radius: accretion runs on one process only (not over \
+                 MPI ranks); run without mpirun or set it to 0"
+            );
+        }
+        world.any(true);
+        return Err(RunError::InputReported);
+    }
     if world.any(built.is_err()) {
         // Rank 0 says why before any rank leaves: mpirun stops the job at the first rank
         // that exits non-zero, which could otherwise cut rank 0 off before it speaks.

@@ -553,17 +553,25 @@ impl RankStepper {
     /// The momentum and its scale Σ m|v| of every rank's own particles, summed over the ranks
     /// (collective).
     pub fn momentum(&self) -> crate::step::Momentum {
-        let mut s = [0.0f64; 4];
+        // Accretion is refused over ranks, so no particle is counted inside a radius here.
+        let c = self.phys.gravity.pos;
+        let mut s = [0.0f64; 7];
         for r in &self.owned {
+            let x = dustsph_device::sub(r.x, c);
             for (sk, vk) in s.iter_mut().zip(r.v) {
                 *sk += r.m * vk;
             }
             s[3] += r.m * dustsph_device::dot(r.v, r.v).sqrt();
+            s[4] += r.m * (x[1] * r.v[2] - x[2] * r.v[1]);
+            s[5] += r.m * (x[2] * r.v[0] - x[0] * r.v[2]);
+            s[6] += r.m * (x[0] * r.v[1] - x[1] * r.v[0]);
         }
         self.world.sum_f64(&mut s);
         crate::step::Momentum {
             p: [s[0], s[1], s[2]],
             scale: s[3],
+            l: [s[4], s[5], s[6]],
+            inside: 0,
         }
     }
 

@@ -46,6 +46,8 @@ pub struct GravitySection {
     pub position: Option<[f64; 3]>,
     /// Plummer softening length ε.
     pub softening: Option<f64>,
+    /// Particles closer to the point mass than this are accreted at the end of a step.
+    pub accretion_radius: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]

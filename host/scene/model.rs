@@ -500,6 +500,9 @@ pub struct Gravity {
     pub central_mass: f64,
     pub position: [f64; 3],
     pub softening: f64,
+    /// Particles closer than this to the point mass are removed at the end of a step, their
+    /// mass, momentum and angular momentum added to the star's record (0: none).
+    pub accretion_radius: f64,
 }
 
 /// `[units]`: one code unit of length and of mass in cgs; time from G = 1 (Phantom's code

@@ -366,7 +366,7 @@ fn gas_eos(g: &GasSection) -> VResult<GasEos> {
     }
 }
 
-/// `[gravity]`: M > 0, a position in the scene's dimensions, ε ≥ 0.
+/// `[gravity]`: M > 0, a position in the scene's dimensions, ε ≥ 0, an accretion radius ≥ 0.
 fn gravity(g: Option<&GravitySection>, dim: u32) -> VResult<Option<Gravity>> {
     let Some(g) = g else { return Ok(None) };
     positive("gravity.central_mass", g.central_mass)?;
@@ -382,10 +382,13 @@ fn gravity(g: Option<&GravitySection>, dim: u32) -> VResult<Option<Gravity>> {
     }
     let softening = g.softening.unwrap_or(0.0);
     non_negative("gravity.softening", softening)?;
+    let accretion_radius = g.accretion_radius.unwrap_or(0.0);
+    non_negative("gravity.accretion_radius", accretion_radius)?;
     Ok(Some(Gravity {
         central_mass: g.central_mass,
         position,
         softening,
+        accretion_radius,
     }))
 }
 

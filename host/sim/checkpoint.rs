@@ -109,7 +109,14 @@ pub fn read(dir: &Path) -> Result<(State, LoadedScene, Progress), RunError> {
             "its progress does not read ({e}): a checkpoint of an older dustsph?"
         ))
     })?;
-    verify_resume(dir, &state, &loaded, &progress.outputs).map_err(bad)?;
+    verify_resume(
+        dir,
+        &state,
+        &loaded,
+        &progress.outputs,
+        &progress.diagnostics.accreted,
+    )
+    .map_err(bad)?;
     Ok((state, loaded, progress))
 }
 
@@ -117,28 +124,40 @@ pub fn read(dir: &Path) -> Result<(State, LoadedScene, Progress), RunError> {
 /// particles agree with its own scene (counts per phase, unused coordinates zero), every
 /// snapshot its progress lists is there and was written by the same effective scene with the
 /// same particle counts no later than the checkpoint, and no other snapshot would be
-/// overwritten.
+/// overwritten. Particles the star accreted (its record in `accreted`) count as the run's: the
+/// set-up's counts are the state's plus those, and a snapshot holds between the two.
 fn verify_resume(
     dir: &Path,
     state: &State,
     loaded: &LoadedScene,
     outputs: &OutputRecord,
+    accreted: &super::accretion::Accreted,
 ) -> Result<(), String> {
     let scene = &loaded.scene;
     let counts = |s: &State| -> (usize, Vec<usize>) {
         (s.gas.ph.len(), s.dust.iter().map(|d| d.len()).collect())
     };
     let have = counts(state);
+    let taken_dust = |k: usize| accreted.dust_particles.get(k).copied().unwrap_or(0);
+    let with_accreted = (
+        have.0 + accreted.gas_particles,
+        have.1
+            .iter()
+            .enumerate()
+            .map(|(k, n)| n + taken_dust(k))
+            .collect::<Vec<_>>(),
+    );
     // A run from a file is not set up again (the file may have moved): its counts are held to
     // its own snapshots below.
     if !matches!(scene.problem, crate::scene::ProblemCfg::File(_)) {
         let su =
             crate::setup::build(scene).map_err(|e| format!("its scene cannot be set up: {e}"))?;
         let want = counts(&su.state);
-        if want != have {
+        if want != with_accreted {
             return Err(format!(
-                "its particles (gas {}, dust {:?}) do not match its own scene (gas {}, dust {:?})",
-                have.0, have.1, want.0, want.1
+                "its particles (gas {}, dust {:?}, with {} gas and {:?} dust accreted) do not \
+                 match its own scene (gas {}, dust {:?})",
+                have.0, have.1, accreted.gas_particles, accreted.dust_particles, want.0, want.1
             ));
         }
     }
@@ -170,8 +189,12 @@ fn verify_resume(
             format!("the snapshot {name} its run wrote is missing or unreadable ({e})")
         })?;
         let same_scene = same_run_scene(&h, loaded);
-        let same_counts = h.num_part[io::snapshot::GAS_TYPE] as usize == have.0
-            && h.num_part[io::snapshot::DUST_TYPE] as usize == n_dust;
+        let (ng, nd) = (
+            h.num_part[io::snapshot::GAS_TYPE] as usize,
+            h.num_part[io::snapshot::DUST_TYPE] as usize,
+        );
+        let same_counts = (have.0..=with_accreted.0).contains(&ng)
+            && (n_dust..=with_accreted.1.iter().sum::<usize>()).contains(&nd);
         if !same_scene || !same_counts || h.dim as usize != dim {
             return Err(format!(
                 "{name} in {} was written by another run (scene {}, particles {:?}): the \

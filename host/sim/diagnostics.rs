@@ -64,6 +64,15 @@ pub struct Diagnostics {
     pub rest_scale: f64,
     /// The largest |P(t) − P(0)| after any step.
     pub momentum_change_max: f64,
+    /// Σ m (x − x_star) × v at the start (about the origin without a point mass).
+    #[serde(default)]
+    pub angular_momentum0: [f64; 3],
+    /// The largest |L(t) + L_accreted(t) − L(0)| after any step.
+    #[serde(default)]
+    pub angular_momentum_change_max: f64,
+    /// What the point mass has accreted.
+    #[serde(default)]
+    pub accreted: super::accretion::Accreted,
 }
 
 impl Diagnostics {
@@ -90,6 +99,9 @@ impl Diagnostics {
             momentum_scale: m.scale,
             rest_scale: mass * c_max,
             momentum_change_max: 0.0,
+            angular_momentum0: m.l,
+            angular_momentum_change_max: 0.0,
+            accreted: Default::default(),
         }
     }
 
@@ -110,6 +122,28 @@ impl Diagnostics {
             .sum::<f64>()
             .sqrt();
         self.momentum_change_max = self.momentum_change_max.max(dp);
+        let a = &self.accreted;
+        let dl = (0..3)
+            .map(|k| (m.l[k] + a.angular_momentum[k] - self.angular_momentum0[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        self.angular_momentum_change_max = self.angular_momentum_change_max.max(dl);
+    }
+
+    /// The angular momentum's drift: max over the steps of |L(t) + L_accreted − L(0)|
+    /// relative to |L(0)| (absolute when L(0) = 0).
+    pub fn angular_momentum_drift(&self) -> f64 {
+        let l0 = self
+            .angular_momentum0
+            .iter()
+            .map(|x| x * x)
+            .sum::<f64>()
+            .sqrt();
+        if l0 > 0.0 {
+            self.angular_momentum_change_max / l0
+        } else {
+            self.angular_momentum_change_max
+        }
     }
 
     /// The momentum drift: max over the steps of |P(t) − P(0)|, relative to the largest
@@ -173,6 +207,8 @@ mod tests {
             Momentum {
                 p: [0.0; 3],
                 scale: 0.0,
+                l: [0.0; 3],
+                inside: 0,
             },
         );
         assert_eq!(d.dt_min, f64::INFINITY);
@@ -190,6 +226,8 @@ mod tests {
             Momentum {
                 p: [1.0, 0.0, 0.0],
                 scale: 2.0,
+                l: [0.0; 3],
+                inside: 0,
             },
         );
         let taken = Taken {
@@ -208,6 +246,8 @@ mod tests {
         let at = |x: f64, s: f64| Momentum {
             p: [x, 0.0, 0.0],
             scale: s,
+            l: [0.0; 3],
+            inside: 0,
         };
         d.after_step(&taken, at(1.5, 4.0), 1.0);
         d.after_step(&taken, at(1.1, 3.0), 1.0);

@@ -4,6 +4,7 @@
 //! they choose the same τ for the same state and report the same diagnostics; what a command
 //! does around the steps (snapshots, checkpoints, the progress bar, its checks) are
 //! [`Observer`]s of [`Simulation::run`].
+pub mod accretion;
 pub mod checkpoint;
 pub mod diagnostics;
 pub mod output;
@@ -218,8 +219,32 @@ impl Simulation {
     }
 
     fn record(&mut self, taken: &Taken) -> Result<(), StepError> {
-        let m = self.stepper.momentum()?;
+        let mut m = self.stepper.momentum()?;
+        if m.inside > 0 {
+            self.accrete()?;
+            m = self.stepper.momentum()?;
+        }
         self.diagnostics.after_step(taken, m, self.phys.h);
+        Ok(())
+    }
+
+    /// Remove the particles inside the accretion radius into the star's record and rebuild
+    /// the engine on what is left (one process: the scene's check refuses accretion over
+    /// ranks, whose momentum reduction counts none inside).
+    fn accrete(&mut self) -> Result<(), StepError> {
+        self.sync()?;
+        let g = &self.phys.gravity;
+        let removed =
+            self.diagnostics
+                .accreted
+                .take(&mut self.state, g.pos, self.phys.accretion_radius);
+        if removed > 0 {
+            let Simulation { stepper, state, .. } = self;
+            let eng = stepper.local().ok_or_else(|| {
+                StepError::Unsupported("accretion runs on one process only".into())
+            })?;
+            *eng = eng.rebuilt(state)?;
+        }
         Ok(())
     }
 

@@ -36,6 +36,24 @@ pub struct Conservation {
     pub momentum_drift_relative: f64,
     /// Kinetic (+ thermal for adiabatic gas). Drag without heating dissipates it.
     pub energy: Drift,
+    /// Scenes with a point mass: the angular momentum about it, particles plus what the star
+    /// accreted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub angular_momentum: Option<AngularMomentum>,
+    /// With an accretion radius: what the star took in (the masses above include it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub star: Option<super::accretion::Accreted>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct AngularMomentum {
+    /// The point about which it is taken (the star's position).
+    pub about: [f64; 3],
+    pub initial: [f64; 3],
+    /// The particles' at the end plus what was accreted.
+    pub r#final: [f64; 3],
+    /// max over the steps of |L(t) + L_accreted − L(0)| / |L(0)|.
+    pub drift_relative: f64,
 }
 
 /// Exact checks of the ball into vacuum (method.md §6.1).
@@ -121,20 +139,45 @@ pub struct Summary {
     pub ball: Option<BallReport>,
 }
 
-/// The conservation of a run from its diagnostics and its final (synced) state.
-pub fn conservation(d: &Diagnostics, state: &crate::particles::State) -> Conservation {
+/// The conservation of a run from its diagnostics and its final (synced) state; masses count
+/// what the star accreted, and `phys`'s point mass sets the centre of the angular momentum.
+pub fn conservation(
+    d: &Diagnostics,
+    state: &crate::particles::State,
+    phys: &crate::step::Physics,
+) -> Conservation {
+    let a = &d.accreted;
+    let taken = |k: usize| a.dust_mass.get(k).copied().unwrap_or(0.0);
+    let c = phys.gravity.pos;
+    let mut l = a.angular_momentum;
+    for ph in std::iter::once(&state.gas.ph).chain(&state.dust) {
+        for i in 0..ph.len() {
+            let (x, v, m) = (dustsph_device::sub(ph.x[i], c), ph.v[i], ph.m[i]);
+            l[0] += m * (x[1] * v[2] - x[2] * v[1]);
+            l[1] += m * (x[2] * v[0] - x[0] * v[2]);
+            l[2] += m * (x[0] * v[1] - x[1] * v[0]);
+        }
+    }
     Conservation {
-        mass_gas: Drift::new(d.mass0.0, state.gas.ph.total_mass()),
+        mass_gas: Drift::new(d.mass0.0, state.gas.ph.total_mass() + a.gas_mass),
         mass_dust: state
             .dust
             .iter()
             .zip(&d.mass0.1)
-            .map(|(p, &m)| Drift::new(m, p.total_mass()))
+            .enumerate()
+            .map(|(k, (p, &m))| Drift::new(m, p.total_mass() + taken(k)))
             .collect(),
         momentum_initial: d.momentum0,
         momentum_final: state.total_momentum(),
         momentum_drift_relative: d.momentum_drift(),
         energy: Drift::new(d.energy0, state.total_energy()),
+        angular_momentum: phys.gravity.is_on().then(|| AngularMomentum {
+            about: c,
+            initial: d.angular_momentum0,
+            r#final: l,
+            drift_relative: d.angular_momentum_drift(),
+        }),
+        star: (phys.accretion_radius > 0.0).then(|| a.clone()),
     }
 }
 
@@ -237,7 +280,7 @@ pub fn finish(
         cfl_max: d.cfl_max,
         wall_seconds: wall,
         particle_steps_per_second: d.counts.total() as f64 * state.step as f64 / wall.max(1e-12),
-        conservation: conservation(d, state),
+        conservation: conservation(d, state, phys),
         errors: outputs.errors,
         snapshots: outputs.snapshots,
         stage_seconds: eng.timers().entries().to_vec(),

@@ -227,6 +227,27 @@ impl Backend {
         Ok(())
     }
 
+    /// A new engine of the same launcher and precision on `state` (its layer computed from
+    /// the positions, as at a resume), keeping the stage timers: after particles left the
+    /// state (accretion).
+    pub fn rebuilt(&self, state: &mut State) -> Result<Backend, StepError> {
+        let phys = self.phys().clone();
+        let mut new = match self {
+            Backend::Cpu(_) | Backend::CpuF32(_) => {
+                Self::on_cpu_at(phys, state, InitialLayer::Compute)?
+            }
+            Backend::Cuda(_) | Backend::CudaF32(_) => {
+                Backend::new(DeviceChoice::Cuda, phys, state)?
+            }
+        };
+        let rebuild = new.timers().entries().to_vec();
+        *new.timers_mut() = self.timers().clone();
+        for (name, s) in rebuild {
+            new.timers_mut().add(name, s);
+        }
+        Ok(new)
+    }
+
     pub fn phys(&self) -> &Physics {
         each!(self, e => &e.phys)
     }

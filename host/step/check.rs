@@ -38,6 +38,10 @@ impl Forces {
 pub struct Momentum {
     pub p: [f64; 3],
     pub scale: f64,
+    /// Σ m (x − x_c) × v about the point mass (the origin without one).
+    pub l: [f64; 3],
+    /// Particles inside the accretion radius (0 without one).
+    pub inside: usize,
 }
 
 #[derive(Debug)]

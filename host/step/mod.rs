@@ -45,6 +45,8 @@ pub struct Physics {
     pub ext_dust: [f64; 3],
     /// A central point mass (`[gravity]`; `gm` = 0: none), in A^n and B^n.
     pub gravity: dustsph_device::gravity::PointMass,
+    /// Particles closer to the point mass than this are accreted after a step (0: none).
+    pub accretion_radius: f64,
     /// Locally isothermal gas: c_s(x) (`on` = 0: the EOS's own).
     pub local_cs: dustsph_device::eos::LocalSoundSpeed,
     /// Nominal IDIC cell size Δc (periodic axes round it so cells tile the period).
@@ -94,6 +96,7 @@ impl Physics {
                     soft2: g.softening * g.softening,
                 }
             }),
+            accretion_radius: scene.gravity.map_or(0.0, |g| g.accretion_radius),
             cell_size: scene.idic.cell * h,
             domain,
             position_update: scene.time.position_update,
@@ -124,6 +127,7 @@ impl Physics {
             ext_gas: [0.0; 3],
             ext_dust: [0.0; 3],
             gravity: Default::default(),
+            accretion_radius: 0.0,
             local_cs: Default::default(),
             cell_size: 0.5 * h,
             domain: Domain {

@@ -1,5 +1,10 @@
-//! Diagnostics: the momentum reduction.
+//! Diagnostics: the momentum reduction (with the angular momentum and the particles inside the
+//! accretion radius, method.md §1.2).
 use super::*;
+
+/// Sums per thread: Σ m v (3), Σ m |v|, Σ m (x − centre) × v (3), particles inside the
+/// accretion radius.
+pub const MOMENTUM_SUMS: usize = 8;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
@@ -7,11 +12,16 @@ pub struct MomentumArgs<R> {
     pub ph: PhaseBufs<R>,
     /// Particles per thread.
     pub chunk: u32,
-    /// Per thread: Σ m v_x, Σ m v_y, Σ m v_z, Σ m |v| over its chunk, in f64.
+    /// The point about which the angular momentum is taken (the star's position, or 0).
+    pub centre: Vec3<f64>,
+    /// The accretion radius squared (0: none is counted).
+    pub r_acc2: f64,
+    /// Per thread: [`MOMENTUM_SUMS`] sums over its chunk, in f64.
     pub out: *mut f64,
 }
 
-/// Thread t sums the momentum and the momentum scale Σ m|v| of particles
+/// Thread t sums the momentum, the momentum scale Σ m|v|, the angular momentum about the
+/// centre and the count of particles closer to it than the accretion radius, over particles
 /// [t·chunk, (t+1)·chunk) in f64, in particle order; the host adds the chunks in order, so the
 /// sums are the same on every launcher.
 pub unsafe fn momentum<R: Real>(t: usize, a: &MomentumArgs<R>) {
@@ -21,17 +31,28 @@ pub unsafe fn momentum<R: Real>(t: usize, a: &MomentumArgs<R>) {
         return;
     }
     let hi = (lo + a.chunk as usize).min(n);
-    let (v, m) = (sl(a.ph.v, n), sl(a.ph.m, n));
-    let mut s = [0.0f64; 4];
+    let (x, v, m) = (sl(a.ph.x, n), sl(a.ph.v, n), sl(a.ph.m, n));
+    let mut s = [0.0f64; MOMENTUM_SUMS];
     for i in lo..hi {
         let mi = m[i].to_f64();
         let vi = [v[i][0].to_f64(), v[i][1].to_f64(), v[i][2].to_f64()];
+        let r = [
+            x[i][0] - a.centre[0],
+            x[i][1] - a.centre[1],
+            x[i][2] - a.centre[2],
+        ];
         for k in 0..3 {
             s[k] += mi * vi[k];
         }
         s[3] += mi * Real::sqrt(dot(vi, vi));
+        s[4] += mi * (r[1] * vi[2] - r[2] * vi[1]);
+        s[5] += mi * (r[2] * vi[0] - r[0] * vi[2]);
+        s[6] += mi * (r[0] * vi[1] - r[1] * vi[0]);
+        if dot(r, r) < a.r_acc2 {
+            s[7] += 1.0;
+        }
     }
     for (k, x) in s.iter().enumerate() {
-        *a.out.add(4 * t + k) = *x;
+        *a.out.add(MOMENTUM_SUMS * t + k) = *x;
     }
 }

@@ -341,10 +341,14 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     pub fn momentum(&mut self) -> Result<Momentum, GpuError> {
         /// Particles per thread of the reduction.
         const CHUNK: usize = 256;
+        const S: usize = th::MOMENTUM_SUMS;
         let mut m = Momentum {
             p: [0.0; 3],
             scale: 0.0,
+            l: [0.0; 3],
+            inside: 0,
         };
+        let r_acc = self.phys.accretion_radius;
         for gas in [true, false] {
             let ph = if gas { &self.gas } else { &self.dust };
             if ph.n == 0 {
@@ -352,19 +356,23 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             }
             let threads = ph.n.div_ceil(CHUNK);
             let d = &self.d;
-            d.zeroed(&mut self.chunk_sums, 4 * threads)?;
+            d.zeroed(&mut self.chunk_sums, S * threads)?;
             let ph = if gas { &self.gas } else { &self.dust };
             let a = th::MomentumArgs {
                 ph: ph.bufs(d),
                 chunk: CHUNK as u32,
+                centre: self.phys.gravity.pos,
+                r_acc2: r_acc * r_acc,
                 out: d.ptr(&self.chunk_sums),
             };
             d.run(R::MOMENTUM, threads, &a)?;
-            for c in d.get(&self.chunk_sums, 4 * threads)?.chunks_exact(4) {
-                for (pk, ck) in m.p.iter_mut().zip(c) {
-                    *pk += ck;
+            for c in d.get(&self.chunk_sums, S * threads)?.chunks_exact(S) {
+                for k in 0..3 {
+                    m.p[k] += c[k];
+                    m.l[k] += c[4 + k];
                 }
                 m.scale += c[3];
+                m.inside += c[7] as usize;
             }
         }
         Ok(m)
