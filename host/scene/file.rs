@@ -395,6 +395,8 @@ pub struct TimeSection {
     pub dt: Option<f64>,
     /// CFL factor (with a force limit); used when `dt` is absent.
     pub cfl: Option<f64>,
+    /// With `cfl`: no step longer than this.
+    pub dt_max: Option<f64>,
     /// Snapshot interval (t = 0 and t_end are always written).
     pub output_dt: Option<f64>,
     /// Explicit snapshot times (instead of output_dt).
@@ -572,4 +574,19 @@ pub struct DiscSection {
     pub p: Option<f64>,
     /// Σ at r_ref (the disc's mass follows).
     pub sigma_ref: Option<f64>,
+    /// The dust's start: `drift` (the steady drift and settling) or `keplerian` (Phantom's).
+    pub dust_velocity: Option<DustStart>,
+    /// Balance the gas with the run's own SPH forces before the start (3D: its vertical
+    /// structure relaxed; both: rotation from the measured radial force).
+    pub relax: Option<bool>,
+}
+
+/// How the disc's dust starts moving.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DustStart {
+    /// On the exact steady radial drift (and, in 3D, the settling velocity) of every species.
+    Drift,
+    /// On circular Keplerian orbits with no drift and no settling (Phantom's set-up).
+    Keplerian,
 }

@@ -7,9 +7,9 @@
 //! [`Scene::to_toml`] writes the model as TOML (the summary's `scene_model`, the snapshots'
 //! `SceneModel` attribute), with the scene file's key names where the file has the key.
 use super::file::{
-    Coupling, DensityMethod, DepositForm, DragMethod, EosKind, EpsteinForm, GradientMethod,
-    Integrator, Lattice, LawKind, ListChoice, PositionUpdate, Precision, Problem, RadiusKind,
-    WaveMode,
+    Coupling, DensityMethod, DepositForm, DragMethod, DustStart, EosKind, EpsteinForm,
+    GradientMethod, Integrator, Lattice, LawKind, ListChoice, PositionUpdate, Precision, Problem,
+    RadiusKind, WaveMode,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -365,8 +365,13 @@ impl Time {
 pub enum StepRule {
     /// `time.dt`: every step τ = dt.
     Fixed { dt: f64 },
-    /// `time.cfl`: τ = cfl × min(CFL limit, force limit).
-    Cfl { cfl: f64 },
+    /// `time.cfl`: τ = cfl × min(CFL limit, force limit), and at most `time.dt_max` (a cap
+    /// such as Phantom's dt ≤ 90 t_s for its implicit two-fluid drag, for comparisons).
+    Cfl {
+        cfl: f64,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        dt_max: Option<f64>,
+    },
 }
 
 /// When snapshots are written besides t = 0 and t_end.
@@ -537,13 +542,15 @@ impl Units {
     }
 }
 
-/// A 2D razor-thin dusty disc (host/setup/dustydisc.rs).
+/// A dusty disc, 2D razor-thin or 3D (host/setup/dustydisc.rs).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DiscCfg {
     pub r_in: f64,
     pub r_out: f64,
     pub p: f64,
     pub sigma_ref: f64,
+    pub dust_velocity: DustStart,
+    pub relax: bool,
 }
 
 /// Initial conditions from an HDF5 file (host/setup/file.rs).

@@ -837,9 +837,21 @@ fn time(t: &TimeSection) -> VResult<Time> {
             if c > 1.0 {
                 return err("time.cfl", format!("must be ≤ 1 (got {c})"));
             }
-            StepRule::Cfl { cfl: c }
+            if let Some(m) = t.dt_max {
+                positive("time.dt_max", m)?;
+            }
+            StepRule::Cfl {
+                cfl: c,
+                dt_max: t.dt_max,
+            }
         }
     };
+    if t.dt.is_some() && t.dt_max.is_some() {
+        return err(
+            "time.dt_max",
+            "caps the CFL step (time.cfl); with a fixed time.dt there is nothing to cap",
+        );
+    }
     Ok(Time {
         t_end: t.t_end,
         step,
@@ -968,10 +980,10 @@ fn problem(
 
 /// The disc: 0 < r_in < r_out, Σ > 0; a 2D scene with a point mass and locally isothermal gas.
 fn disc(d: &DiscSection, f: &SceneFile, eos: GasEos) -> VResult<DiscCfg> {
-    if f.scene.dim != 2 {
+    if f.scene.dim == 1 {
         return err(
             "scene.dim",
-            "the dusty disc is built as a 2D razor-thin disc (dim = 2); a 3D disc is not built yet",
+            "the dusty disc is 2D (razor-thin) or 3D (a Gaussian vertical profile)",
         );
     }
     if f.gravity.is_none() {
@@ -1019,6 +1031,8 @@ fn disc(d: &DiscSection, f: &SceneFile, eos: GasEos) -> VResult<DiscCfg> {
         r_out,
         p,
         sigma_ref,
+        dust_velocity: d.dust_velocity.unwrap_or(DustStart::Drift),
+        relax: d.relax.unwrap_or(true),
     })
 }
 

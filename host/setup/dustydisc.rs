@@ -10,7 +10,7 @@
 //! by half a spacing from the gas, with ε_k times the gas's masses.
 use super::*;
 use crate::exact::drift::steady_drift;
-use crate::scene::{DiscCfg, GasEos};
+use crate::scene::{DiscCfg, DustStart, GasEos};
 
 pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
     let GasEos::LocallyIsothermal { cs0, q, r_ref, .. } = scene.gas.eos else {
@@ -23,103 +23,384 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         key: "gravity".into(),
         msg: "the disc needs a point mass".into(),
     })?;
+    let dim = scene.dim();
     let gm = grav.central_mass;
     let centre = grav.position;
     let sigma_norm = d.sigma_ref / taper(r_ref, d.r_in);
     let sigma = |r: f64| sigma_norm * (r / r_ref).powf(-d.p) * taper(r, d.r_in);
-    // Spacing 1/n at r_ref: particle mass Σ_ref / n².
+    let cs = |r: f64| cs0 * (r / r_ref).powf(-q);
+    let omega = |r: f64| (gm / (r * r * r)).sqrt();
+    // The scale height H = c_s/Ω and the midplane density Σ/(√(2π) H) of the 3D disc.
+    let height = |r: f64| cs(r) / omega(r);
+    let rho_mid = |r: f64| sigma(r) / ((2.0 * std::f64::consts::PI).sqrt() * height(r));
+    // Spacing 1/n at r_ref (in the midplane in 3D): particle mass Σ_ref/n² or ρ_mid,ref/n³.
     let spacing = 1.0 / scene.sph.n as f64;
-    let m = d.sigma_ref * spacing * spacing;
+    let m = if dim == 3 {
+        rho_mid(r_ref) * spacing.powi(3)
+    } else {
+        d.sigma_ref * spacing * spacing
+    };
+    let local_spacing = |r: f64| {
+        if dim == 3 {
+            (m / rho_mid(r)).cbrt()
+        } else {
+            (m / sigma(r)).sqrt()
+        }
+    };
     let est = std::f64::consts::PI * (d.r_out * d.r_out - d.r_in * d.r_in) * d.sigma_ref / m;
     super::check_size(est, 1 + scene.n_fractions(), "sph.n", &["dustydisc.r_out"])?;
-    let rings = rings(d, &sigma, m);
+    let rings = rings(d, &sigma, &local_spacing);
     if rings.is_empty() {
         return Err(SetupError {
             key: "sph.n".into(),
             msg: "no ring of particles fits between dustydisc.r_in and r_out; raise sph.n".into(),
         });
     }
-    let cs = |r: f64| cs0 * (r / r_ref).powf(-q);
-    // dln P/dln R of P = c_s² Σ: −2q − p plus the inner taper's ½√(r_in/R)/(1 − √(r_in/R)).
-    let dlnp = |r: f64| {
+    // d ln Σ/d ln R: −p plus the inner taper's ½√(r_in/R)/(1 − √(r_in/R)).
+    let dln_sigma = |r: f64| {
         let s = (d.r_in / r).sqrt();
-        -2.0 * q - d.p + 0.5 * s / (1.0 - s)
+        -d.p + 0.5 * s / (1.0 - s)
     };
-    let fr = scene.fractions();
-    let eps: Vec<f64> = fr.iter().map(|f| f.eps).collect();
-    let mut gas = Phase::default();
-    let mut dust: Vec<Phase> = fr.iter().map(|_| Phase::default()).collect();
+    // The layers: each ring holds columns of n_z particles at the Gaussian's quantiles (one
+    // layer, at z = 0, in 2D), alternate rings turned by half a spacing.
+    let mut layers: Vec<Layer> = Vec::new();
     for (i, ring) in rings.iter().enumerate() {
-        let r = ring.r;
-        let omega = (gm / (r * r * r)).sqrt();
-        let vk = omega * r;
-        let c = cs(r);
-        let eta_vk = -0.5 * c * c / vk * dlnp(r);
-        let st: Vec<f64> = fr
-            .iter()
-            .map(|f| omega * f.law.stopping_time(sigma(r), f.eps * sigma(r), c))
-            .collect();
-        let drift = if fr.is_empty() {
-            None
+        let (r, hz) = (ring.r, height(ring.r));
+        let n_z = if dim == 3 {
+            ((ring.mass / (ring.count as f64 * m)).round() as usize).max(1)
         } else {
-            steady_drift(&eps, &st)
+            1
         };
-        let (gvr, gvp) = drift.as_ref().map_or((0.0, -1.0), |s| s.gas);
-        let turn = if i % 2 == 0 { 0.0 } else { 0.5 };
-        let place = |ph: &mut Phase, shift: f64, vr: f64, vphi: f64, mass: f64, rho: f64| {
-            for j in 0..ring.count {
-                let phi =
-                    2.0 * std::f64::consts::PI * (j as f64 + turn + shift) / ring.count as f64;
-                let (s, c) = phi.sin_cos();
-                ph.x.push([centre[0] + r * c, centre[1] + r * s, 0.0]);
-                ph.v.push([vr * c - vphi * s, vr * s + vphi * c, 0.0]);
-                ph.m.push(mass);
-                ph.rho.push(rho);
-            }
-        };
-        let mg = ring.mass / ring.count as f64;
-        place(&mut gas, 0.0, gvr * eta_vk, vk + gvp * eta_vk, mg, sigma(r));
-        if let Some(s) = &drift {
-            for (k, ph) in dust.iter_mut().enumerate() {
-                let (ur, up) = s.dust[k];
-                place(
-                    ph,
-                    0.5,
-                    ur * eta_vk,
-                    vk + up * eta_vk,
-                    eps[k] * mg,
-                    eps[k] * sigma(r),
-                );
-            }
+        for k in 0..n_z {
+            layers.push(Layer {
+                r,
+                z: if dim == 3 {
+                    hz * normal_quantile((k as f64 + 0.5) / n_z as f64)
+                } else {
+                    0.0
+                },
+                count: ring.count,
+                turn: if i % 2 == 0 { 0.0 } else { 0.5 },
+                mass: ring.mass / (ring.count * n_z) as f64,
+            });
         }
     }
+    // The gas's density at a layer's (R, z): Σ in 2D, the Gaussian in 3D.
+    let rho_at = |r: f64, z: f64| {
+        if dim == 3 {
+            rho_mid(r) * (-0.5 * z * z / (height(r) * height(r))).exp()
+        } else {
+            sigma(r)
+        }
+    };
+    let mut gas = Phase::default();
+    let mut layer_of: Vec<usize> = Vec::new();
+    for (l, ly) in layers.iter().enumerate() {
+        place(
+            &mut gas,
+            ly,
+            0.0,
+            centre,
+            [0.0; 3],
+            ly.mass,
+            rho_at(ly.r, ly.z),
+        );
+        layer_of.extend(std::iter::repeat_n(l, ly.count));
+    }
+    gas.id = (0..gas.len() as u64).collect();
+    let h = smoothing_length(scene, spacing);
+    let domain = crate::grid::Domain {
+        dim,
+        periodic: [None; 3],
+    };
+    // Each gas particle's radial pull −A_R (gravity and pressure) per unit R, v_φ² = R·(−A_R)
+    // at balance: from the run's own SPH forces when relaxed, else from the analytic profile.
+    let mut relax_note = String::new();
+    let pull: Vec<f64> = if d.relax {
+        let (relaxed, acc, note) = relax(scene, gas, h, domain, spacing)?;
+        gas = relaxed;
+        relax_note = note;
+        (0..gas.len())
+            .map(|i| {
+                let x = sub(gas.x[i], centre);
+                let r = x[0].hypot(x[1]);
+                -(x[0] * acc[i][0] + x[1] * acc[i][1]) / (r * r)
+            })
+            .collect()
+    } else {
+        (0..gas.len())
+            .map(|i| {
+                let ly = &layers[layer_of[gas.id[i] as usize]];
+                let (vk, dlnp) = kepler_and_slope(gm, ly.r, ly.z, height(ly.r), q, dln_sigma);
+                (vk * vk + cs(ly.r).powi(2) * dlnp) / (ly.r * ly.r)
+            })
+            .collect()
+    };
+    // The layers' mean height and η v_K = (v_K² − v_φ²)/(2 v_K) from the balance.
+    let mut sums = vec![(0.0, 0.0, 0usize); layers.len()];
+    for i in 0..gas.len() {
+        let s = &mut sums[layer_of[gas.id[i] as usize]];
+        s.0 += gas.x[i][2] - centre[2];
+        s.1 += pull[i];
+        s.2 += 1;
+    }
+    let fr = scene.fractions();
+    let eps: Vec<f64> = fr.iter().map(|f| f.eps).collect();
+    let drift_start = d.dust_velocity == DustStart::Drift;
+    let mut dust: Vec<Phase> = fr.iter().map(|_| Phase::default()).collect();
+    let mut gas_v = vec![[0.0; 3]; gas.len()];
+    let mut layer_drift = Vec::with_capacity(layers.len());
+    for (l, ly) in layers.iter().enumerate() {
+        let (r, c) = (ly.r, cs(ly.r));
+        let (z, mean_pull) = (sums[l].0 / sums[l].2 as f64, sums[l].1 / sums[l].2 as f64);
+        let (vk, _) = kepler_and_slope(gm, r, z, height(r), q, dln_sigma);
+        let eta_vk = (vk * vk - r * r * mean_pull) / (2.0 * vk);
+        let rho_g = rho_at(r, z);
+        let st: Vec<f64> = fr
+            .iter()
+            .map(|f| omega(r) * f.law.stopping_time(rho_g, f.eps * rho_g, c))
+            .collect();
+        let drift = (!fr.is_empty() && drift_start)
+            .then(|| steady_drift(&eps, &st))
+            .flatten();
+        for (j, ph) in dust.iter_mut().enumerate() {
+            let v = match &drift {
+                Some(s) => {
+                    let (ur, up) = s.dust[j];
+                    // The slow root of z̈ = −Ω_z² z − ż/t: the settling mode, ż ≈ −z Ω St for
+                    // St ≪ 1; none for St ≥ 1/2 (the grains oscillate about the midplane).
+                    let t = st[j] / omega(r);
+                    let omega_z2 = gm / (r * r + z * z).powf(1.5);
+                    let disc = 1.0 - 4.0 * omega_z2 * t * t;
+                    let vz = if disc > 0.0 {
+                        z * (disc.sqrt() - 1.0) / (2.0 * t)
+                    } else {
+                        0.0
+                    };
+                    [ur * eta_vk, vk + up * eta_vk, vz]
+                }
+                None => [0.0, vk, 0.0],
+            };
+            let at = Layer { z, ..*ly };
+            place(ph, &at, 0.5, centre, v, eps[j] * ly.mass, eps[j] * rho_g);
+        }
+        layer_drift.push(drift.map(|s| s.gas));
+    }
+    // The gas: its layer's balance v_φ = √(R² ⟨pull⟩) (a layer is one ring at one height:
+    // axisymmetric, so its mean is the balance without the lattice's particle noise), plus
+    // the dust's back-reaction (the steady drift's gas velocities less the pressure support
+    // −η v_K they contain).
+    for i in 0..gas.len() {
+        // The layer by particle id: the relaxation's engine sorted the particles.
+        let l = layer_of[gas.id[i] as usize];
+        let x = sub(gas.x[i], centre);
+        let r = x[0].hypot(x[1]);
+        let mean_pull = sums[l].1 / sums[l].2 as f64;
+        let (vk, _) = kepler_and_slope(gm, layers[l].r, x[2], height(layers[l].r), q, dln_sigma);
+        let vphi_p = (r * r * mean_pull).max(0.0).sqrt();
+        let eta_vk = (vk * vk - vphi_p * vphi_p) / (2.0 * vk);
+        let (vr, vphi) = match layer_drift[l] {
+            Some((gr, gp)) => (gr * eta_vk, vphi_p + (gp + 1.0) * eta_vk),
+            None => (0.0, vphi_p),
+        };
+        let (s, co) = (x[1] / r, x[0] / r);
+        gas_v[i] = [vr * co - vphi * s, vr * s + vphi * co, 0.0];
+    }
+    gas.v = gas_v;
     let ng = gas.len() as u64;
-    gas.id = (0..ng).collect();
     let mut next = ng;
     for ph in &mut dust {
         ph.id = (next..next + ph.len() as u64).collect();
         next += ph.len() as u64;
     }
-    let h = smoothing_length(scene, spacing);
     let n_rings = rings.len();
     let mut su = Setup::at_start(
         gas_phase(gas, None),
         dust,
         h,
-        crate::grid::Domain {
-            dim: 2,
-            periodic: [None; 3],
-        },
+        domain,
         spacing,
         2.0 * d.r_out,
     );
     su.notes.push(format!(
-        "disc: {n_rings} rings, {ng} gas particles between R = {} and {}, H/R = {:.4} at r_ref = {r_ref}",
+        "disc: {n_rings} rings, {} layers, {ng} gas particles between R = {} and {}, H/R = {:.4} at r_ref = {r_ref}{}{}",
+        layers.len(),
         d.r_in,
         d.r_out,
-        cs0 / (gm / r_ref).sqrt()
+        cs0 / (gm / r_ref).sqrt(),
+        relax_note,
+        if drift_start { "" } else { "; dust on Keplerian orbits (no drift)" }
     ));
     Ok(su)
+}
+
+/// One layer of a ring: `count` particles of mass `mass` at radius `r`, height `z`, angles
+/// 2π(j + turn)/count.
+#[derive(Debug, Clone, Copy)]
+struct Layer {
+    r: f64,
+    z: f64,
+    count: usize,
+    turn: f64,
+    mass: f64,
+}
+
+/// Append a layer's particles to `ph` (turned by `shift` spacings more), moving with the
+/// cylindrical velocity `v` = (v_R, v_φ, v_z).
+fn place(ph: &mut Phase, ly: &Layer, shift: f64, c: [f64; 3], v: [f64; 3], m: f64, rho: f64) {
+    for j in 0..ly.count {
+        let phi = 2.0 * std::f64::consts::PI * (j as f64 + ly.turn + shift) / ly.count as f64;
+        let (s, co) = phi.sin_cos();
+        ph.x.push([c[0] + ly.r * co, c[1] + ly.r * s, c[2] + ly.z]);
+        ph.v.push([v[0] * co - v[1] * s, v[0] * s + v[1] * co, v[2]]);
+        ph.m.push(m);
+        ph.rho.push(rho);
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// The Keplerian speed at (R, z) about the point mass, and d ln P/d ln R there for P = c_s² ρ
+/// with ρ ∝ Σ/H e^{−z²/2H²}, H ∝ R^{3/2−q} (at z = 0 in 2D: d ln Σ/d ln R − 2q).
+fn kepler_and_slope(
+    gm: f64,
+    r: f64,
+    z: f64,
+    hz: f64,
+    q: f64,
+    dln_sigma: impl Fn(f64) -> f64,
+) -> (f64, f64) {
+    let vk = (gm * r * r / (r * r + z * z).powf(1.5)).sqrt();
+    let vertical = if hz > 0.0 && z != 0.0 {
+        (1.5 - q) * (z * z / (hz * hz) - 1.0)
+    } else {
+        0.0
+    };
+    (vk, dln_sigma(r) - 2.0 * q + vertical)
+}
+
+/// Iterations of the vertical relaxation at most, and when it has converged: the rms of the
+/// gas's vertical acceleration below this share of the rms of the star's vertical pull.
+const RELAX_ITERATIONS: usize = 200;
+const RELAX_TOL: f64 = 0.02;
+/// A relaxation move: κ h² A_z/c_s² (at most a tenth of a spacing).
+const RELAX_KAPPA: f64 = 0.25;
+/// The share of its last move a particle keeps (heavy-ball momentum).
+const RELAX_MOMENTUM: f64 = 0.6;
+
+/// The gas alone under the run's own SPH forces (its EOS, kernel, h, gradient and the point
+/// mass): in 3D its heights moved down the vertical force until it balances (the radii and
+/// angles kept: Σ(R) stays as set), then every particle's acceleration for the rotation.
+/// Returns the gas, its accelerations (in its order) and a note for the run's log.
+fn relax(
+    scene: &Scene,
+    gas: Phase,
+    h: f64,
+    domain: crate::grid::Domain,
+    spacing: f64,
+) -> Result<(Phase, Vec<[f64; 3]>, String), SetupError> {
+    let fail = |e: String| SetupError {
+        key: "dustydisc.relax".into(),
+        msg: format!("the disc's gas could not be balanced: {e}"),
+    };
+    let mut phys = crate::step::Physics::from_scene(scene, h, domain);
+    phys.laws.clear();
+    phys.accretion_radius = 0.0;
+    let centre = phys.gravity.pos;
+    let gm = phys.gravity.gm;
+    let dim = domain.dim;
+    let mut moved = vec![0.0; gas.len()];
+    let mut g = gas;
+    // The best balance so far: (residual, gas, accelerations, iteration).
+    let mut best: Option<(f64, Phase, Vec<[f64; 3]>, usize)> = None;
+    let done = |best: Option<(f64, Phase, Vec<[f64; 3]>, usize)>, why: &str| {
+        let (res, g, acc, it) = best.expect("the first iteration is kept");
+        let note = format!(
+            "; gas balanced vertically by {it} iterations{why} (rms A_z/g_z within 2H {res:.1e})"
+        );
+        Ok((g, acc, note))
+    };
+    for it in 0..=RELAX_ITERATIONS {
+        let mut st = State {
+            t: 0.0,
+            step: 0,
+            gas: gas_phase(g, None),
+            dust: Vec::new(),
+        };
+        let built = crate::step::backend::Backend::new(
+            crate::step::backend::DeviceChoice::Cpu,
+            phys.clone(),
+            &mut st,
+        )
+        .and_then(|mut eng| {
+            eng.forces()?;
+            let acc = eng.accelerations()?;
+            eng.sync(&mut st)?;
+            Ok(acc)
+        });
+        let acc = match (built, &best) {
+            (Ok(acc), _) => acc,
+            // A column's topmost particle pushed out of reach (SPH's free surface): keep the
+            // best balance reached before it.
+            (Err(_), Some(_)) => return done(best, ", then a surface particle ran away"),
+            (Err(e), None) => return Err(fail(e.to_string())),
+        };
+        g = st.gas.ph;
+        if dim < 3 {
+            return Ok((g, acc, String::new()));
+        }
+        // Vertical balance within two scale heights: the gas's A_z (pressure + pull) against
+        // the pull alone (a column's few outermost particles, SPH's free surface, never balance).
+        let (mut a2, mut g2) = (0.0, 0.0);
+        for i in 0..g.len() {
+            let x = sub(g.x[i], centre);
+            let r = x[0].hypot(x[1]);
+            if x[2].abs() > 2.0 * phys.local_cs.at(g.x[i]) * (r * r * r / gm).sqrt() {
+                continue;
+            }
+            let pull = gm * x[2] / (r * r + x[2] * x[2]).powf(1.5);
+            a2 += acc[i][2] * acc[i][2];
+            g2 += pull * pull;
+        }
+        let residual = (a2 / g2.max(f64::MIN_POSITIVE)).sqrt();
+        if best.as_ref().is_none_or(|b| residual < b.0) {
+            best = Some((residual, g.clone(), acc.clone(), it));
+        }
+        if residual < RELAX_TOL {
+            return done(best, "");
+        }
+        if it == RELAX_ITERATIONS {
+            return done(best, " (not converged)");
+        }
+        // Heavy-ball descent: each move keeps a share of the particle's last one (by id: the
+        // engine sorts), which speeds up the slow large-scale mode of the column.
+        for i in 0..g.len() {
+            let id = g.id[i] as usize;
+            let c2 = phys.local_cs.at(g.x[i]).powi(2);
+            let dz = (RELAX_KAPPA * h * h * acc[i][2] / c2 + RELAX_MOMENTUM * moved[id])
+                .clamp(-0.1 * spacing, 0.1 * spacing);
+            moved[id] = dz;
+            g.x[i][2] += dz;
+        }
+    }
+    unreachable!("the loop returns at its last iteration")
+}
+
+/// Φ⁻¹(p): the standard normal quantile, by bisection on Φ(x) = ½ erfc(−x/√2) to round-off.
+fn normal_quantile(p: f64) -> f64 {
+    let cdf = |x: f64| 0.5 * libm::erfc(-x / std::f64::consts::SQRT_2);
+    let (mut a, mut b) = (-40.0, 40.0);
+    for _ in 0..200 {
+        let c = 0.5 * (a + b);
+        if cdf(c) < p {
+            a = c;
+        } else {
+            b = c;
+        }
+    }
+    0.5 * (a + b)
 }
 
 /// 1 − √(r_in/R): Σ's inner taper (0 at r_in).
@@ -134,16 +415,16 @@ struct Ring {
     mass: f64,
 }
 
-/// Rings from r_in outward, each as wide as the local spacing √(m/Σ) at its middle, up to
-/// r_out; its mass is ∫ 2πRΣ dR over its width.
-fn rings(d: &DiscCfg, sigma: &impl Fn(f64) -> f64, m: f64) -> Vec<Ring> {
+/// Rings from r_in outward, each as wide as the local spacing at its middle (√(m/Σ) in 2D,
+/// the midplane's (m/ρ)^{1/3} in 3D), up to r_out; its mass is ∫ 2πRΣ dR over its width.
+fn rings(d: &DiscCfg, sigma: &impl Fn(f64) -> f64, spacing: &impl Fn(f64) -> f64) -> Vec<Ring> {
     let mut out = Vec::new();
     let mut lo = d.r_in;
     let widest = 0.25 * (d.r_out - d.r_in);
     while lo < d.r_out {
-        // w = √(m/Σ(lo + w/2)) by bisection (w minus the right side grows with w: near r_in
+        // w = spacing(lo + w/2) by bisection (w minus the right side grows with w: near r_in
         // Σ climbs with R, beyond it falls slowly), capped at a quarter of the disc.
-        let gap = |w: f64| w - (m / sigma(lo + 0.5 * w)).sqrt();
+        let gap = |w: f64| w - spacing(lo + 0.5 * w);
         let w = if gap(widest) <= 0.0 {
             widest
         } else {

@@ -60,13 +60,16 @@ pub fn dt_limits(h: f64, f: &Forces) -> (f64, f64) {
     (dt_cfl, dt_force)
 }
 
-/// The step size τ: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit), and in
+/// The step size τ: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit) capped by
+/// `time.dt_max`, and in
 /// either case no more than the drag limit `dt_drag`. Returns (τ, whether the drag limit set
 /// it).
 pub fn step_size(time: &Time, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f64, bool) {
     let base = match time.step {
         StepRule::Fixed { dt } => dt,
-        StepRule::Cfl { cfl } => cfl * dt_cfl.min(dt_force),
+        StepRule::Cfl { cfl, dt_max } => {
+            (cfl * dt_cfl.min(dt_force)).min(dt_max.unwrap_or(f64::INFINITY))
+        }
     };
     if dt_drag < base {
         (dt_drag, true)
