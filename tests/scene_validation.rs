@@ -22,6 +22,7 @@ fn every_scene_in_configs_is_valid() {
         "dustysettle",
         "dusty_ball",
         "dustydisc",
+        "dustydisc3d",
     ] {
         load(&config(s), &[]).unwrap_or_else(|e| panic!("{e}"));
     }
@@ -126,6 +127,19 @@ fn impossible_values_name_their_key_and_file() {
         ),
         ("dustysettle", "dustysettle.height=-1", "dustysettle.height"),
         ("dustysettle", "scene.dim=3", "scene.dim"),
+        (
+            "dustydisc",
+            "gravity.accretion_radius=-0.1",
+            "gravity.accretion_radius",
+        ),
+        ("dustydisc", "time.dt_max=0", "time.dt_max"),
+        ("dustybox", "time.dt_max=0.1", "time.dt_max"),
+        ("dustydisc", "scene.dim=1", "scene.dim"),
+        (
+            "dustydisc",
+            "dustydisc.dust_velocity=\"still\"",
+            "dustydisc.dust_velocity",
+        ),
     ];
     for (scene, set, key) in cases.iter().chain(more) {
         // A NUL separates several overrides of one case.

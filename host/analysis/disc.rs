@@ -57,39 +57,61 @@ pub fn disc_bins(snap: &SnapshotData, scene: &Scene, n_bins: usize) -> Option<Di
         let b = ((radius(x) - lo) / width).floor();
         (b >= 0.0 && b < n_bins as f64).then_some(b as usize)
     };
-    // Sums per bin: mass, m v_R, m (v_φ − v_K), m ρ. Σ is the mass-weighted mean of the
-    // particles' SPH density (a 2D density is Σ): counting masses per annulus would alias with
-    // the rings of the set-up (± a ring per bin).
+    // Sums per bin: mass, m v_R, m (v_φ − v_K), m ρ, and the mass the velocities are taken
+    // over. In 2D Σ is the mass-weighted mean of the particles' SPH density (a 2D density is
+    // Σ): counting masses per annulus would alias with the rings of the set-up (± a ring per
+    // bin). In 3D Σ is the annulus's mass over its area (bins ≥ 4h wide), and the velocities
+    // are those of the mid-disc, |z| < H/2 (H = c_s/Ω at the particle's R).
+    let dim3 = scene.dim() == 3;
+    let cs = |r: f64| cs0 * (r / r_ref).powf(-q);
+    let height = |r: f64| cs(r) / (g.central_mass / r.powi(3)).sqrt();
     let bins = |xs: &[[f64; 3]],
                 vs: &[[f64; 3]],
                 ms: &[f64],
                 rho: &[f64],
                 keep: &dyn Fn(usize) -> bool| {
-        let mut s = vec![[0.0f64; 4]; n_bins];
+        let mut s = vec![[0.0f64; 5]; n_bins];
         for i in 0..xs.len() {
             let Some(b) = bin_of(&xs[i]).filter(|_| keep(i)) else {
                 continue;
             };
             let (x, v) = (xs[i], vs[i]);
-            let d = [x[0] - centre[0], x[1] - centre[1]];
+            let d = [x[0] - centre[0], x[1] - centre[1], x[2] - centre[2]];
             let rr = (d[0] * d[0] + d[1] * d[1]).sqrt();
+            s[b][0] += ms[i];
+            s[b][3] += ms[i] * rho[i];
+            if dim3 && d[2].abs() >= 0.5 * height(rr) {
+                continue;
+            }
             let vk = (g.central_mass / rr).sqrt();
             let vr = (d[0] * v[0] + d[1] * v[1]) / rr;
             let vphi = (d[0] * v[1] - d[1] * v[0]) / rr;
-            s[b][0] += ms[i];
             s[b][1] += ms[i] * vr;
             s[b][2] += ms[i] * (vphi - vk);
-            s[b][3] += ms[i] * rho[i];
+            s[b][4] += ms[i];
         }
-        let mean = |k: usize| -> Vec<f64> {
-            s.iter()
-                .map(|b| if b[0] > 0.0 { b[k] / b[0] } else { f64::NAN })
-                .collect()
+        let per = |b: &[f64; 5], k: usize, of: usize| {
+            if b[of] > 0.0 {
+                b[k] / b[of]
+            } else {
+                f64::NAN
+            }
         };
+        let sigma = s
+            .iter()
+            .zip(&r)
+            .map(|(b, rc)| {
+                if dim3 {
+                    b[0] / (2.0 * std::f64::consts::PI * rc * width)
+                } else {
+                    per(b, 3, 0)
+                }
+            })
+            .collect();
         PhaseBins {
-            sigma: mean(3),
-            v_r: mean(1),
-            dv_phi: mean(2),
+            sigma,
+            v_r: s.iter().map(|b| per(b, 1, 4)).collect(),
+            dv_phi: s.iter().map(|b| per(b, 2, 4)).collect(),
             ..Default::default()
         }
     };
@@ -108,10 +130,17 @@ pub fn disc_bins(snap: &SnapshotData, scene: &Scene, n_bins: usize) -> Option<Di
             });
         }
     }
-    // The exact drift from the bins' own ε, St and d ln P/d ln R (P = c_s² Σ_g).
-    let cs = |r: f64| cs0 * (r / r_ref).powf(-q);
+    // The exact drift from the bins' own ε, St and d ln P/d ln R (P = c_s² Σ_g in 2D; the
+    // midplane's c_s² Σ_g/(√(2π) H) in 3D, with ε = Σ_k/Σ_g, the column's).
+    let mid = |i: usize| {
+        if dim3 {
+            (2.0 * std::f64::consts::PI).sqrt() * height(r[i])
+        } else {
+            1.0
+        }
+    };
     let ln_p: Vec<f64> = (0..n_bins)
-        .map(|i| (cs(r[i]).powi(2) * phases[0].sigma[i]).ln())
+        .map(|i| (cs(r[i]).powi(2) * phases[0].sigma[i] / mid(i)).ln())
         .collect();
     let nf = phases.len() - 1;
     let mut exact = vec![(vec![f64::NAN; n_bins], vec![f64::NAN; n_bins]); nf + 1];
@@ -139,7 +168,7 @@ pub fn disc_bins(snap: &SnapshotData, scene: &Scene, n_bins: usize) -> Option<Di
         let st: Vec<f64> = fractions
             .iter()
             .zip(&eps)
-            .map(|(f, e)| omega * f.law.stopping_time(sg, e * sg, c))
+            .map(|(f, e)| omega * f.law.stopping_time(sg / mid(i), e * sg / mid(i), c))
             .collect();
         if let Some(s) = steady_drift(&eps, &st).filter(|_| eta_vk.is_finite()) {
             exact[0].0[i] = s.gas.0 * eta_vk;

@@ -354,14 +354,14 @@ fn relax(
         // Vertical balance within two scale heights: the gas's A_z (pressure + pull) against
         // the pull alone (a column's few outermost particles, SPH's free surface, never balance).
         let (mut a2, mut g2) = (0.0, 0.0);
-        for i in 0..g.len() {
-            let x = sub(g.x[i], centre);
+        for (xi, a) in g.x.iter().zip(&acc) {
+            let x = sub(*xi, centre);
             let r = x[0].hypot(x[1]);
-            if x[2].abs() > 2.0 * phys.local_cs.at(g.x[i]) * (r * r * r / gm).sqrt() {
+            if x[2].abs() > 2.0 * phys.local_cs.at(*xi) * (r * r * r / gm).sqrt() {
                 continue;
             }
             let pull = gm * x[2] / (r * r + x[2] * x[2]).powf(1.5);
-            a2 += acc[i][2] * acc[i][2];
+            a2 += a[2] * a[2];
             g2 += pull * pull;
         }
         let residual = (a2 / g2.max(f64::MIN_POSITIVE)).sqrt();
@@ -376,13 +376,13 @@ fn relax(
         }
         // Heavy-ball descent: each move keeps a share of the particle's last one (by id: the
         // engine sorts), which speeds up the slow large-scale mode of the column.
-        for i in 0..g.len() {
-            let id = g.id[i] as usize;
-            let c2 = phys.local_cs.at(g.x[i]).powi(2);
-            let dz = (RELAX_KAPPA * h * h * acc[i][2] / c2 + RELAX_MOMENTUM * moved[id])
+        for ((x, a), id) in g.x.iter_mut().zip(&acc).zip(&g.id) {
+            let id = *id as usize;
+            let c2 = phys.local_cs.at(*x).powi(2);
+            let dz = (RELAX_KAPPA * h * h * a[2] / c2 + RELAX_MOMENTUM * moved[id])
                 .clamp(-0.1 * spacing, 0.1 * spacing);
             moved[id] = dz;
-            g.x[i][2] += dz;
+            x[2] += dz;
         }
     }
     unreachable!("the loop returns at its last iteration")

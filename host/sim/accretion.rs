@@ -66,8 +66,8 @@ impl Accreted {
             let (m, v) = (ph.m[i], ph.v[i]);
             n += 1;
             mass += m;
-            for k in 0..3 {
-                self.momentum[k] += m * v[k];
+            for (p, vk) in self.momentum.iter_mut().zip(v) {
+                *p += m * vk;
             }
             self.angular_momentum[0] += m * (d[1] * v[2] - d[2] * v[1]);
             self.angular_momentum[1] += m * (d[2] * v[0] - d[0] * v[2]);
