@@ -75,6 +75,8 @@ macro_rules! kernel_table {
                 COUPLING_SOLVE_SUMS: coupling_solve_sums(ScatterDepositArgs),
                 COUPLING_RETURN: coupling_return(ReturnArgs),
                 COUPLING_TSTOP: coupling_tstop(ReturnArgs),
+                COUPLING_DAMP: coupling_damp(ReturnArgs),
+                COUPLING_REACT: coupling_react(CoupleArgs),
                 COUPLING_HEAT: coupling_heat(CouplingHeatArgs),
                 MOMENTUM: momentum(MomentumArgs),
             }

@@ -258,6 +258,20 @@ pub struct IdicSection {
     /// Kernel coupling only: how the deposits on the gas particles are summed (by the CPU's
     /// launcher and the GPU's alike).
     pub deposit: Option<DepositForm>,
+    /// Kernel coupling only: whether each dust particle's unresolved velocity deviation is
+    /// kept (the increments alone, as built first) or damped at the drag rate.
+    pub dispersion: Option<Dispersion>,
+}
+
+/// The kernel coupling's treatment of a dust particle's velocity deviation from the smoothed
+/// field it should follow (method.md §K, "The unresolved dispersion").
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Dispersion {
+    /// Kept: each particle receives the smoothed increments only.
+    Kept,
+    /// Damped at the drag rate, its momentum handed to the gas around it.
+    Damped,
 }
 
 /// How the kernel coupling's deposits on the gas particles are summed.

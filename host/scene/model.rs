@@ -7,7 +7,7 @@
 //! [`Scene::to_toml`] writes the model as TOML (the summary's `scene_model`, the snapshots'
 //! `SceneModel` attribute), with the scene file's key names where the file has the key.
 use super::file::{
-    Coupling, DensityMethod, DepositForm, DragMethod, DustStart, EosKind, EpsteinForm,
+    Coupling, DensityMethod, DepositForm, Dispersion, DragMethod, DustStart, EosKind, EpsteinForm,
     GradientMethod, Integrator, Lattice, LawKind, ListChoice, PositionUpdate, Precision, Problem,
     RadiusKind, WaveMode,
 };
@@ -316,6 +316,8 @@ pub struct Idic {
     pub coupling: Coupling,
     /// Kernel coupling: how the deposits are summed (`gather` with the cell coupling).
     pub deposit: DepositForm,
+    /// Kernel coupling: the dust's unresolved velocity deviation (`kept` with the cell one).
+    pub dispersion: Dispersion,
 }
 
 /// `[drag]`.

@@ -227,6 +227,9 @@ impl Scene {
             deposit: idic_file
                 .and_then(|i| i.deposit)
                 .unwrap_or(DepositForm::Gather),
+            dispersion: idic_file
+                .and_then(|i| i.dispersion)
+                .unwrap_or(Dispersion::Kept),
         };
         let drag = Drag {
             method: f
@@ -236,6 +239,13 @@ impl Scene {
                 .unwrap_or(DragMethod::Idic),
         };
         coupling(&idic, &drag, dust.is_some())?;
+        if idic.dispersion == Dispersion::Damped && dust.as_ref().is_some_and(|d| d.heating) {
+            return err(
+                "idic.dispersion",
+                "\"damped\" does not yet hand the kinetic energy it takes to the gas's heat: \
+                 use it without dust.heating",
+            );
+        }
         let time = time(&f.time)?;
         let numerics = f.numerics.as_ref();
         let problem = problem(section, f, eos, dust.as_ref(), &external)?;
@@ -781,6 +791,12 @@ fn coupling(idic: &Idic, drag: &Drag, has_dust: bool) -> VResult {
         return err(
             "idic.deposit",
             "\"scatter\" sums the kernel coupling's deposits; it needs idic.coupling = \"kernel\"",
+        );
+    }
+    if idic.dispersion == Dispersion::Damped && idic.coupling != Coupling::Kernel {
+        return err(
+            "idic.dispersion",
+            "\"damped\" acts on the kernel coupling's return; it needs idic.coupling = \"kernel\"",
         );
     }
     if idic.coupling == Coupling::Kernel && drag.method == DragMethod::Explicit {

@@ -40,6 +40,8 @@ pub struct Physics {
     pub coupling: Coupling,
     /// GPU, kernel coupling: deposits summed by atomic scatter instead of the gather.
     pub deposit_scatter: bool,
+    /// Kernel coupling: the dust's unresolved velocity deviation damped (`idic.dispersion`).
+    pub damp_dispersion: bool,
     /// Constant external accelerations of the gas and of every dust particle.
     pub ext_gas: [f64; 3],
     pub ext_dust: [f64; 3],
@@ -83,6 +85,7 @@ impl Physics {
             drag: scene.drag.method,
             coupling: scene.idic.coupling,
             deposit_scatter: scene.idic.deposit == crate::scene::DepositForm::Scatter,
+            damp_dispersion: scene.idic.dispersion == crate::scene::Dispersion::Damped,
             ext_gas: scene.external.gas,
             ext_dust: scene.external.dust,
             local_cs: scene
@@ -124,6 +127,7 @@ impl Physics {
             drag: DragMethod::Idic,
             coupling: Coupling::Cell,
             deposit_scatter: false,
+            damp_dispersion: false,
             ext_gas: [0.0; 3],
             ext_dust: [0.0; 3],
             gravity: Default::default(),

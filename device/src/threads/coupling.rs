@@ -63,6 +63,14 @@ pub struct CouplingBufs<R> {
     pub du: *mut Vec3<R>,
     /// Per gas particle and fraction (a·nf + k): t_k* of its means (+∞ where uncoupled).
     pub t_stop: *mut R,
+    /// `idic.dispersion = "damped"` (null otherwise): per gas particle its new gas mean V^{n+1}
+    /// (`v_new`), per gas particle and fraction the new dust mean U^{n+1} (`u_new`, a·nf + k),
+    /// per gas particle its own deviation v_a − Σ_c w_ac V_c^{n+1} (`gas_dev`), and per dust
+    /// particle the velocity the damping took from it (`react`).
+    pub v_new: *mut Vec3<R>,
+    pub u_new: *mut Vec3<R>,
+    pub gas_dev: *mut Vec3<R>,
+    pub react: *mut Vec3<R>,
     /// The gas kernels of the weights, one per gas particle (variable h: W(r, h_a)); null:
     /// one shared kernel at the reference h.
     pub kernel_at: *const KernelAt<R>,
@@ -219,6 +227,19 @@ unsafe fn coupling_finish<R: Real>(
     for f in 0..nf {
         *a.cb.du.add(t * nf + f) = inc.du[f];
         *a.cb.t_stop.add(t * nf + f) = inc.t_stop[f];
+    }
+    if p.damp_dispersion != 0 {
+        let mean = |d: &kernels::Deposit<R>| {
+            if d.mass > R::ZERO {
+                crate::scale(R::ONE / d.mass, d.mom)
+            } else {
+                [R::ZERO; 3]
+            }
+        };
+        *a.cb.v_new.add(t) = crate::add(mean(gas_dep), inc.dv);
+        for f in 0..nf {
+            *a.cb.u_new.add(t * nf + f) = crate::add(mean(&dust_dep[f]), inc.du[f]);
+        }
     }
 }
 
@@ -378,6 +399,95 @@ pub unsafe fn coupling_return<R: Real>(t: usize, a: &ReturnArgs<R>) {
         *a.loss.add(t) = drag::kinetic_loss(*ph.m.add(t), base, new);
     }
     *ph.v.add(t) = new;
+}
+
+/// `idic.dispersion = "damped"` (method.md §K, "The unresolved dispersion"), after the return
+/// of both phases. A gas particle records its deviation from its smoothed new field,
+/// d_a = v_a − Σ_c w_ac V_c^{n+1}; then (a second launch, once every d_a is there) a dust
+/// particle j relaxes its own deviation from the smoothed field it should follow,
+/// δ_j = u_j − Σ_a w_ja (U_a^{n+1} + d_a), by β/(1 + β), β = τ/t_j (backward Euler, t_j =
+/// Σ_a w_ja t_k,a), and records what it lost for [`coupling_react`]. For a smooth field carried
+/// alike by gas and dust the gas's deviation equals the dust's to high order, so only what the
+/// kernel does not resolve is damped. A kernel of its own: the return stays as lean as without.
+pub unsafe fn coupling_damp<R: Real>(t: usize, a: &ReturnArgs<R>) {
+    let ph = &a.ph;
+    if t >= ph.len() || kernels::is_fixed(ph.fixed(), t) {
+        return;
+    }
+    let p = &a.p;
+    let nf = p.nf as usize;
+    let is_gas = a.is_gas != 0;
+    let (s, f, at) = if is_gas {
+        (*a.cb.s_gas.add(t), 0, Centre::Own(t))
+    } else {
+        (
+            *a.cb.s_dust.add(t),
+            ph.group_of(t),
+            Centre::Point(ph.x()[t]),
+        )
+    };
+    let v = ph.v.add(t);
+    if s <= R::ZERO {
+        if is_gas {
+            *a.cb.gas_dev.add(t) = [R::ZERO; 3];
+        } else {
+            *a.cb.react.add(t) = [R::ZERO; 3];
+        }
+        return;
+    }
+    let gather = |value: &dyn Fn(usize) -> Vec3<R>| {
+        with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
+            kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), at, s, value)
+        })
+    };
+    if is_gas {
+        let smooth = gather(&|c| *a.cb.v_new.add(c));
+        *a.cb.gas_dev.add(t) = crate::sub(*v, smooth);
+        return;
+    }
+    let target = gather(&|g| crate::add(*a.cb.u_new.add(g * nf + f), *a.cb.gas_dev.add(g)));
+    let t_stop = gather(&|g| [*a.cb.t_stop.add(g * nf + f), R::ZERO, R::ZERO])[0];
+    let beta = p.tau / t_stop;
+    let share = if beta.is_finite() && beta > R::ZERO {
+        beta / (R::ONE + beta)
+    } else {
+        R::ZERO
+    };
+    let lost = crate::scale(share, crate::sub(*v, target));
+    *a.cb.react.add(t) = lost;
+    *v = crate::sub(*v, lost);
+}
+
+/// `idic.dispersion = "damped"`: gas particle t takes the momentum the damping took from the
+/// dust around it, with the deposit's weights (Σ_j w_jt m_j Δu_j / m_t): Σ_a w_ja = 1, so the
+/// total momentum is exact.
+pub unsafe fn coupling_react<R: Real>(t: usize, a: &CoupleArgs<R>) {
+    let g = &a.gas;
+    if t >= g.len() || kernels::is_fixed(g.fixed(), t) {
+        return;
+    }
+    let p = &a.p;
+    let k = with_gas_kernels(a.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
+    let xa = g.x()[t];
+    let d = &a.dust;
+    let s_dust = sl(a.cb.s_dust, d.len());
+    let mut gained = [R::ZERO; 3];
+    for f in 0..p.nf as usize {
+        let dep = kernels::deposit_at(
+            &d.sorted(p, f),
+            s_dust,
+            d.m(),
+            d.rho(),
+            d.fixed(),
+            Centre::Point(xa),
+            &k,
+            |j| *a.cb.react.add(j),
+            |_| R::ZERO,
+        );
+        gained = crate::add(gained, dep.mom);
+    }
+    let v = g.v.add(t);
+    *v = crate::axpy(*v, R::ONE / *g.m.add(t), gained);
 }
 
 /// The stopping time dust particle t feels: Σ_a w_ta t_k,a (+∞ without gas within reach).

@@ -113,6 +113,9 @@ pub struct StepParams<R> {
     pub ext_dust: Vec3<R>,
     /// 1: the explicit (forward-Euler) drag baseline instead of IDIC.
     pub explicit_drag: u32,
+    /// 1: the kernel coupling damps each dust particle's unresolved velocity deviation
+    /// (`idic.dispersion = "damped"`, method.md §K).
+    pub damp_dispersion: u32,
     /// A central point mass (`gm` = 0: none), added to A^n and B^n.
     pub gravity: crate::gravity::PointMass,
     /// A locally isothermal gas's sound speed (`on` = 0: the EOS's own, `eos_kind`).
@@ -181,6 +184,7 @@ impl<R: Real> StepParams<R> {
             ext_gas: self.ext_gas.map(c),
             ext_dust: self.ext_dust.map(c),
             explicit_drag: self.explicit_drag,
+            damp_dispersion: self.damp_dispersion,
             gravity: self.gravity,
             local_cs: self.local_cs,
         }

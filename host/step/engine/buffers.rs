@@ -419,6 +419,9 @@ pub(super) struct CouplingBuffers<L: Launcher, R: Float> {
     pub(super) t_stop: Buf<L, R>,
     /// Drag heating: the heat per unit mass of every gas particle.
     pub(super) heat: Option<Buf<L, R>>,
+    /// `idic.dispersion = "damped"`: V^{n+1}, U^{n+1}, the gas's deviations, the dust's losses
+    /// (`th::CouplingBufs`).
+    pub(super) damping: Option<[Buf<L, [R; 3]>; 4]>,
     /// Variable h: the weights use each gas particle's kernel (the engine's `sm.kernel_at`).
     pub(super) per_particle_kernels: bool,
 }
@@ -436,6 +439,22 @@ impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
             dv: d.ptr(&self.dv),
             du: d.ptr(&self.du),
             t_stop: d.ptr(&self.t_stop),
+            v_new: self
+                .damping
+                .as_ref()
+                .map_or(std::ptr::null_mut(), |b| d.ptr(&b[0])),
+            u_new: self
+                .damping
+                .as_ref()
+                .map_or(std::ptr::null_mut(), |b| d.ptr(&b[1])),
+            gas_dev: self
+                .damping
+                .as_ref()
+                .map_or(std::ptr::null_mut(), |b| d.ptr(&b[2])),
+            react: self
+                .damping
+                .as_ref()
+                .map_or(std::ptr::null_mut(), |b| d.ptr(&b[3])),
             kernel_at: if self.per_particle_kernels {
                 d.ptr(kernel_at)
             } else {
@@ -548,6 +567,8 @@ pub(super) fn step_params(
         ext_gas: phys.ext_gas,
         ext_dust: phys.ext_dust,
         explicit_drag: stages.explicit_drag as u32,
+        damp_dispersion: (phys.damp_dispersion && phys.coupling == crate::step::Coupling::Kernel)
+            as u32,
         gravity: phys.gravity,
         local_cs: phys.local_cs,
     }
@@ -599,6 +620,16 @@ impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
             t_stop: d.buf((ng * nf).max(1))?,
             heat: if stages.heating {
                 Some(d.buf(ng.max(1))?)
+            } else {
+                None
+            },
+            damping: if phys.damp_dispersion {
+                Some([
+                    d.buf(ng.max(1))?,
+                    d.buf((ng * nf).max(1))?,
+                    d.buf(ng.max(1))?,
+                    d.buf(nd.max(1))?,
+                ])
             } else {
                 None
             },

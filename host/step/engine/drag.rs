@@ -179,6 +179,25 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             };
             d.run(R::COUPLING_RETURN, ph.n, &ra)?;
         }
+        if c.damping.is_some() {
+            // The gas's deviations first (every one before the dust reads them), then the
+            // dust's damping, then the gas takes the momentum it took (one process: over ranks
+            // the deviations and losses would need their own halos).
+            for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
+                let ra = th::ReturnArgs {
+                    gas: self.gas.bufs(d),
+                    ph: ph.bufs(d),
+                    acc: std::ptr::null_mut(),
+                    is_gas: gas as u32,
+                    cb: c.bufs(d, &self.sm.kernel_at),
+                    out: std::ptr::null_mut(),
+                    loss: std::ptr::null_mut(),
+                    p: p.dev,
+                };
+                d.run(R::COUPLING_DAMP, ph.n, &ra)?;
+            }
+            d.run(R::COUPLING_REACT, ng, &ca)?;
+        }
         if let (true, Some(_)) = (heat, &c.heat) {
             // The heat sums the neighbours' losses.
             self.ghost_sync(&Refresh::COUPLING_RETURN)?;

@@ -200,6 +200,13 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         sync: Box<dyn GhostSync>,
         keys: crate::particles::KeySet,
     ) -> Result<(), StepError> {
+        if self.phys.damp_dispersion {
+            return Err(StepError::Unsupported(
+                "idic.dispersion = \"damped\" runs on one process (its deviations and losses \
+                 have no halo refresh yet): run without mpirun or set it to \"kept\""
+                    .into(),
+            ));
+        }
         self.ghosts = Some(Ghosts {
             sync,
             keys,
