@@ -237,8 +237,8 @@ unsafe fn coupling_finish<R: Real>(
             }
         };
         *a.cb.v_new.add(t) = crate::add(mean(gas_dep), inc.dv);
-        for f in 0..nf {
-            *a.cb.u_new.add(t * nf + f) = crate::add(mean(&dust_dep[f]), inc.du[f]);
+        for (f, dep) in dust_dep.iter().enumerate().take(nf) {
+            *a.cb.u_new.add(t * nf + f) = crate::add(mean(dep), inc.du[f]);
         }
     }
 }
