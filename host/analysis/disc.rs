@@ -142,23 +142,33 @@ pub fn disc_bins(snap: &SnapshotData, scene: &Scene, n_bins: usize) -> Option<Di
     let ln_p: Vec<f64> = (0..n_bins)
         .map(|i| (cs(r[i]).powi(2) * phases[0].sigma[i] / mid(i)).ln())
         .collect();
+    // (R, ln R, ln P) of every gas particle (3D: of the mid-disc, |z| < H/2).
+    let pressure_points: Vec<(f64, f64, f64)> = gas
+        .x
+        .iter()
+        .zip(&gas.rho)
+        .filter_map(|(x, rho)| {
+            let rr = radius(x);
+            let z = x[2] - centre[2];
+            (rr > 0.0 && *rho > 0.0 && !(dim3 && z.abs() >= 0.5 * height(rr)))
+                .then(|| (rr, rr.ln(), (cs(rr).powi(2) * rho).ln()))
+        })
+        .collect();
     let nf = phases.len() - 1;
     let mut exact = vec![(vec![f64::NAN; n_bins], vec![f64::NAN; n_bins]); nf + 1];
     for i in 0..n_bins {
-        // d ln P/d ln R: the least-squares slope over the bin and two on each side.
-        let (a, b) = (i.saturating_sub(2), (i + 2).min(n_bins - 1));
-        let pts: Vec<(f64, f64)> = (a..=b)
-            .map(|j| (r[j].ln(), ln_p[j]))
-            .filter(|(_, y)| y.is_finite())
-            .collect();
-        let n = pts.len() as f64;
-        let (mx, my) = pts
-            .iter()
-            .fold((0.0, 0.0), |s, p| (s.0 + p.0 / n, s.1 + p.1 / n));
-        let (sxy, sxx) = pts.iter().fold((0.0, 0.0), |s, p| {
-            (s.0 + (p.0 - mx) * (p.1 - my), s.1 + (p.0 - mx) * (p.0 - mx))
+        // d ln P/d ln R: the least-squares slope of the gas particles' own ln P (c_s² ρ, in
+        // 3D of the mid-disc's) against ln R within a bin width of the bin's centre, a local
+        // linear fit whose error is second order in the width; the binned profile where no
+        // particle is near.
+        let dlnp = local_slope(&pressure_points, r[i], width).unwrap_or_else(|| {
+            let (a, b) = (i.saturating_sub(2), (i + 2).min(n_bins - 1));
+            let pts: Vec<(f64, f64)> = (a..=b)
+                .map(|j| (r[j].ln(), ln_p[j]))
+                .filter(|(_, y)| y.is_finite())
+                .collect();
+            slope(&pts).unwrap_or(f64::NAN)
         });
-        let dlnp = if pts.len() >= 2 { sxy / sxx } else { f64::NAN };
         let sg = phases[0].sigma[i];
         let omega = (g.central_mass / r[i].powi(3)).sqrt();
         let vk = omega * r[i];
@@ -184,6 +194,34 @@ pub fn disc_bins(snap: &SnapshotData, scene: &Scene, n_bins: usize) -> Option<Di
         p.exact_dv_phi = vp;
     }
     Some(DiscBins { r, phases })
+}
+
+/// The least-squares slope of (x, y) points (`None` below two points or with no spread).
+fn slope(pts: &[(f64, f64)]) -> Option<f64> {
+    let n = pts.len() as f64;
+    if pts.len() < 2 {
+        return None;
+    }
+    let (mx, my) = pts
+        .iter()
+        .fold((0.0, 0.0), |s, p| (s.0 + p.0 / n, s.1 + p.1 / n));
+    let (sxy, sxx) = pts.iter().fold((0.0, 0.0), |s, p| {
+        (s.0 + (p.0 - mx) * (p.1 - my), s.1 + (p.0 - mx) * (p.0 - mx))
+    });
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
+/// d ln P/d ln R at `rc` from the particles' (R, ln R, ln P) within `half` of it.
+fn local_slope(points: &[(f64, f64, f64)], rc: f64, half: f64) -> Option<f64> {
+    let near: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|p| (p.0 - rc).abs() < half)
+        .map(|p| (p.1, p.2))
+        .collect();
+    if near.len() < 8 {
+        return None;
+    }
+    slope(&near)
 }
 
 /// The bins as CSV: R, then per phase Σ, v_R, v_φ − v_K and the exact pair.
