@@ -157,6 +157,11 @@ fn kernel_coupling_old_update_wave_steps_bit_identically_on_1_and_4_threads() {
     case(22);
 }
 
+#[test]
+fn damped_dispersion_disc_steps_bit_identically_on_1_and_4_threads() {
+    case(23);
+}
+
 /// Byte size of the single parameter of each entry point in the PTX.
 fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
     let mut out = Vec::new();

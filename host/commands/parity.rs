@@ -476,6 +476,12 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         ],
         20,
     ),
+    (
+        "kernel coupling, damped dispersion: the 2D dusty disc (point mass, locally isothermal)",
+        "configs/dustydisc.toml",
+        &["sph.n=12"],
+        5,
+    ),
 ];
 
 // ---------------------------------------------------------------------------------------------
