@@ -445,8 +445,16 @@ pub unsafe fn coupling_damp<R: Real>(t: usize, a: &ReturnArgs<R>) {
         *a.cb.gas_dev.add(t) = crate::sub(*v, smooth);
         return;
     }
-    let target = gather(&|g| crate::add(*a.cb.u_new.add(g * nf + f), *a.cb.gas_dev.add(g)));
-    let t_stop = gather(&|g| [*a.cb.t_stop.add(g * nf + f), R::ZERO, R::ZERO])[0];
+    // One walk for the target and the stopping time the particle feels.
+    let (mut target, mut t_stop) = ([R::ZERO; 3], R::ZERO);
+    with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
+        kernels::coupling_row_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), at, |g, w| {
+            let w = w / s;
+            let aim = crate::add(*a.cb.u_new.add(g * nf + f), *a.cb.gas_dev.add(g));
+            target = crate::axpy(target, w, aim);
+            t_stop += w * *a.cb.t_stop.add(g * nf + f);
+        })
+    });
     let beta = p.tau / t_stop;
     let share = if beta.is_finite() && beta > R::ZERO {
         beta / (R::ONE + beta)
