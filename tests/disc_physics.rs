@@ -523,7 +523,7 @@ fn an_accreting_run_resumes_bit_for_bit() {
 /// relative to the gas of the slow root of z̈ = −Ω_z² z − ż/t (ż ≈ −z Ω St for St ≪ 1), at
 /// heights between H/4 and 5H/4. H/R = 0.1, 24 particles per unit length in the midplane at
 /// r_ref (h/H ≈ 0.5: the vertical balance the set-up reaches with the run's own SPH forces is
-/// good to ≈1.5 % rms, and the comparison to 15 %; docs/validation.md quotes the figures per
+/// good to ≈1.5 % rms, and the comparison to 15 %; docs/method.md §D quotes the figures per
 /// height, with the band above 5H/4).
 #[test]
 fn dust_in_a_3d_disc_settles_at_its_terminal_velocity() {
