@@ -14,21 +14,10 @@ noise on gas at rest (it should decay at the drag rate), the terminal drift unde
 import sys, os
 import numpy as np
 sys.path.insert(0, os.path.dirname(__file__))
-from drag_coupling import lattice, kmat
-from scipy.sparse import csr_matrix
+from drag_coupling import lattice, kernel_solve
 
 def step(form, xg, vg, xd, ud, mg, md, tau, ts, ag, h):
-    vt = vg + tau * ag
-    Kg = kmat(xg, xg, h); Kd = kmat(xd, xg, h)
-    sg = np.asarray(Kg.sum(1)).ravel(); sd = np.asarray(Kd.sum(1)).ravel()
-    wg = csr_matrix(Kg.multiply(1 / sg[:, None])); wd = csr_matrix(Kd.multiply(1 / np.maximum(sd, 1e-300)[:, None]))
-    Mg = wg.T @ np.full(len(xg), mg); Md = wd.T @ np.full(len(xd), md)
-    Vg = (wg.T @ (mg * vt)) / Mg[:, None]; Ud = (wd.T @ (md * ud)) / np.maximum(Md, 1e-300)[:, None]
-    eps = Md / Mg
-    beta = np.where(Md > 0, tau / ts, 0)
-    wf = eps * beta / (1 + beta)
-    Vn = (Vg + wf[:, None] * Ud) / (1 + wf)[:, None]
-    Un = (Ud + beta[:, None] * Vn) / (1 + beta)[:, None]
+    vt, wg, wd, Vg, Ud, Vn, Un, _ = kernel_solve(xg, vg, xd, ud, mg, md, tau, ts, ag, h)
     vn = vt + wg @ (Vn - Vg); un = ud + wd @ (Un - Ud)
     if form == "flip":
         return vn, un

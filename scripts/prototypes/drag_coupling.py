@@ -145,8 +145,8 @@ def kmat(xsrc, xdst, h):
     r = np.sqrt((d * d).sum(1))
     return csr_matrix((W3(r, h), (rows, cols)), shape=(len(xsrc), len(xdst)))
 
-def step_kernel(xg, vg, xd, ud, mg, md, tau, ts, ag, h):
-    """'cells' = gas particles: each particle deposits with W normalised over the gas particles"""
+def kernel_solve(xg, vg, xd, ud, mg, md, tau, ts, ag, h):
+    """the kernel coupling's deposit and cell solve: (ṽ, weights gas/dust, old and new means, ε)"""
     vt = vg + tau * ag
     Kg = kmat(xg, xg, h); Kd = kmat(xd, xg, h)
     sg = np.asarray(Kg.sum(1)).ravel(); sd = np.asarray(Kd.sum(1)).ravel()
@@ -158,6 +158,11 @@ def step_kernel(xg, vg, xd, ud, mg, md, tau, ts, ag, h):
     wf = eps * beta / (1 + beta)
     Vn = (Vg + wf[:, None] * Ud) / (1 + wf)[:, None]
     Un = (Ud + beta[:, None] * Vn) / (1 + beta)[:, None]
+    return vt, wg, wd, Vg, Ud, Vn, Un, eps
+
+def step_kernel(xg, vg, xd, ud, mg, md, tau, ts, ag, h):
+    """'cells' = gas particles: each particle deposits with W normalised over the gas particles"""
+    vt, wg, wd, Vg, Ud, Vn, Un, eps = kernel_solve(xg, vg, xd, ud, mg, md, tau, ts, ag, h)
     return vt + wg @ (Vn - Vg), ud + wd @ (Un - Ud), eps
 
 def run_k(n=16, shift=0.5, hfact=1.2, ts=1e-6, tau=1e-3, steps=200, mode="drift", eps0=1.0, a=10.0, jitter=0.0, seed=1):
