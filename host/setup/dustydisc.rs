@@ -376,10 +376,18 @@ fn relax(
         }
         // Heavy-ball descent: each move keeps a share of the particle's last one (by id: the
         // engine sorts), which speeds up the slow large-scale mode of the column.
+        // Particles beyond 2H stay where the Gaussian put them: SPH's free surface would push
+        // a column's outermost ones outward without end.
         for ((x, a), id) in g.x.iter_mut().zip(&acc).zip(&g.id) {
             let id = *id as usize;
-            let c2 = phys.local_cs.at(*x).powi(2);
-            let dz = (RELAX_KAPPA * h * h * a[2] / c2 + RELAX_MOMENTUM * moved[id])
+            let d = sub(*x, centre);
+            let r = d[0].hypot(d[1]);
+            let c = phys.local_cs.at(*x);
+            if d[2].abs() > 2.0 * c * (r * r * r / gm).sqrt() {
+                moved[id] = 0.0;
+                continue;
+            }
+            let dz = (RELAX_KAPPA * h * h * a[2] / (c * c) + RELAX_MOMENTUM * moved[id])
                 .clamp(-0.1 * spacing, 0.1 * spacing);
             moved[id] = dz;
             x[2] += dz;
