@@ -497,14 +497,7 @@ fn an_accreting_run_resumes_bit_for_bit() {
     first.advance(Some(4), None, None).unwrap();
     first.checkpoint().unwrap();
     drop(first);
-    let mut second = dustsph::run::Run::resume(
-        &dir.path().join("split"),
-        false,
-        dustsph::step::backend::DeviceChoice::Cpu,
-    )
-    .unwrap();
-    second.advance(None, None, None).unwrap();
-    let (s, b) = second.finish().unwrap();
+    let (s, b) = common::resume_to_the_end(&dir.path().join("split"));
     let star = sw.conservation.star.clone().unwrap();
     assert!(star.gas_particles > 0);
     assert_eq!(s.conservation.star, Some(star));

@@ -348,14 +348,7 @@ fn a_run_from_a_file_resumes_bit_for_bit_and_keeps_its_source() {
     drop(first);
     // The resume needs no initial-conditions file: its record holds what the set-up made.
     std::fs::rename(dir.path().join("ics.h5"), dir.path().join("moved.h5")).unwrap();
-    let mut second = dustsph::run::Run::resume(
-        &dir.path().join("split"),
-        false,
-        dustsph::step::backend::DeviceChoice::Cpu,
-    )
-    .unwrap();
-    second.advance(None, None, None).unwrap();
-    let (s, b) = second.finish().unwrap();
+    let (s, b) = common::resume_to_the_end(&dir.path().join("split"));
     assert_eq!(a.step, 8, "0.02 → 0.1 in steps of 0.01");
     assert!(by_id(&a) == by_id(&b), "not bit for bit");
     assert_eq!(s.t_start, 0.02);

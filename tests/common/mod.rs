@@ -81,3 +81,11 @@ pub fn run_scene_in(
     check(&out);
     r
 }
+
+/// Resume the run in `dir` from its checkpoint on the CPU and take it to its end.
+pub fn resume_to_the_end(dir: &std::path::Path) -> (Summary, State) {
+    let mut run = dustsph::run::Run::resume(dir, false, dustsph::step::backend::DeviceChoice::Cpu)
+        .unwrap_or_else(|e| panic!("resume {}: {e}", dir.display()));
+    run.advance(None, None, None).unwrap();
+    run.finish().unwrap()
+}
