@@ -60,6 +60,16 @@ pub fn axpy<R: Real>(a: Vec3<R>, s: R, b: Vec3<R>) -> Vec3<R> {
     [a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2]]
 }
 
+/// `a × b`
+#[inline(always)]
+pub fn cross<R: Real>(a: Vec3<R>, b: Vec3<R>) -> Vec3<R> {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
 #[inline(always)]
 pub fn scale<R: Real>(s: R, a: Vec3<R>) -> Vec3<R> {
     [s * a[0], s * a[1], s * a[2]]

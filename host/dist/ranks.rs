@@ -562,9 +562,9 @@ impl RankStepper {
                 *sk += r.m * vk;
             }
             s[3] += r.m * dustsph_device::dot(r.v, r.v).sqrt();
-            s[4] += r.m * (x[1] * r.v[2] - x[2] * r.v[1]);
-            s[5] += r.m * (x[2] * r.v[0] - x[0] * r.v[2]);
-            s[6] += r.m * (x[0] * r.v[1] - x[1] * r.v[0]);
+            for (sk, lk) in s[4..].iter_mut().zip(dustsph_device::cross(x, r.v)) {
+                *sk += r.m * lk;
+            }
         }
         self.world.sum_f64(&mut s);
         crate::step::Momentum {

@@ -259,7 +259,7 @@ pub struct IdicSection {
     /// launcher and the GPU's alike).
     pub deposit: Option<DepositForm>,
     /// Kernel coupling only: whether each dust particle's unresolved velocity deviation is
-    /// kept (the increments alone, as built first) or damped at the drag rate.
+    /// kept (each particle gets the smoothed increments alone) or damped at the drag rate.
     pub dispersion: Option<Dispersion>,
 }
 

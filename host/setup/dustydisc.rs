@@ -11,6 +11,7 @@
 use super::*;
 use crate::exact::drift::steady_drift;
 use crate::scene::{DiscCfg, DustStart, GasEos};
+use dustsph_device::sub;
 
 pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
     let GasEos::LocallyIsothermal { cs0, q, r_ref, .. } = scene.gas.eos else {
@@ -256,10 +257,6 @@ fn place(ph: &mut Phase, ly: &Layer, shift: f64, c: [f64; 3], v: [f64; 3], m: f6
         ph.m.push(m);
         ph.rho.push(rho);
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
 /// The Keplerian speed at (R, z) about the point mass, and d ln P/d ln R there for P = c_s² ρ

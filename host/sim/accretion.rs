@@ -69,9 +69,13 @@ impl Accreted {
             for (p, vk) in self.momentum.iter_mut().zip(v) {
                 *p += m * vk;
             }
-            self.angular_momentum[0] += m * (d[1] * v[2] - d[2] * v[1]);
-            self.angular_momentum[1] += m * (d[2] * v[0] - d[0] * v[2]);
-            self.angular_momentum[2] += m * (d[0] * v[1] - d[1] * v[0]);
+            for (lk, ck) in self
+                .angular_momentum
+                .iter_mut()
+                .zip(dustsph_device::cross(d, v))
+            {
+                *lk += m * ck;
+            }
         }
         (n > 0).then_some((keep, n, mass))
     }

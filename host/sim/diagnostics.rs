@@ -70,6 +70,9 @@ pub struct Diagnostics {
     /// The largest |L(t) + L_accreted(t) − L(0)| after any step.
     #[serde(default)]
     pub angular_momentum_change_max: f64,
+    /// L of the particles after the last step (the reduction's).
+    #[serde(default)]
+    pub angular_momentum: [f64; 3],
     /// What the point mass has accreted.
     #[serde(default)]
     pub accreted: super::accretion::Accreted,
@@ -101,6 +104,7 @@ impl Diagnostics {
             momentum_change_max: 0.0,
             angular_momentum0: m.l,
             angular_momentum_change_max: 0.0,
+            angular_momentum: m.l,
             accreted: Default::default(),
         }
     }
@@ -128,6 +132,7 @@ impl Diagnostics {
             .sum::<f64>()
             .sqrt();
         self.angular_momentum_change_max = self.angular_momentum_change_max.max(dl);
+        self.angular_momentum = m.l;
     }
 
     /// The angular momentum's drift: max over the steps of |L(t) + L_accreted − L(0)|

@@ -140,7 +140,8 @@ pub struct Summary {
 }
 
 /// The conservation of a run from its diagnostics and its final (synced) state; masses count
-/// what the star accreted, and `phys`'s point mass sets the centre of the angular momentum.
+/// what the star accreted, and the angular momentum (about `phys`'s point mass) is the
+/// engine's reduction after the last step plus the star's record.
 pub fn conservation(
     d: &Diagnostics,
     state: &crate::particles::State,
@@ -148,16 +149,7 @@ pub fn conservation(
 ) -> Conservation {
     let a = &d.accreted;
     let taken = |k: usize| a.dust_mass.get(k).copied().unwrap_or(0.0);
-    let c = phys.gravity.pos;
-    let mut l = a.angular_momentum;
-    for ph in std::iter::once(&state.gas.ph).chain(&state.dust) {
-        for i in 0..ph.len() {
-            let (x, v, m) = (dustsph_device::sub(ph.x[i], c), ph.v[i], ph.m[i]);
-            l[0] += m * (x[1] * v[2] - x[2] * v[1]);
-            l[1] += m * (x[2] * v[0] - x[0] * v[2]);
-            l[2] += m * (x[0] * v[1] - x[1] * v[0]);
-        }
-    }
+    let l = dustsph_device::add(d.angular_momentum, a.angular_momentum);
     Conservation {
         mass_gas: Drift::new(d.mass0.0, state.gas.ph.total_mass() + a.gas_mass),
         mass_dust: state
@@ -172,7 +164,7 @@ pub fn conservation(
         momentum_drift_relative: d.momentum_drift(),
         energy: Drift::new(d.energy0, state.total_energy()),
         angular_momentum: phys.gravity.is_on().then(|| AngularMomentum {
-            about: c,
+            about: phys.gravity.pos,
             initial: d.angular_momentum0,
             r#final: l,
             drift_relative: d.angular_momentum_drift(),

@@ -45,9 +45,10 @@ pub unsafe fn momentum<R: Real>(t: usize, a: &MomentumArgs<R>) {
             s[k] += mi * vi[k];
         }
         s[3] += mi * Real::sqrt(dot(vi, vi));
-        s[4] += mi * (r[1] * vi[2] - r[2] * vi[1]);
-        s[5] += mi * (r[2] * vi[0] - r[0] * vi[2]);
-        s[6] += mi * (r[0] * vi[1] - r[1] * vi[0]);
+        let l = crate::cross(r, vi);
+        for k in 0..3 {
+            s[4 + k] += mi * l[k];
+        }
         if dot(r, r) < a.r_acc2 {
             s[7] += 1.0;
         }
