@@ -145,6 +145,7 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         s.1 += pull[i];
         s.2 += 1;
     }
+    let unstable = rayleigh_unstable(&layers, &sums);
     let fr = scene.fractions();
     let eps: Vec<f64> = fr.iter().map(|f| f.eps).collect();
     let drift_start = d.dust_velocity == DustStart::Drift;
@@ -215,6 +216,21 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         next += ph.len() as u64;
     }
     let n_rings = rings.len();
+    // The resolution of the scale height: h/H of the midplane at the inner and outer rings and
+    // at r_ref (variable h: hfact (m/ρ)^(1/d) of the set-up's density).
+    let h_over_h = |r: f64| {
+        let hr = match scene.sph.smoothing.variable_hfact() {
+            Some(hf) => hf * (m / rho_at(r, 0.0)).powf(1.0 / dim as f64),
+            None => h,
+        };
+        hr / height(r)
+    };
+    let resolution = format!(
+        "; h/H {:.2} at the inner ring, {:.2} at r_ref, {:.2} at the outer",
+        h_over_h(rings[0].r),
+        h_over_h(r_ref),
+        h_over_h(rings[n_rings - 1].r)
+    );
     let mut su = Setup::at_start(
         gas_phase(gas, None),
         dust,
@@ -224,7 +240,7 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         2.0 * d.r_out,
     );
     su.notes.push(format!(
-        "disc: {n_rings} rings, {} layers, {ng} gas particles between R = {} and {}, H/R = {:.4} at r_ref = {r_ref}{}{}",
+        "disc: {n_rings} rings, {} layers, {ng} gas particles between R = {} and {}, H/R = {:.4} at r_ref = {r_ref}{resolution}{}{}",
         layers.len(),
         d.r_in,
         d.r_out,
@@ -232,7 +248,40 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         relax_note,
         if drift_start { "" } else { "; dust on Keplerian orbits (no drift)" }
     ));
+    if !unstable.is_empty() {
+        let at: Vec<String> = unstable.iter().map(|r| format!("{r:.4}")).collect();
+        su.notes.push(format!(
+            "warning: disc: R v_φ falls outward at R = {} (the SPH edge's pressure gradient over h; \
+             Rayleigh-unstable: expect those rings to stir the disc within about an orbit there; \
+             method.md §D, \"The discs' edges\")",
+            at.join(", ")
+        ));
+    }
     Ok(su)
+}
+
+/// The rings' mid-radii where the specific angular momentum of the balance falls outward
+/// (Rayleigh: (R v_φ)² must grow with R). A ring's (R v_φ)² is the mean over its layers of
+/// R⁴ ⟨pull⟩; each radius returned is that of the outer ring of a falling pair. An SPH edge
+/// has a pressure gradient of c_s²/h over one h, not over H, and where h < H the rotation that
+/// balances it breaks this (method.md §D, "The discs' edges").
+fn rayleigh_unstable(layers: &[Layer], sums: &[(f64, f64, usize)]) -> Vec<f64> {
+    let mut rings: Vec<(f64, f64, usize)> = Vec::new(); // (R, Σ (R v_φ)², layers)
+    for (ly, s) in layers.iter().zip(sums) {
+        let j2 = ly.r.powi(4) * s.1 / s.2 as f64;
+        match rings.last_mut() {
+            Some(last) if last.0 == ly.r => {
+                last.1 += j2;
+                last.2 += 1;
+            }
+            _ => rings.push((ly.r, j2, 1)),
+        }
+    }
+    rings
+        .windows(2)
+        .filter(|w| w[1].1 / (w[1].2 as f64) < w[0].1 / (w[0].2 as f64))
+        .map(|w| w[1].0)
+        .collect()
 }
 
 /// One layer of a ring: `count` particles of mass `mass` at radius `r`, height `z`, angles
@@ -471,4 +520,48 @@ fn rings(d: &DiscCfg, sigma: &impl Fn(f64) -> f64, spacing: &impl Fn(f64) -> f64
         lo = hi;
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn layer(r: f64, z: f64) -> Layer {
+        Layer {
+            r,
+            z,
+            count: 10,
+            turn: 0.0,
+            mass: 1.0,
+        }
+    }
+
+    /// Keplerian rings (pull = GM/R³, (R v_φ)² = GM R) are Rayleigh-stable; a ring whose
+    /// pull is cut by an edge's pressure is reported, in 2D and, averaged over its layers, 3D.
+    #[test]
+    fn rayleigh_check_names_the_ring_whose_angular_momentum_falls_outward() {
+        let radii = [1.0, 1.1, 1.2, 1.3];
+        let kepler = |r: f64| 1.0 / (r * r * r);
+        let two_d: Vec<Layer> = radii.iter().map(|&r| layer(r, 0.0)).collect();
+        let mut sums: Vec<(f64, f64, usize)> = radii.iter().map(|&r| (0.0, kepler(r), 1)).collect();
+        assert!(rayleigh_unstable(&two_d, &sums).is_empty());
+        // The outer ring held up by its pressure: 0.8 of the Keplerian pull, (R v_φ)² down 20 %.
+        sums[3].1 *= 0.8;
+        assert_eq!(rayleigh_unstable(&two_d, &sums), vec![1.3]);
+        // 3D: two layers per ring; only the ring's mean counts (one layer 30 % down, the other
+        // 30 % up, is no fall).
+        let three_d: Vec<Layer> = radii
+            .iter()
+            .flat_map(|&r| [layer(r, -0.1), layer(r, 0.1)])
+            .collect();
+        let mut s3: Vec<(f64, f64, usize)> = three_d
+            .iter()
+            .map(|l| (l.z * 10.0, 10.0 * kepler(l.r), 10))
+            .collect();
+        s3[4].1 *= 0.7;
+        s3[5].1 *= 1.3;
+        assert!(rayleigh_unstable(&three_d, &s3).is_empty());
+        s3[5].1 /= 1.3;
+        assert_eq!(rayleigh_unstable(&three_d, &s3), vec![1.2]);
+    }
 }
