@@ -145,7 +145,7 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         s.1 += pull[i];
         s.2 += 1;
     }
-    let unstable = rayleigh_unstable(&layers, &sums);
+    let unstable = rayleigh_unstable(&layers, &sums, gm);
     let fr = scene.fractions();
     let eps: Vec<f64> = fr.iter().map(|f| f.eps).collect();
     let drift_start = d.dust_velocity == DustStart::Drift;
@@ -249,23 +249,27 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         if drift_start { "" } else { "; dust on Keplerian orbits (no drift)" }
     ));
     if !unstable.is_empty() {
-        let at: Vec<String> = unstable.iter().map(|r| format!("{r:.4}")).collect();
+        let at: Vec<String> = unstable
+            .iter()
+            .map(|(r, g)| format!("{r:.4} ({g:.2})"))
+            .collect();
         su.notes.push(format!(
-            "warning: disc: R v_φ falls outward at R = {} (the SPH edge's pressure gradient over h; \
-             Rayleigh-unstable: expect those rings to stir the disc within about an orbit there; \
-             method.md §D, \"The discs' edges\")",
+            "warning: disc: R v_φ falls outward at R = {} (in brackets the growth rate of a \
+             displacement there over Ω: Rayleigh-unstable rings, an SPH edge's pressure gradient \
+             acting over h; method.md §D, \"The discs' edges\")",
             at.join(", ")
         ));
     }
     Ok(su)
 }
 
-/// The rings' mid-radii where the specific angular momentum of the balance falls outward
-/// (Rayleigh: (R v_φ)² must grow with R). A ring's (R v_φ)² is the mean over its layers of
-/// R⁴ ⟨pull⟩; each radius returned is that of the outer ring of a falling pair. An SPH edge
-/// has a pressure gradient of c_s²/h over one h, not over H, and where h < H the rotation that
-/// balances it breaks this (method.md §D, "The discs' edges").
-fn rayleigh_unstable(layers: &[Layer], sums: &[(f64, f64, usize)]) -> Vec<f64> {
+/// The rings where the specific angular momentum of the balance falls outward (Rayleigh:
+/// (R v_φ)² must grow with R), each as (R, γ/Ω): R the outer ring of a falling pair, γ the
+/// growth rate of a displacement there, γ² = −κ² = −d(R v_φ)²/dR / R³, over Ω² = GM/R³. A
+/// ring's (R v_φ)² is the mean over its layers of R⁴ ⟨pull⟩. An SPH edge has a pressure
+/// gradient of c_s²/h over one h, not over H, and where h < H the rotation that balances it
+/// breaks this (method.md §D, "The discs' edges").
+fn rayleigh_unstable(layers: &[Layer], sums: &[(f64, f64, usize)], gm: f64) -> Vec<(f64, f64)> {
     let mut rings: Vec<(f64, f64, usize)> = Vec::new(); // (R, Σ (R v_φ)², layers)
     for (ly, s) in layers.iter().zip(sums) {
         let j2 = ly.r.powi(4) * s.1 / s.2 as f64;
@@ -279,8 +283,10 @@ fn rayleigh_unstable(layers: &[Layer], sums: &[(f64, f64, usize)]) -> Vec<f64> {
     }
     rings
         .windows(2)
-        .filter(|w| w[1].1 / (w[1].2 as f64) < w[0].1 / (w[0].2 as f64))
-        .map(|w| w[1].0)
+        .filter_map(|w| {
+            let fall = w[0].1 / w[0].2 as f64 - w[1].1 / w[1].2 as f64;
+            (fall > 0.0).then(|| (w[1].0, (fall / (w[1].0 - w[0].0) / gm).sqrt()))
+        })
         .collect()
 }
 
@@ -544,10 +550,14 @@ mod tests {
         let kepler = |r: f64| 1.0 / (r * r * r);
         let two_d: Vec<Layer> = radii.iter().map(|&r| layer(r, 0.0)).collect();
         let mut sums: Vec<(f64, f64, usize)> = radii.iter().map(|&r| (0.0, kepler(r), 1)).collect();
-        assert!(rayleigh_unstable(&two_d, &sums).is_empty());
+        assert!(rayleigh_unstable(&two_d, &sums, 1.0).is_empty());
         // The outer ring held up by its pressure: 0.8 of the Keplerian pull, (R v_φ)² down 20 %.
         sums[3].1 *= 0.8;
-        assert_eq!(rayleigh_unstable(&two_d, &sums), vec![1.3]);
+        // (R v_φ)² = 1.3 · 0.8 after 1.2: γ² = (1.2 − 1.04)/0.1 = 1.6 (GM = 1).
+        let found = rayleigh_unstable(&two_d, &sums, 1.0);
+        assert_eq!(found.len(), 1);
+        assert_eq!(found[0].0, 1.3);
+        assert!((found[0].1 - 1.6f64.sqrt()).abs() < 1e-12, "{found:?}");
         // 3D: two layers per ring; only the ring's mean counts (one layer 30 % down, the other
         // 30 % up, is no fall).
         let three_d: Vec<Layer> = radii
@@ -560,8 +570,12 @@ mod tests {
             .collect();
         s3[4].1 *= 0.7;
         s3[5].1 *= 1.3;
-        assert!(rayleigh_unstable(&three_d, &s3).is_empty());
+        assert!(rayleigh_unstable(&three_d, &s3, 1.0).is_empty());
         s3[5].1 /= 1.3;
-        assert_eq!(rayleigh_unstable(&three_d, &s3), vec![1.2]);
+        // The ring at 1.2 down to (1.2·0.7 + 1.2)/2 = 1.02 after 1.1: γ² = 0.08/0.1 = 0.8.
+        let found = rayleigh_unstable(&three_d, &s3, 1.0);
+        assert_eq!(found.len(), 1);
+        assert_eq!(found[0].0, 1.2);
+        assert!((found[0].1 - 0.8f64.sqrt()).abs() < 1e-12, "{found:?}");
     }
 }
