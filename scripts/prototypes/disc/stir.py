@@ -1,0 +1,42 @@
+"""How much a 2D gas disc has been stirred: for each snapshot of a run, per annulus, the change of
+Sigma (the particles' mass-weighted SPH density, relative to the first snapshot) and the rms over
+the particles of the gas's v_R over the local c_s = cs0 (R/r_ref)^-q (r_ref = 1). Needs numpy and h5py.
+    python3 scripts/prototypes/disc/stir.py RUN_DIR [EDGES] [CS0] [Q]
+EDGES: annulus edges, comma-separated (0.5,0.6,0.8,1.1,1.5,2); CS0 (0.05); Q (0.25)."""
+import glob
+import sys
+
+import h5py
+import numpy as np
+
+run = sys.argv[1]
+edges = np.array([float(e) for e in (sys.argv[2] if len(sys.argv) > 2 else "0.5,0.6,0.8,1.1,1.5,2").split(",")])
+cs0 = float(sys.argv[3]) if len(sys.argv) > 3 else 0.05
+q = float(sys.argv[4]) if len(sys.argv) > 4 else 0.25
+
+
+def annuli(path):
+    with h5py.File(path) as f:
+        t = f["Header"].attrs["Time"]
+        x = f["PartType0/Coordinates"][:] + f["Header"].attrs["CoordinateOffset"]
+        v = f["PartType0/Velocities"][:]
+        m = f["PartType0/Masses"][:]
+        rho = f["PartType0/Density"][:]
+    r = np.hypot(x[:, 0], x[:, 1])
+    vr = (x[:, 0] * v[:, 0] + x[:, 1] * v[:, 1]) / r
+    mass = np.histogram(r, edges, weights=m)[0]
+    sigma = np.histogram(r, edges, weights=m * rho)[0] / np.maximum(mass, 1e-300)
+    count = np.histogram(r, edges)[0]
+    stir = np.sqrt(np.histogram(r, edges, weights=(vr / (cs0 * r**-q)) ** 2)[0] / np.maximum(count, 1))
+    return t, sigma, stir
+
+
+files = sorted(glob.glob(run + "/snapshot_*.h5"))
+_, sigma0, _ = annuli(files[0])
+print("annuli:", " ".join(f"{a:g}-{b:g}" for a, b in zip(edges[:-1], edges[1:])))
+for path in files:
+    t, sigma, stir = annuli(path)
+    print(
+        f"t/2pi {t / 2 / np.pi:6.3f}  dSigma % " + " ".join(f"{100 * (s / s0 - 1):+6.1f}" for s, s0 in zip(sigma, sigma0)),
+        " | rms vR/cs " + " ".join(f"{s:6.3f}" for s in stir),
+    )
