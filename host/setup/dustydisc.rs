@@ -217,10 +217,10 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
     }
     let n_rings = rings.len();
     // The resolution of the scale height: h/H of the midplane at the inner and outer rings and
-    // at r_ref (variable h: hfact (m/ρ)^(1/d) of the set-up's density).
+    // at r_ref (variable h: the h of the set-up's density).
     let h_over_h = |r: f64| {
         let hr = match scene.sph.smoothing.variable_hfact() {
-            Some(hf) => hf * (m / rho_at(r, 0.0)).powf(1.0 / dim as f64),
+            Some(hf) => dustsph_device::kernel::h_of_density(m, rho_at(r, 0.0), hf, dim, h),
             None => h,
         };
         hr / height(r)
