@@ -132,6 +132,27 @@ fn impossible_values_name_their_key_and_file() {
             "gravity.accretion_radius=-0.1",
             "gravity.accretion_radius",
         ),
+        (
+            "dustydisc",
+            "gravity.damp_inner=[1.0, 0.8]",
+            "gravity.damp_inner",
+        ),
+        (
+            "dustydisc",
+            "gravity.damp_outer=[-1.0, 2.0]",
+            "gravity.damp_outer",
+        ),
+        (
+            "dustydisc",
+            "gravity.damp_inner=[0.5, 1.8]\u{0}gravity.damp_outer=[1.5, 2.0]",
+            "gravity.damp_inner",
+        ),
+        ("dustydisc", "gravity.damp_time=0.1", "gravity.damp_time"),
+        (
+            "dustydisc",
+            "gravity.damp_outer=[1.8, 2.0]\u{0}gravity.damp_time=0",
+            "gravity.damp_time",
+        ),
         ("dustydisc", "time.dt_max=0", "time.dt_max"),
         ("dustybox", "time.dt_max=0.1", "time.dt_max"),
         ("dustydisc", "scene.dim=1", "scene.dim"),

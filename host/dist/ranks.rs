@@ -450,11 +450,13 @@ impl RankStepper {
         let mut most = [
             forces.as_ref().map_or(0.0, |f| f.vsig_max),
             forces.as_ref().map_or(0.0, |f| f.acc_max),
+            forces.as_ref().map_or(0.0, |f| f.damp_rate_max),
         ];
         world.max_f64(&mut most);
         let global = Forces {
             vsig_max: most[0],
             acc_max: most[1],
+            damp_rate_max: most[2],
         };
         let explicit = self.phys.drag == crate::scene::DragMethod::Explicit;
         if explicit && !thin {

@@ -48,6 +48,12 @@ pub struct GravitySection {
     pub softening: Option<f64>,
     /// Particles closer to the point mass than this are accreted at the end of a step.
     pub accretion_radius: Option<f64>,
+    /// Inner edge damping zone [R_full, R_none] (cylindrical R).
+    pub damp_inner: Option<[f64; 2]>,
+    /// Outer edge damping zone [R_none, R_full].
+    pub damp_outer: Option<[f64; 2]>,
+    /// The zones' damping time at full weight, in local orbital periods.
+    pub damp_time: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]

@@ -510,6 +510,33 @@ pub struct Gravity {
     /// Particles closer than this to the point mass are removed at the end of a step, their
     /// mass, momentum and angular momentum added to the star's record (0: none).
     pub accretion_radius: f64,
+    /// Edge damping zones (method.md §D, "The discs' edges"): radial and vertical velocities
+    /// damped, fully at R ≤ `damp_inner[0]` and R ≥ `damp_outer[1]`, ramped to none at
+    /// `damp_inner[1]` and `damp_outer[0]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub damp_inner: Option<[f64; 2]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub damp_outer: Option<[f64; 2]>,
+    /// The damping time at full weight in local orbital periods (0 when there is no zone).
+    pub damp_time: f64,
+}
+
+impl Gravity {
+    /// The point mass and its zones as the device's kernels take them.
+    pub fn point_mass(&self) -> dustsph_device::gravity::PointMass {
+        dustsph_device::gravity::PointMass {
+            gm: self.central_mass,
+            pos: self.position,
+            soft2: self.softening * self.softening,
+            damp_inner: self.damp_inner.unwrap_or([0.0; 2]),
+            damp_outer: self.damp_outer.unwrap_or([0.0; 2]),
+            damp_per_omega: if self.damp_time > 0.0 {
+                1.0 / (2.0 * std::f64::consts::PI * self.damp_time)
+            } else {
+                0.0
+            },
+        }
+    }
 }
 
 /// `[units]`: one code unit of length and of mass in cgs; time from G = 1 (Phantom's code

@@ -394,11 +394,57 @@ fn gravity(g: Option<&GravitySection>, dim: u32) -> VResult<Option<Gravity>> {
     non_negative("gravity.softening", softening)?;
     let accretion_radius = g.accretion_radius.unwrap_or(0.0);
     non_negative("gravity.accretion_radius", accretion_radius)?;
+    let zone = |key: &str, z: Option<[f64; 2]>| -> VResult<Option<[f64; 2]>> {
+        let Some([a, b]) = z else { return Ok(None) };
+        if !(a.is_finite() && b.is_finite() && a >= 0.0 && a < b) {
+            return err(
+                key,
+                format!("[{a}, {b}] must be two radii, 0 ≤ the first < the second"),
+            );
+        }
+        Ok(Some([a, b]))
+    };
+    let damp_inner = zone("gravity.damp_inner", g.damp_inner)?;
+    let damp_outer = zone("gravity.damp_outer", g.damp_outer)?;
+    if let (Some(i), Some(o)) = (damp_inner, damp_outer) {
+        if i[1] > o[0] {
+            return err(
+                "gravity.damp_inner",
+                format!(
+                    "the inner zone (to R = {}) reaches into the outer one (from R = {})",
+                    i[1], o[0]
+                ),
+            );
+        }
+    }
+    let zones = damp_inner.is_some() || damp_outer.is_some();
+    let damp_time = match (zones, g.damp_time) {
+        (false, Some(_)) => {
+            return err(
+                "gravity.damp_time",
+                "used only with gravity.damp_inner or gravity.damp_outer (remove it: --set \
+                 gravity.damp_time=)"
+                    .to_string(),
+            )
+        }
+        (false, None) => 0.0,
+        (true, t) => {
+            // de Val-Borro et al. (2006) damp over a tenth of the local orbit.
+            let t = t.unwrap_or(0.1);
+            if !(t.is_finite() && t > 0.0) {
+                return err("gravity.damp_time", format!("{t} must be positive"));
+            }
+            t
+        }
+    };
     Ok(Some(Gravity {
         central_mass: g.central_mass,
         position,
         softening,
         accretion_radius,
+        damp_inner,
+        damp_outer,
+        damp_time,
     }))
 }
 

@@ -360,6 +360,8 @@ fn relax(
     let mut phys = crate::step::Physics::from_scene(scene, h, domain);
     phys.laws.clear();
     phys.accretion_radius = 0.0;
+    // The balance is measured at rest: no zone damping.
+    phys.gravity.damp_per_omega = 0.0;
     let centre = phys.gravity.pos;
     let gm = phys.gravity.gm;
     let dim = domain.dim;

@@ -246,6 +246,7 @@ mod tests {
             forces: crate::step::Forces {
                 vsig_max: 1.0,
                 acc_max: 0.0,
+                damp_rate_max: 0.0,
             },
         };
         let at = |x: f64, s: f64| Momentum {

@@ -50,6 +50,7 @@ impl Stepper {
                     forces: Forces {
                         vsig_max,
                         acc_max: 0.0,
+                        damp_rate_max: 0.0,
                     },
                 })
             }

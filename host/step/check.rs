@@ -13,14 +13,19 @@ pub struct Forces {
     pub vsig_max: f64,
     /// Largest |A| (for the force limit).
     pub acc_max: f64,
+    /// Largest edge-zone damping rate (`[gravity] damp_inner`/`damp_outer`; 0 without zones):
+    /// the step keeps τ ≤ 1/rate.
+    pub damp_rate_max: f64,
 }
 
 impl Forces {
-    /// From per-particle rows (A_x, A_y, A_z, ė, v_sig).
+    /// From per-particle rows (A_x, A_y, A_z, ė, v_sig); no damping rate (the rows do not
+    /// hold it).
     pub fn from_rows(rows: &[[f64; 5]]) -> Forces {
         let mut f = Forces {
             vsig_max: 0.0,
             acc_max: 0.0,
+            damp_rate_max: 0.0,
         };
         for r in rows {
             let a = [r[0], r[1], r[2]];

@@ -92,13 +92,9 @@ impl Physics {
                 .gas
                 .eos
                 .local_sound_speed(scene.gravity.map(|g| g.position)),
-            gravity: scene.gravity.map_or_else(Default::default, |g| {
-                dustsph_device::gravity::PointMass {
-                    gm: g.central_mass,
-                    pos: g.position,
-                    soft2: g.softening * g.softening,
-                }
-            }),
+            gravity: scene
+                .gravity
+                .map_or_else(Default::default, |g| g.point_mass()),
             accretion_radius: scene.gravity.map_or(0.0, |g| g.accretion_radius),
             cell_size: scene.idic.cell * h,
             domain,

@@ -61,15 +61,22 @@ pub fn dt_limits(h: f64, f: &Forces) -> (f64, f64) {
 }
 
 /// The step size τ: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit) capped by
-/// `time.dt_max`, and in
+/// the edge zones' 1/rate (`dt_damp`: their explicit decay stays monotone) and `time.dt_max`,
+/// and in
 /// either case no more than the drag limit `dt_drag`. Returns (τ, whether the drag limit set
 /// it).
-pub fn step_size(time: &Time, dt_cfl: f64, dt_force: f64, dt_drag: f64) -> (f64, bool) {
+pub fn step_size(
+    time: &Time,
+    dt_cfl: f64,
+    dt_force: f64,
+    dt_damp: f64,
+    dt_drag: f64,
+) -> (f64, bool) {
     let base = match time.step {
         StepRule::Fixed { dt } => dt,
-        StepRule::Cfl { cfl, dt_max } => {
-            (cfl * dt_cfl.min(dt_force)).min(dt_max.unwrap_or(f64::INFINITY))
-        }
+        StepRule::Cfl { cfl, dt_max } => (cfl * dt_cfl.min(dt_force))
+            .min(dt_damp)
+            .min(dt_max.unwrap_or(f64::INFINITY)),
     };
     if dt_drag < base {
         (dt_drag, true)
@@ -97,7 +104,12 @@ impl StepPlanner {
         t_target: f64,
     ) -> Result<Plan, PlanError> {
         let (dt_cfl, dt_force) = dt_limits(self.h, forces);
-        let (dt_free, by_drag) = step_size(&self.time, dt_cfl, dt_force, dt_drag);
+        let dt_damp = if forces.damp_rate_max > 0.0 {
+            1.0 / forces.damp_rate_max
+        } else {
+            f64::INFINITY
+        };
+        let (dt_free, by_drag) = step_size(&self.time, dt_cfl, dt_force, dt_damp, dt_drag);
         if !(dt_free.is_finite() && dt_free > 0.0) {
             return Err(PlanError::NoLimit(format!(
                 "step {step}, t = {t:e}: time step is {dt_free} (no signal speed or force to set \

@@ -20,12 +20,15 @@ pub unsafe fn dust_accel<R: Real>(t: usize, a: &DustAccelArgs<R>) {
     *d.v.add(t) = crate::axpy(*d.v.add(t), a.p.tau, b);
 }
 
-/// B of dust particle t: `ext_dust` plus the point mass's acceleration.
+/// B of dust particle t: `ext_dust` plus the point mass's acceleration and its edge zones'
+/// damping.
 #[inline(always)]
 unsafe fn dust_external<R: Real>(t: usize, a: &DustAccelArgs<R>) -> Vec3<R> {
     let g = &a.p.gravity;
     if g.is_on() {
-        crate::add(a.p.ext_dust, g.accel(a.ph.x()[t]).map(R::from_f64))
+        let x = a.ph.x()[t];
+        let damp = g.damping(x, a.ph.v()[t].map(|c| c.to_f64()));
+        crate::add(a.p.ext_dust, crate::add(g.accel(x), damp).map(R::from_f64))
     } else {
         a.p.ext_dust
     }
@@ -35,12 +38,13 @@ unsafe fn dust_external<R: Real>(t: usize, a: &DustAccelArgs<R>) -> Vec3<R> {
 #[derive(Clone, Copy, Debug)]
 pub struct DustLimitArgs<R> {
     pub acc: DustAccelArgs<R>,
-    /// The step's limits ([vsig, |A|] as ordered bits, as the forces kernel writes them).
+    /// The step's limits ([vsig, |A|, damping rate] as ordered bits, as the forces kernel
+    /// writes them).
     pub limits: *mut u64,
 }
 
 /// |B| of dust particle t into the step's acceleration limit (the force limit √(h/|A|) then
-/// holds for the dust under a point mass too).
+/// holds for the dust under a point mass too), and its edge zones' damping rate.
 pub unsafe fn dust_accel_limit<R: Real>(t: usize, a: &DustLimitArgs<R>) {
     let d = &a.acc.ph;
     if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
@@ -49,6 +53,10 @@ pub unsafe fn dust_accel_limit<R: Real>(t: usize, a: &DustLimitArgs<R>) {
     let b = dust_external(t, &a.acc);
     let m = Real::sqrt(crate::dot(b, b));
     atomic_max_u64(a.limits.add(1), kernels::ordered_bits(m));
+    let rate = a.acc.p.gravity.damp_rate(d.x()[t]);
+    if rate > 0.0 {
+        atomic_max_u64(a.limits.add(2), kernels::ordered_bits(R::from_f64(rate)));
+    }
 }
 
 /// Per-particle buffers of the kernel coupling.

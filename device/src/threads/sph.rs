@@ -118,10 +118,15 @@ pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
             av.as_ref(),
         ),
     };
-    // A^n includes the central point mass (fixed particles are never kicked).
+    // A^n includes the central point mass and its edge zones' damping (fixed particles are
+    // never kicked).
+    let mut rate = 0.0;
     let acc = if a.p.gravity.is_on() {
-        let g = a.p.gravity.accel(g.x()[t]);
-        crate::add(r.acc, g.map(R::from_f64))
+        let x = g.x()[t];
+        let pm = &a.p.gravity;
+        rate = pm.damp_rate(x);
+        let damp = pm.damping(x, view.v[t].map(|c| c.to_f64()));
+        crate::add(r.acc, crate::add(pm.accel(x), damp).map(R::from_f64))
     } else {
         r.acc
     };
@@ -135,4 +140,7 @@ pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
     let am = Real::sqrt(dot(acc, acc));
     atomic_max_u64(a.limits, kernels::ordered_bits(r.vsig));
     atomic_max_u64(a.limits.add(1), kernels::ordered_bits(am));
+    if rate > 0.0 {
+        atomic_max_u64(a.limits.add(2), kernels::ordered_bits(R::from_f64(rate)));
+    }
 }

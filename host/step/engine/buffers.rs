@@ -503,7 +503,7 @@ impl<L: Launcher, R: Float> CellBuffers<L, R> {
 /// The leapfrog's state: the closing forces' maxima (the forces stay in `acc`, `dedt`, `vsig`)
 /// and the half-step values kept across the predictor.
 pub(super) struct LeapfrogBuffers<L: Launcher, R: Float> {
-    pub(super) closing: Option<(f64, f64)>,
+    pub(super) closing: Option<Forces>,
     pub(super) vsig: Option<Buf<L, R>>,
     pub(super) v_save: Buf<L, [R; 3]>,
     pub(super) u_save: Buf<L, [R; 3]>,
@@ -651,10 +651,7 @@ impl<L: Launcher, R: Float> LeapfrogBuffers<L, R> {
     ) -> Result<Self, GpuError> {
         let k = stages.kdk;
         let save = k || phys.position_update == PositionUpdate::Old;
-        let closing = rows.map(|r| {
-            let f = Forces::from_rows(r);
-            (f.vsig_max, f.acc_max)
-        });
+        let closing = rows.map(Forces::from_rows);
         let vsig = rows.map(|r| r.iter().map(|x| x[4]).collect::<Vec<f64>>());
         Ok(LeapfrogBuffers {
             closing,

@@ -12,7 +12,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         // ε_k and t_k* do not depend on the velocities handed to the cell sums.
         self.cell_step(0.0, true)?;
         let d = &self.d;
-        d.put(&mut self.limits, &[0, 0])?;
+        d.put(&mut self.limits, &[0, 0, 0])?;
         let only = |k: usize| -> *const u8 {
             (self.ghosts.as_ref())
                 .and_then(|g| g.only[k].as_ref())

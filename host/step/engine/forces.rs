@@ -6,8 +6,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     /// Non-drag gas accelerations (kept on the device) and the time-step maxima. Under the
     /// leapfrog, the previous step's closing forces (already on the device).
     pub fn forces(&mut self) -> Result<Forces, StepError> {
-        if let (true, Some((vsig_max, acc_max))) = (self.stages.kdk, self.kdk.closing) {
-            return Ok(Forces { vsig_max, acc_max });
+        if let (true, Some(f)) = (self.stages.kdk, self.kdk.closing) {
+            return Ok(f);
         }
         let mut timers = std::mem::take(&mut self.timers);
         let f = self.compute_forces(&mut timers);
@@ -70,7 +70,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     /// The forces at the state on the device.
     pub(super) fn compute_forces(&mut self, timers: &mut Timers) -> Result<Forces, StepError> {
         let d = &self.d;
-        d.put(&mut self.limits, &[0, 0])?;
+        d.put(&mut self.limits, &[0, 0, 0])?;
         let p = self.params(0.0)?;
         let mode = if self.stages.iad {
             2
@@ -144,11 +144,12 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         }
         // The drag's cell sums read the cell-mates' accelerations.
         self.ghost_sync(&Refresh::FORCES)?;
-        let l = self.d.get(&self.limits, 2)?;
+        let l = self.d.get(&self.limits, 3)?;
         let dec = |b: u64| if b == 0 { 0.0 } else { from_ordered_bits(b) };
         Ok(Forces {
             vsig_max: dec(l[0]),
             acc_max: dec(l[1]),
+            damp_rate_max: dec(l[2]),
         })
     }
 }

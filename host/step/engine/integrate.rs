@@ -174,7 +174,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 self.eos()
             })?;
         }
-        self.kdk.closing = Some((f1.vsig_max, f1.acc_max));
+        self.kdk.closing = Some(f1);
         Ok(())
     }
 }

@@ -185,7 +185,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             cells: CellBuffers::new(&d, cap, nf)?,
             coupling: CouplingBuffers::new(&d, &phys, &stages, ng, dust.n, nf)?,
             sums: d.buf(1)?,
-            limits: d.buf(2)?,
+            limits: d.buf(3)?,
             bounds: d.buf(6)?,
             bad: d.buf(1)?,
             chunk_sums: d.buf(1)?,
@@ -217,6 +217,22 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             }),
             ghosts: None,
         };
+        if let Some(f) = &mut eng.kdk.closing {
+            // The rows hold no damping rate: the closing layer's, from its positions as the
+            // forces kernels take it (every gas particle, the dust not held fixed).
+            let pm = &eng.phys.gravity;
+            let gas = state.gas.ph.x.iter();
+            let dust = state.dust.iter().flat_map(|ph| {
+                let fixed = ph.fixed.as_deref();
+                (ph.x.iter().enumerate())
+                    .filter(move |(i, _)| !fixed.is_some_and(|f| f[*i]))
+                    .map(|(_, x)| x)
+            });
+            f.damp_rate_max = gas
+                .chain(dust)
+                .map(|x| pm.damp_rate(*x))
+                .fold(0.0, f64::max);
+        }
         eng.first_layer(state, layer)?;
         Ok(eng)
     }
