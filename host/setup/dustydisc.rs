@@ -249,14 +249,22 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         if drift_start { "" } else { "; dust on Keplerian orbits (no drift)" }
     ));
     if !unstable.is_empty() {
+        // Rings inside an edge damping zone have their radial motion damped: said per ring,
+        // and the line is a note, not a warning, when every such ring is in a zone.
+        let pm = scene.gravity.map(|g| g.point_mass()).unwrap_or_default();
         let at: Vec<String> = unstable
             .iter()
-            .map(|(r, g)| format!("{r:.4} ({g:.2})"))
+            .map(|(r, g)| match pm.damp_weight(*r) {
+                0.0 => format!("{r:.4} ({g:.2})"),
+                w => format!("{r:.4} ({g:.2}; in a damping zone, weight {w:.2})"),
+            })
             .collect();
+        let held = unstable.iter().all(|(r, _)| pm.damp_weight(*r) > 0.0);
         su.notes.push(format!(
-            "warning: disc: R v_φ falls outward at R = {} (in brackets the growth rate of a \
+            "{}: disc: R v_φ falls outward at R = {} (in brackets the growth rate of a \
              displacement there over Ω: Rayleigh-unstable rings, an SPH edge's pressure gradient \
              acting over h; method.md §D, \"The discs' edges\")",
+            if held { "note" } else { "warning" },
             at.join(", ")
         ));
     }

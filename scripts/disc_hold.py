@@ -1,7 +1,9 @@
-"""How much a 2D gas disc has been stirred: for each snapshot of a run, per annulus, the change of
-Sigma (the particles' mass-weighted SPH density, relative to the first snapshot) and the rms over
-the particles of the gas's v_R over the local c_s = cs0 (R/r_ref)^-q (r_ref = 1). Needs numpy and h5py.
-    python3 scripts/prototypes/disc/stir.py RUN_DIR [EDGES] [CS0] [Q]
+"""How well a 2D gas disc holds (docs/method.md §D, "The discs' edges"): for each snapshot of a
+run, per annulus, the change of Sigma (the particles' mass-weighted SPH density, relative to the
+first snapshot), the change of the mass-weighted rotation v_phi relative to the first snapshot's
+(over the local c_s), and the rms over the particles of the gas's v_R over the local
+c_s = cs0 (R/r_ref)^-q (r_ref = 1). Needs numpy and h5py.
+    python3 scripts/disc_hold.py RUN_DIR [EDGES] [CS0] [Q]
 EDGES: annulus edges, comma-separated (0.5,0.6,0.8,1.1,1.5,2); CS0 (0.05); Q (0.25)."""
 import glob
 import sys
@@ -24,19 +26,23 @@ def annuli(path):
         rho = f["PartType0/Density"][:]
     r = np.hypot(x[:, 0], x[:, 1])
     vr = (x[:, 0] * v[:, 0] + x[:, 1] * v[:, 1]) / r
+    vphi = (x[:, 0] * v[:, 1] - x[:, 1] * v[:, 0]) / r
     mass = np.histogram(r, edges, weights=m)[0]
     sigma = np.histogram(r, edges, weights=m * rho)[0] / np.maximum(mass, 1e-300)
     count = np.histogram(r, edges)[0]
     stir = np.sqrt(np.histogram(r, edges, weights=(vr / (cs0 * r**-q)) ** 2)[0] / np.maximum(count, 1))
-    return t, sigma, stir
+    rot = np.histogram(r, edges, weights=m * vphi)[0] / np.maximum(mass, 1e-300)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    return t, sigma, stir, rot / (cs0 * mid**-q)
 
 
 files = sorted(glob.glob(run + "/snapshot_*.h5"))
-_, sigma0, _ = annuli(files[0])
+_, sigma0, _, rot0 = annuli(files[0])
 print("annuli:", " ".join(f"{a:g}-{b:g}" for a, b in zip(edges[:-1], edges[1:])))
 for path in files:
-    t, sigma, stir = annuli(path)
+    t, sigma, stir, rot = annuli(path)
     print(
         f"t/2pi {t / 2 / np.pi:6.3f}  dSigma % " + " ".join(f"{100 * (s / s0 - 1):+6.1f}" for s, s0 in zip(sigma, sigma0)),
         " | rms vR/cs " + " ".join(f"{s:6.3f}" for s in stir),
+        " | dvphi/cs " + " ".join(f"{a - b:+6.3f}" for a, b in zip(rot, rot0)),
     )
