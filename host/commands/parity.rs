@@ -480,12 +480,7 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         "kernel coupling, damped dispersion: the 2D dusty disc (point mass, locally isothermal, \
          edge damping zones)",
         "configs/dustydisc.toml",
-        &[
-            "sph.n=12",
-            "gravity.damp_inner=[0.6,0.9]",
-            "gravity.damp_outer=[1.7,1.9]",
-            "gravity.damp_time=0.02",
-        ],
+        &["sph.n=12"],
         5,
     ),
 ];
