@@ -6,9 +6,10 @@ mod common;
 use common::ics::*;
 use dustsph::particles::State;
 
-/// One gas particle on the circular orbit r = 1 and one dust particle on r = 2 (far beyond
-/// each other's kernels, so no drag and no pressure force act: pure orbits), in 2D.
-fn orbits(dir: &std::path::Path, dust_r: f64) {
+/// One gas particle on the circular orbit r = 1 and one dust particle on r = `dust_r` (far
+/// beyond each other's kernels, so no drag and no pressure force act: pure orbits), each with
+/// a radial velocity `vr` times its circular speed on top (an epicycle), in 2D.
+fn orbits(dir: &std::path::Path, dust_r: f64, vr: f64) {
     let vd = (1.0 / dust_r).sqrt();
     let f = IcFile {
         header: vec![("Dimension", vec![2.0])],
@@ -17,7 +18,7 @@ fn orbits(dir: &std::path::Path, dust_r: f64) {
                 "PartType0",
                 vec![
                     ("Coordinates", Column::F(vec![1.0, 0.0, 0.0], 3)),
-                    ("Velocities", Column::F(vec![0.0, 1.0, 0.0], 3)),
+                    ("Velocities", Column::F(vec![vr, 1.0, 0.0], 3)),
                     ("Masses", Column::F(vec![1e-6], 1)),
                 ],
             ),
@@ -25,7 +26,7 @@ fn orbits(dir: &std::path::Path, dust_r: f64) {
                 "PartType3",
                 vec![
                     ("Coordinates", Column::F(vec![0.0, dust_r, 0.0], 3)),
-                    ("Velocities", Column::F(vec![-vd, 0.0, 0.0], 3)),
+                    ("Velocities", Column::F(vec![-vd, vr * vd, 0.0], 3)),
                     ("Masses", Column::F(vec![1e-8], 1)),
                 ],
             ),
@@ -113,7 +114,7 @@ fn check(s: &State, dt: f64, steps: usize, kdk: bool, tol_r: f64) {
 #[test]
 fn gas_and_dust_keep_their_circular_orbits_about_a_point_mass() {
     let dir = tempfile::tempdir().unwrap();
-    orbits(dir.path(), 2.0);
+    orbits(dir.path(), 2.0, 0.0);
     let dt = std::f64::consts::PI / 100.0;
     let steps = 400;
     for (integrator, tol_r) in [("kdk", 1e-4), ("first_order", 1e-2)] {
@@ -139,7 +140,7 @@ fn gas_and_dust_keep_their_circular_orbits_about_a_point_mass() {
 #[test]
 fn the_dusts_pull_limits_the_step() {
     let dir = tempfile::tempdir().unwrap();
-    orbits(dir.path(), 0.5);
+    orbits(dir.path(), 0.5, 0.0);
     let l = file_scene(
         dir.path(),
         2,
@@ -155,34 +156,6 @@ fn the_dusts_pull_limits_the_step() {
         s.dt_max
     );
     assert!(s.dt_max > 0.9 * limit, "dt_max {} ≪ {limit}", s.dt_max);
-}
-
-/// One gas particle at r = 1 and one dust particle at r = 2, each with a radial velocity
-/// `vr` times its circular speed on top of it (an epicycle), in 2D.
-fn epicycles(dir: &std::path::Path, vr: f64) {
-    let vd = 0.5f64.sqrt();
-    let f = IcFile {
-        header: vec![("Dimension", vec![2.0])],
-        groups: vec![
-            (
-                "PartType0",
-                vec![
-                    ("Coordinates", Column::F(vec![1.0, 0.0, 0.0], 3)),
-                    ("Velocities", Column::F(vec![vr, 1.0, 0.0], 3)),
-                    ("Masses", Column::F(vec![1e-6], 1)),
-                ],
-            ),
-            (
-                "PartType3",
-                vec![
-                    ("Coordinates", Column::F(vec![0.0, 2.0, 0.0], 3)),
-                    ("Velocities", Column::F(vec![-vd, vr * vd, 0.0], 3)),
-                    ("Masses", Column::F(vec![1e-8], 1)),
-                ],
-            ),
-        ],
-    };
-    f.write(&dir.join("epicycles.h5"));
 }
 
 /// An orbit about M = 1 under the edge zones' full damping, −Ω_K(R)/(2π t_d) (v_R R̂), by RK4
@@ -227,7 +200,7 @@ fn damped_orbit(x0: [f64; 2], v0: [f64; 2], t_d: f64, t: f64) -> [f64; 2] {
 fn edge_zones_damp_an_epicycle_and_keep_the_angular_momentum() {
     let dir = tempfile::tempdir().unwrap();
     let vr = 0.1;
-    epicycles(dir.path(), vr);
+    orbits(dir.path(), 2.0, vr);
     let vd = 0.5f64.sqrt();
     let t_end = 4.0 * std::f64::consts::PI;
     let mut errors = Vec::new();
@@ -239,13 +212,7 @@ fn edge_zones_damp_an_epicycle_and_keep_the_angular_momentum() {
             "central_mass = 1.0\ndamp_inner = [1.3, 1.5]\ndamp_outer = [1.6, 1.7]\n\
              damp_time = 0.1",
         );
-        let l = file_scene(
-            dir.path(),
-            2,
-            "epicycles.h5",
-            "[false, false, false]",
-            &text,
-        );
+        let l = file_scene(dir.path(), 2, "orbits.h5", "[false, false, false]", &text);
         let (_, s) = run_in(dir.path(), &l, &format!("zones{steps}"));
         let mut off = [0.0; 2];
         for (k, (name, x, v, start)) in [
@@ -297,18 +264,12 @@ fn edge_zones_damp_an_epicycle_and_keep_the_angular_momentum() {
 #[test]
 fn a_fast_edge_zone_limits_the_step() {
     let dir = tempfile::tempdir().unwrap();
-    epicycles(dir.path(), 0.1);
+    orbits(dir.path(), 2.0, 0.1);
     let text = scene_text("t_end = 1.0\ncfl = 0.3").replace(
         "central_mass = 1.0",
         "central_mass = 1.0\ndamp_inner = [1.3, 1.5]\ndamp_time = 1e-3",
     );
-    let l = file_scene(
-        dir.path(),
-        2,
-        "epicycles.h5",
-        "[false, false, false]",
-        &text,
-    );
+    let l = file_scene(dir.path(), 2, "orbits.h5", "[false, false, false]", &text);
     let (summary, s) = run_in(dir.path(), &l, "fast");
     let limit = 2.0 * std::f64::consts::PI * 1e-3;
     assert!(
