@@ -40,13 +40,55 @@ pub mod halo;
 pub mod ranks;
 pub mod records;
 
+/// What this process sent to other ranks and how long it waited in the exchanges, since it
+/// started (docs/scaling.md, "Measured"): the particle exchanges (migration, halo copies, the
+/// ghost refreshes between the step's passes) and the output's gather onto rank 0.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct Traffic {
+    /// All-to-all exchanges this rank took part in.
+    pub exchanges: u64,
+    /// Bytes this rank sent in them to other ranks.
+    pub exchange_bytes: u64,
+    /// Seconds this rank spent in them (packing excluded; waiting for the slowest included).
+    pub exchange_seconds: f64,
+    /// Bytes this rank sent to rank 0's gathers (outputs, the final state).
+    pub gather_bytes: u64,
+    pub gather_seconds: f64,
+}
+
+// SAFETY: `repr(C)` of 8-byte fields only (no padding), and every bit pattern is a valid
+// u64 or f64.
+unsafe impl bytemuck::Zeroable for Traffic {}
+unsafe impl bytemuck::Pod for Traffic {}
+
 #[cfg(feature = "mpi")]
 pub mod comm {
     //! The communicator and the collective operations the decomposition needs.
+    use super::Traffic;
     use mpi::collective::SystemOperation;
     use mpi::datatype::{Partition, PartitionMut};
     use mpi::traits::*;
     use mpi::Count;
+    use std::sync::Mutex;
+
+    /// This process's traffic (every communicator of it, duplicates included).
+    static TRAFFIC: Mutex<Traffic> = Mutex::new(Traffic {
+        exchanges: 0,
+        exchange_bytes: 0,
+        exchange_seconds: 0.0,
+        gather_bytes: 0,
+        gather_seconds: 0.0,
+    });
+
+    /// This process's traffic so far.
+    pub fn traffic() -> Traffic {
+        *TRAFFIC.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn count(f: impl FnOnce(&mut Traffic)) {
+        f(&mut TRAFFIC.lock().unwrap_or_else(|e| e.into_inner()));
+    }
 
     pub struct World {
         world: mpi::topology::SimpleCommunicator,
@@ -144,6 +186,21 @@ pub mod comm {
         /// Every rank's bytes, in rank order, on rank 0 only (`None` elsewhere): the output's
         /// gather (MPI_Gatherv; the other ranks receive nothing).
         pub fn gather_bytes(&self, mine: &[u8]) -> Option<Vec<Vec<u8>>> {
+            let start = std::time::Instant::now();
+            let out = self.gather_bytes_uncounted(mine);
+            let sent = if self.rank() == 0 {
+                0
+            } else {
+                mine.len() as u64
+            };
+            count(|t| {
+                t.gather_bytes += sent;
+                t.gather_seconds += start.elapsed().as_secs_f64();
+            });
+            out
+        }
+
+        fn gather_bytes_uncounted(&self, mine: &[u8]) -> Option<Vec<Vec<u8>>> {
             let mine = &heap(mine)[..];
             let root = self.world.process_at_rank(0);
             let n = mine.len() as Count;
@@ -167,6 +224,22 @@ pub mod comm {
         /// All-to-all of plain records: `sends[q]` goes to rank q; returns what every rank sent
         /// here, in rank order. Per rank pair at most 2 GiB (MPI's int counts).
         pub fn exchange<T: bytemuck::Pod>(&self, sends: &[Vec<T>]) -> Result<Vec<T>, String> {
+            let start = std::time::Instant::now();
+            let me = self.rank() as usize;
+            let sent: usize = (sends.iter().enumerate())
+                .filter(|(q, _)| *q != me)
+                .map(|(_, s)| std::mem::size_of_val(s.as_slice()))
+                .sum();
+            let out = self.exchange_uncounted(sends);
+            count(|t| {
+                t.exchanges += 1;
+                t.exchange_bytes += sent as u64;
+                t.exchange_seconds += start.elapsed().as_secs_f64();
+            });
+            out
+        }
+
+        fn exchange_uncounted<T: bytemuck::Pod>(&self, sends: &[Vec<T>]) -> Result<Vec<T>, String> {
             let size = self.size() as usize;
             assert_eq!(sends.len(), size, "one send list per rank");
             let item = std::mem::size_of::<T>();

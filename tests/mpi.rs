@@ -313,7 +313,12 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             String::from_utf8_lossy(&o.stderr)
         );
         let (reference, vscale, t1) = last_snapshot(&one);
-        for ranks in 2..=4 {
+        let summary = std::fs::read_to_string(one.join("summary.json")).unwrap();
+        assert!(
+            !summary.contains("rank_traffic"),
+            "one process sends nothing"
+        );
+        for ranks in 2..=4usize {
             let dir = tmp.path().join(format!("r{c}_{ranks}"));
             let mut cmd = Command::new("mpirun");
             cmd.args(["--allow-run-as-root", "--oversubscribe", "-n"])
@@ -329,6 +334,18 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             // The thin halo, not the deep one it falls back to when a rank holds no gas.
             let summary = std::fs::read_to_string(dir.join("summary.json")).unwrap();
             assert!(summary.contains("thin halo"), "{args:?}: {summary}");
+            // Each rank's traffic: at least one exchange per step, some bytes sent (a rank
+            // always has neighbours here), the gathers onto rank 0 from the others only.
+            let s: serde_json::Value = serde_json::from_str(&summary).unwrap();
+            let steps = s["steps"].as_u64().unwrap();
+            let traffic = s["rank_traffic"].as_array().expect("rank_traffic");
+            assert_eq!(traffic.len(), ranks, "{args:?}");
+            for (r, t) in traffic.iter().enumerate() {
+                let n = |k: &str| t[k].as_f64().unwrap();
+                assert!(n("exchanges") >= steps as f64, "{args:?} rank {r}: {t}");
+                assert!(n("exchange_bytes") > 0.0, "{args:?} rank {r}: {t}");
+                assert_eq!(n("gather_bytes") > 0.0, r > 0, "{args:?} rank {r}: {t}");
+            }
             let (got, _, t) = last_snapshot(&dir);
             assert_eq!(t, t1, "-n {ranks} {args:?}");
             assert_same(&reference, &got, vscale, &format!("-n {ranks} {args:?}"));

@@ -544,6 +544,20 @@ fn report(s: &Summary, out: &std::path::Path) {
     for last in s.errors.iter().filter(|e| e.t == s.t_final) {
         super::profile::print_errors(last);
     }
+    for (r, t) in s.rank_traffic.iter().flatten().enumerate() {
+        let per_step = |x: f64| x / s.steps.max(1) as f64;
+        println!(
+            "  rank {r}: {} exchanges, {:.3e} B sent ({:.3e} B/step), {:.3} s in them ({:.3e} \
+             s/step); {:.3e} B to rank 0's gathers in {:.3} s",
+            t.exchanges,
+            t.exchange_bytes as f64,
+            per_step(t.exchange_bytes as f64),
+            t.exchange_seconds,
+            per_step(t.exchange_seconds),
+            t.gather_bytes as f64,
+            t.gather_seconds
+        );
+    }
 }
 
 pub fn execute(a: RunArgs) -> u8 {

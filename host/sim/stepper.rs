@@ -145,6 +145,24 @@ impl Stepper {
         }
     }
 
+    /// Every rank's traffic so far, in rank order (collective over ranks; `None` on one
+    /// process, which sends nothing).
+    pub fn traffic(&self) -> Option<Vec<crate::dist::Traffic>> {
+        match self {
+            Stepper::Local(_) => None,
+            #[cfg(feature = "mpi")]
+            Stepper::Ranks { ranks, .. } => {
+                let mine = crate::dist::comm::traffic();
+                let all = ranks.world.all_gather_bytes(bytemuck::bytes_of(&mine));
+                Some(
+                    all.iter()
+                        .map(|b| bytemuck::pod_read_unaligned::<crate::dist::Traffic>(b))
+                        .collect(),
+                )
+            }
+        }
+    }
+
     /// Where the run steps, for the summary.
     pub fn describe(&self) -> String {
         match self {

@@ -135,6 +135,10 @@ pub struct Summary {
     pub errors: Vec<ExactErrors>,
     pub snapshots: Vec<String>,
     pub stage_seconds: Vec<(&'static str, f64)>,
+    /// Over MPI ranks: what each rank sent and how long it spent in the exchanges, in rank
+    /// order, over the whole run (set-up, steps and outputs; docs/scaling.md).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rank_traffic: Option<Vec<crate::dist::Traffic>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ball: Option<BallReport>,
 }
@@ -276,6 +280,7 @@ pub fn finish(
         errors: outputs.errors,
         snapshots: outputs.snapshots,
         stage_seconds: eng.timers().entries().to_vec(),
+        rank_traffic: sim.stepper.traffic(),
         ball,
     };
     if root {
