@@ -660,6 +660,25 @@ fn edge_zones_keep_a_discs_inner_edge_quiet() {
     );
 }
 
+/// A finer disc sets up and steps: at sph.n = 48 the tapered inner ring (Σ → 0 at r_in) needs
+/// h about six times the reference, beyond what the first widenings of the neighbour search
+/// reach (the shipped disc failed to set up at n ≥ 40 with "variable h of the gas outgrew every
+/// search radius").
+#[test]
+fn a_finer_disc_sets_up_and_steps() {
+    let dir = tempfile::tempdir().unwrap();
+    let loaded = gas_disc(
+        dir.path(),
+        &["sph.n=48", "time.t_end=0.01", "time.output_dt=0.01"],
+    );
+    let (s, st) = dustsph::run::run(&loaded, &cpu_run(dir.path(), "fine")).unwrap();
+    assert!(
+        s.steps >= 1 && st.gas.ph.len() > 20_000,
+        "{} particles",
+        st.gas.ph.len()
+    );
+}
+
 /// A run that accretes, checkpointed and resumed, ends bit for bit as the uninterrupted one,
 /// with the same star record.
 #[test]

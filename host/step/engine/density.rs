@@ -23,7 +23,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         } else {
             f64::EPSILON
         };
-        for _attempt in 0..40 {
+        for attempt in 0..40 {
             let d = &self.d;
             d.put(&mut self.bad, &[u32::MAX])?;
             let ph = if gas { &self.gas } else { &self.dust };
@@ -73,7 +73,10 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             let i = bad as usize;
             let iters = d.get(&self.sm.iters, i + 1)?[i];
             if iters < 30 && self.grid.geom.support < 1e300 {
-                self.grid = self.grid.with_support(1.02 * self.grid.geom.support);
+                // 2 % at first (a grid barely too fine), then 25 %: a disc's tapered edge
+                // (Σ → 0 at r_in) needs h several times the reference (method.md §D).
+                let grow = if attempt < 10 { 1.02 } else { 1.25 };
+                self.grid = self.grid.with_support(grow * self.grid.geom.support);
                 self.reset_list()?;
                 continue;
             }
