@@ -86,9 +86,8 @@ impl PointMass {
     /// Only the radial and vertical motion is damped, toward zero: a force along R̂ or ẑ exerts
     /// no torque about the star's axis, so the zones keep the angular momentum L_z to
     /// round-off and never force a rotation on the edge rings, whose pressure support there an
-    /// SPH kernel sets (relaxing v_φ toward Keplerian, as grid codes do, moved the edges'
-    /// mass; toward each particle's own balance, it drained the outer edge — method.md §D).
-    /// What it removes are the edge rings' epicycles, which grow there (Rayleigh-unstable
+    /// SPH kernel sets over h (a prescribed rotation, as grid codes relax toward, would move
+    /// the edges' mass: method.md §D). What it removes are the edge rings' epicycles, which grow there (Rayleigh-unstable
     /// rings) and stir the disc. Zero outside the zones.
     #[inline(always)]
     pub fn damping(&self, x: Vec3<f64>, v: Vec3<f64>) -> Vec3<f64> {
