@@ -134,8 +134,11 @@ impl Run {
             opts.verbose,
         );
         if let Some(b) = &mut r.ball {
-            b.record_now(&r.sim);
+            b.record_now(&mut r.sim)?;
         }
+        // Over ranks the first output's fields come from the ranks' engines too (one process
+        // syncs what it already holds).
+        r.sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
         r.outputs.write_next(&mut r.sim)?;
         r.shed_whole_state();
         Ok(r)
@@ -366,14 +369,9 @@ fn over_ranks(
         world.any(false);
         return Err(RunError::InputReported);
     }
-    let output = match built? {
-        Some(e) => e,
-        // A rank other than 0: an engine on no particles (it steps its share through its
-        // RankStepper; this one only answers for the physics).
-        None => Backend::new(DeviceChoice::Cpu, phys.clone(), &mut state.shape())
-            .map_err(|e| RunError::Step(e.to_string()))?,
-    };
-    let ranks = crate::dist::ranks::RankStepper::new(
+    // Rank 0's engine on the whole scene served the first step's check only.
+    drop(built);
+    let mut ranks = crate::dist::ranks::RankStepper::new(
         world,
         phys.clone(),
         state,
@@ -382,9 +380,11 @@ fn over_ranks(
         verbose,
     )
     .map_err(RunError::Input)?;
+    ranks.prepare(state.step).map_err(RunError::Step)?;
     Ok(Stepper::Ranks {
         ranks: Box::new(ranks),
-        output,
+        t_stop: None,
+        output: None,
         stale: false,
     })
 }

@@ -117,15 +117,53 @@ pub fn halo_sends<T>(
 }
 
 /// The ghost refresh of a thin halo ([`GhostSync`]): each owned particle's row to the ranks
-/// holding it as a ghost, one exchange per phase table (collective).
+/// holding it as a ghost, every table in one exchange per refresh (collective). The rows
+/// carry no keys: which particle each row is was agreed once, when the halo was built
+/// ([`RankGhosts::new`]), and which slot it is in after each sort ([`GhostSync::reorder`]).
 pub(super) struct RankGhosts {
-    pub(super) comm: World,
-    /// Per rank, the keys (phase, id) of the owned particles it received as halo (a rank that
-    /// left one out, being beyond its reach, ignores its row).
-    pub(super) sends: Vec<Vec<(u64, u64)>>,
-    /// Refreshes before this one fails, if it is to (the test of a failure inside a step:
-    /// `DUSTSPH_FAIL_IN_STEP=rank:step` fails the step's second refresh, in its forces).
-    pub(super) fail: Option<u32>,
+    comm: World,
+    /// Per rank, the keys (phase, id) of the owned particles it received as halo, in the
+    /// order their rows go (a rank that left one out, being beyond its reach, skips its row).
+    sends: Vec<Vec<(u64, u64)>>,
+    /// The keys of the rows that arrive, in their order (rank by rank, each in its send order).
+    arriving: Vec<(u64, u64)>,
+    /// Per rank, the (table, slot) of each row sent, after the last sort.
+    send_slots: Vec<Vec<(usize, usize)>>,
+    /// Per arriving row, its table and its slot here (`None`: not held as a ghost).
+    recv_slots: Vec<(usize, Option<usize>)>,
+    /// Refreshes before one fails (`DUSTSPH_FAIL_IN_STEP`, set per step by the rank's
+    /// stepper; negative: none fails).
+    fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
+}
+
+/// The phase table of a key: 0 the gas, 1 the dust (every fraction).
+fn table(key: (u64, u64)) -> usize {
+    (key.0 != 0) as usize
+}
+
+impl RankGhosts {
+    /// The refresh of a halo: `sends[q]`, the keys of the owned particles rank q received as
+    /// halo. Tells every rank which rows it will receive, in which order (collective).
+    pub(super) fn new(
+        comm: World,
+        sends: Vec<Vec<(u64, u64)>>,
+        fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
+    ) -> Result<RankGhosts, String> {
+        let lists: Vec<Vec<[u64; 2]>> = (sends.iter())
+            .map(|s| s.iter().map(|&(p, id)| [p, id]).collect())
+            .collect();
+        let arriving = (comm.exchange(&lists)?.into_iter())
+            .map(|[p, id]| (p, id))
+            .collect();
+        Ok(RankGhosts {
+            send_slots: vec![Vec::new(); sends.len()],
+            comm,
+            sends,
+            arriving,
+            recv_slots: Vec::new(),
+            fail,
+        })
+    }
 }
 
 /// Whether `DUSTSPH_FAIL_IN_STEP=rank:step` names this rank and step (tests/mpi.rs: a failure
@@ -135,47 +173,54 @@ pub(super) fn fail_requested(rank: u32, step: u64) -> bool {
 }
 
 impl GhostSync for RankGhosts {
-    fn refresh(&mut self, tables: &mut [GhostRows<'_>]) -> Result<(), String> {
-        match &mut self.fail {
-            Some(0) => return Err("failure requested by DUSTSPH_FAIL_IN_STEP".into()),
-            Some(n) => *n -= 1,
-            None => {}
+    fn reorder(&mut self, slots: &[Vec<(u64, u64)>]) -> Result<(), String> {
+        let at: Vec<KeyMap<usize>> = (slots.iter())
+            .map(|keys| keys.iter().enumerate().map(|(i, &k)| (k, i)).collect())
+            .collect();
+        for (q, keys) in self.sends.iter().enumerate() {
+            let out = &mut self.send_slots[q];
+            out.clear();
+            for &key in keys {
+                let i = *(at[table(key)].get(&key))
+                    .ok_or_else(|| format!("particle {key:?} is not on its owner"))?;
+                out.push((table(key), i));
+            }
         }
-        for (k, t) in tables.iter_mut().enumerate() {
-            let slot: KeyMap<usize> = t
-                .keys
-                .iter()
-                .enumerate()
-                .map(|(i, &key)| (key, i))
-                .collect();
-            let mut out: Vec<Vec<u8>> = vec![Vec::new(); self.sends.len()];
-            for (q, keys) in self.sends.iter().enumerate() {
-                for key in keys.iter().filter(|key| (key.0 == 0) == (k == 0)) {
-                    let i = *slot
-                        .get(key)
-                        .ok_or_else(|| format!("particle {key:?} is not on its owner"))?;
-                    for w in [key.0, key.1, t.row as u64] {
-                        out[q].extend_from_slice(&w.to_le_bytes());
-                    }
-                    out[q].extend_from_slice(&t.data[i * t.row..(i + 1) * t.row]);
+        self.recv_slots = (self.arriving.iter())
+            .map(|&key| (table(key), at[table(key)].get(&key).copied()))
+            .collect();
+        Ok(())
+    }
+
+    fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String> {
+        use std::sync::atomic::Ordering;
+        match self.fail.load(Ordering::Relaxed) {
+            0 => return Err("failure requested by DUSTSPH_FAIL_IN_STEP".into()),
+            n if n > 0 => self.fail.store(n - 1, Ordering::Relaxed),
+            _ => {}
+        }
+        let rows: Vec<usize> = tables.iter().map(|t| t.row).collect();
+        let out: Vec<Vec<u8>> = (self.send_slots.iter())
+            .map(|to| {
+                let mut b = Vec::with_capacity(to.iter().map(|&(k, _)| rows[k]).sum());
+                for &(k, i) in to {
+                    b.extend_from_slice(&tables[k].data[i * rows[k]..(i + 1) * rows[k]]);
                 }
+                b
+            })
+            .collect();
+        let got = self.comm.exchange(&out)?;
+        let expected: usize = self.recv_slots.iter().map(|&(k, _)| rows[k]).sum();
+        if got.len() != expected {
+            return Err("a rank sent ghost rows of another layout".into());
+        }
+        let mut at = 0;
+        for &(k, slot) in &self.recv_slots {
+            let r = rows[k];
+            if let Some(i) = slot {
+                tables[k].data[i * r..(i + 1) * r].copy_from_slice(&got[at..at + r]);
             }
-            let got = self.comm.exchange(&out)?;
-            let rec = 24 + t.row;
-            let word = |r: &[u8], j: usize| {
-                u64::from_le_bytes(r[8 * j..8 * j + 8].try_into().expect("8 bytes"))
-            };
-            if got.len() % rec != 0 {
-                return Err("a rank sent ghost rows of another layout".into());
-            }
-            for r in got.chunks_exact(rec) {
-                if word(r, 2) != t.row as u64 {
-                    return Err("a rank sent ghost rows of another layout".into());
-                }
-                if let Some(&i) = slot.get(&(word(r, 0), word(r, 1))) {
-                    t.data[i * t.row..(i + 1) * t.row].copy_from_slice(&r[24..]);
-                }
-            }
+            at += r;
         }
         Ok(())
     }

@@ -43,10 +43,10 @@ enum Tried {
     /// A rank holds no gas: this step takes the deep halo (the thin one's refresh needs an
     /// engine, hence gas, on every rank).
     NoGasOnARank,
-    /// Particles moved (or h grew) beyond the thin halo's margin: again, with `need` beyond
-    /// the support.
+    /// Particles moved (or h grew) beyond the thin halo's margin: again from the step's start,
+    /// on a halo rebuilt with `margin` beyond the reach.
     Moved {
-        need: f64,
+        margin: f64,
     },
 }
 
@@ -69,6 +69,36 @@ struct LocalLayer {
 
 /// The thin halo's least margin beyond the support, in supports.
 const MIN_MARGIN: f64 = 0.1;
+
+/// Steps a thin halo is built to serve: its margin is room for this many steps' motion at the
+/// last step's pace (at most half a support more), so that the rank's engine is rebuilt, and
+/// its particles migrate, about once in as many steps.
+const HOLD_STEPS: f64 = 10.0;
+
+/// The stages of a run over ranks beside the engine's (summary.json `stage_seconds`).
+const STAGE_BUILD: &str = "ranks: halo built (cut, migration, halo, engine on the rank's share)";
+const STAGE_MOTION: &str =
+    "ranks: owned particles copied out and the motion since the halo reduced";
+const STAGE_OUTPUT: &str =
+    "ranks: an output's dust densities and stopping times, gathered on rank 0";
+
+/// A rank's engine kept across steps on its owned particles and thin halo, until the motion
+/// since the halo was built uses up its margin (docs/scaling.md, "A resident engine").
+struct Resident {
+    eng: Backend,
+    /// The engine's host copy (synced after each step: the owned records come from it).
+    local: State,
+    mine: KeySet,
+    /// Where each owned particle was when the halo was built.
+    anchor: KeyMap<[f64; 3]>,
+    support: f64,
+    near: f64,
+    reach: f64,
+    /// The largest displacement of any rank's owned particle from its anchor (after the last
+    /// step), and the steps taken on this halo.
+    moved: f64,
+    steps: u64,
+}
 
 /// One rank's share of a scene stepped over the ranks.
 pub struct RankStepper {
@@ -94,6 +124,24 @@ pub struct RankStepper {
     deep_steps: u64,
     /// The largest halo over any rank and step, as a multiple of the rank's own particles.
     halo_ratio: f64,
+    /// The thin halo's engine, kept across steps.
+    resident: Option<Resident>,
+    /// The stages' times of the engines dropped so far.
+    timers: crate::step::timers::Timers,
+    /// Thin halos built (each a migration and an engine built on the rank's particles), and
+    /// steps taken.
+    builds: u64,
+    steps: u64,
+    /// `DUSTSPH_FAIL_IN_STEP`: refreshes of this step before one fails (negative: none).
+    fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
+}
+
+impl Drop for RankStepper {
+    /// The resident engine's ghost refresh holds a duplicate of the communicator: freed before
+    /// the world finalises MPI (fields drop in declaration order, the world first).
+    fn drop(&mut self) {
+        self.resident = None;
+    }
 }
 
 /// The launcher a rank steps on, kept across its steps (a GPU's kernels are loaded once).
@@ -221,12 +269,62 @@ impl RankStepper {
             retakes: 0,
             deep_steps: 0,
             halo_ratio: 0.0,
+            resident: None,
+            timers: Default::default(),
+            builds: 0,
+            steps: 0,
+            fail: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(-1)),
         })
+    }
+
+    /// Build the resident engine now (a run's set-up, before its clock starts, as one process
+    /// builds its engine): collective. A rank without gas leaves it to the first step.
+    pub fn prepare(&mut self, step: u64) -> Result<(), String> {
+        if self.thin && self.resident.is_none() {
+            self.resident = self.build_resident(step)?;
+        }
+        Ok(())
     }
 
     /// Step with the deep halo (`depth` supports) even where the thin one would do.
     pub fn use_deep_halo(&mut self) {
         self.thin = false;
+        self.drop_resident();
+    }
+
+    /// Drop the resident engine (its halo is rebuilt before the next step), keeping its
+    /// stages' times.
+    fn drop_resident(&mut self) {
+        if let Some(r) = self.resident.take() {
+            for &(name, s) in r.eng.timers().entries() {
+                self.timers.add(name, s);
+            }
+        }
+    }
+
+    /// The run's physics.
+    pub fn phys(&self) -> &Physics {
+        &self.phys
+    }
+
+    /// The stages' times of this rank's engines so far.
+    pub fn timers(&self) -> crate::step::timers::Timers {
+        let mut t = self.timers.clone();
+        if let Some(r) = &self.resident {
+            for &(name, s) in r.eng.timers().entries() {
+                t.add(name, s);
+            }
+        }
+        t
+    }
+
+    /// The ball's Lagrange–Jacobi terms of every rank's own particles, summed (collective).
+    pub fn lagrange_jacobi_terms(&self, dim: u32) -> (f64, f64) {
+        let st = state_of(&self.owned, &self.template);
+        let (i, rhs) = crate::analysis::ball::lagrange_jacobi_terms(&st, dim);
+        let mut s = [i, rhs];
+        self.world.sum_f64(&mut s);
+        (s[0], s[1])
     }
 
     /// Particles this rank owns.
@@ -258,8 +356,8 @@ impl RankStepper {
         let halo = if self.thin {
             format!(
                 "a thin halo refreshed between the step's passes, at most {:.2} × a rank's own \
-                 particles",
-                self.halo_ratio
+                 particles, built {} times in {} steps",
+                self.halo_ratio, self.builds, self.steps
             )
         } else {
             format!(
@@ -284,7 +382,7 @@ impl RankStepper {
     /// One step from time `t` (step count `step`) toward `t_target` on every rank: the plan
     /// taken (the same on every rank: the one process's) and the new time. With the thin halo
     /// a step whose particles moved (or whose h grew) further than the halo's margin allows is
-    /// taken again with a wider margin.
+    /// taken again, from its start, on a halo rebuilt with a wider margin.
     pub fn step(
         &mut self,
         drv: &StepPlanner,
@@ -294,40 +392,194 @@ impl RankStepper {
     ) -> Result<(Plan, f64, f64), String> {
         let mut thin = self.thin;
         loop {
-            match self.try_step(drv, t, step, t_target, thin)? {
-                Tried::Done(r) => return Ok(r),
+            let tried = if thin {
+                self.step_resident(drv, t, step, t_target)?
+            } else {
+                self.step_deep(drv, t, step, t_target)?
+            };
+            match tried {
+                Tried::Done(r) => {
+                    self.steps += 1;
+                    return Ok(r);
+                }
                 Tried::NoGasOnARank => {
                     thin = false;
                     self.deep_steps += 1;
                 }
-                Tried::Moved { need } => {
-                    self.margin = 1.5 * need;
+                Tried::Moved { margin } => {
+                    self.margin = margin;
                     self.retakes += 1;
                 }
             }
         }
     }
 
-    fn try_step(
-        &mut self,
-        drv: &StepPlanner,
-        t: f64,
-        step: u64,
-        t_target: f64,
-        thin: bool,
-    ) -> Result<Tried, String> {
+    /// The thin halo's margin beyond the reach for a halo built to serve [`HOLD_STEPS`] steps
+    /// moving by `d` each (at least three steps', and [`MIN_MARGIN`] supports).
+    fn margin_for(d: f64, support: f64) -> f64 {
+        (3.0 * d)
+            .max((2.0 * HOLD_STEPS * d).min(0.5 * support))
+            .max(MIN_MARGIN * support)
+    }
+
+    /// This rank's resident engine on its owned particles and a thin halo, `margin` beyond the
+    /// reach: the cut, the migration, the halo, the engine and its ghosts' refresh (collective).
+    /// `None` when a rank holds no gas.
+    fn build_resident(&mut self, step: u64) -> Result<Option<Resident>, String> {
+        let Some(lay) = self.local_layer(true)? else {
+            return Ok(None);
+        };
         let world = &self.world;
         let me = world.rank();
-        let Some(lay) = self.local_layer(thin)? else {
-            return Ok(Tried::NoGasOnARank);
-        };
         let LocalLayer {
             owned,
             to,
             local_recs,
             ghost_keys,
             mine,
-            ..
+            support,
+            near,
+            reach,
+        } = lay;
+        let mut ratio = [(local_recs.len() - owned.len()) as f64 / owned.len().max(1) as f64];
+        world.max_f64(&mut ratio);
+        self.halo_ratio = self.halo_ratio.max(ratio[0]);
+        let mut local = state_of(&local_recs, &self.template);
+        let layer = if self.layer_given {
+            InitialLayer::FromState
+        } else {
+            InitialLayer::Compute
+        };
+        let built = self.dev.engine(self.phys.clone(), &mut local, layer);
+        let err = built.as_ref().err().map(|x| x.to_string());
+        if world.any(err.is_some()) {
+            return Err(failure(world, step, me, &err.unwrap_or_default()));
+        }
+        let mut eng = built.map_err(|x| x.to_string())?;
+        let keys: Vec<Vec<(u64, u64)>> = (to.iter())
+            .map(|ix| ix.iter().map(|&i| owned[i].key()).collect())
+            .collect();
+        let sync = RankGhosts::new(world.dup(), keys, self.fail.clone())?;
+        if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys) {
+            abort_job(world, step, &x);
+        }
+        self.builds += 1;
+        Ok(Some(Resident {
+            eng,
+            local,
+            mine,
+            anchor: (owned.iter()).map(|r| (r.key(), full_pos(r))).collect(),
+            support,
+            near,
+            reach,
+            moved: 0.0,
+            steps: 0,
+        }))
+    }
+
+    /// A step on the thin halo: on the resident engine (built first where there is none), its
+    /// ghosts refreshed between the passes. Afterwards the motion since the halo was built is
+    /// reduced over the ranks: where two particles could have closed in from beyond the halo
+    /// to within a reach, the step is taken again on a rebuilt halo; where the next step could,
+    /// the halo is rebuilt before it.
+    fn step_resident(
+        &mut self,
+        drv: &StepPlanner,
+        t: f64,
+        step: u64,
+        t_target: f64,
+    ) -> Result<Tried, String> {
+        use std::sync::atomic::Ordering;
+        self.fail.store(-1, Ordering::Relaxed);
+        if self.resident.is_none() {
+            let t0 = std::time::Instant::now();
+            let built = self.build_resident(step)?;
+            self.timers.add(STAGE_BUILD, t0.elapsed().as_secs_f64());
+            match built {
+                Some(r) => self.resident = Some(r),
+                None => return Ok(Tried::NoGasOnARank),
+            }
+        }
+        let world = &self.world;
+        let me = world.rank();
+        if fail_requested(me, step) {
+            self.fail.store(0, Ordering::Relaxed);
+        }
+        let res = self.resident.as_mut().expect("built above");
+        res.local.t = t;
+        res.local.step = step;
+        let (_, global, drag) =
+            Self::global_limits(world, &self.phys, Some(&mut res.eng), true, step)?;
+        let (e, local) = (&mut res.eng, &mut res.local);
+        let r = (|| -> Result<Plan, crate::step::StepError> {
+            let p = match drv.plan(&global, drag, t, step, t_target) {
+                Ok(p) => p,
+                Err(PlanError::NoLimit(m)) => return Err(crate::step::StepError::Blowup(m)),
+                Err(PlanError::Collapsed(m)) => {
+                    let why = format!("{m}; {}", e.dt_culprits()?);
+                    return Err(crate::step::StepError::Blowup(why));
+                }
+            };
+            e.take(local, &p)?;
+            // The dust densities stay as a step leaves them (fresh only where the drag needs
+            // them each step): an output computes them.
+            e.sync(local)?;
+            Ok(p)
+        })();
+        let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
+        let t0 = std::time::Instant::now();
+        let next: Vec<ParticleRecord> = (records(local).into_iter())
+            .filter(|r| res.mine.contains(&r.key()))
+            .collect();
+        // The motion since the halo was built, and the largest h, over every rank.
+        let domain = self.phys.domain;
+        let mut worst = [0.0f64, 0.0];
+        for r in &next {
+            let d2 = domain.distance2(res.anchor[&r.key()], full_pos(r));
+            worst[0] = worst[0].max(d2.sqrt());
+            worst[1] = worst[1].max(r.solved_h());
+        }
+        world.max_f64(&mut worst);
+        let need = (crate::step::SUPPORT * worst[1]).max(res.near) + 2.0 * worst[0];
+        // This step's motion (a cumulative largest displacement does not add up exactly; this
+        // estimate only sets when the halo is rebuilt, the test above keeps it exact).
+        let d = (worst[0] - res.moved).max(worst[0] / (res.steps + 1) as f64);
+        let margin = Self::margin_for(d, res.support) + (need - 2.0 * worst[0] - res.near);
+        if need > res.reach {
+            self.drop_resident();
+            return Ok(Tried::Moved { margin });
+        }
+        res.moved = worst[0];
+        res.steps += 1;
+        let t_new = local.t;
+        self.timers.add(STAGE_MOTION, t0.elapsed().as_secs_f64());
+        // Rebuild before the next step where its motion could use up the margin.
+        if need + 2.0 * d > res.reach {
+            self.drop_resident();
+            self.margin = margin;
+        }
+        self.owned = next;
+        self.layer_given = true;
+        Ok(Tried::Done((plan, t_new, global.vsig_max)))
+    }
+
+    /// A step on the deep halo: an engine built on the rank's particles and a halo deep enough
+    /// for the step's chain of passes (no refresh), dropped after the step.
+    fn step_deep(
+        &mut self,
+        drv: &StepPlanner,
+        t: f64,
+        step: u64,
+        t_target: f64,
+    ) -> Result<Tried, String> {
+        self.drop_resident();
+        let world = &self.world;
+        let me = world.rank();
+        let Some(lay) = self.local_layer(false)? else {
+            unreachable!("the deep halo serves a rank without gas");
+        };
+        let LocalLayer {
+            local_recs, mine, ..
         } = &lay;
         let mut local = state_of(local_recs, &self.template);
         local.t = t;
@@ -349,23 +601,8 @@ impl RankStepper {
         if world.any(!err.is_empty()) {
             return Err(failure(world, step, me, &err));
         }
-        let stop = |x: &dyn std::fmt::Display| -> ! { abort_job(world, step, x) };
-        if thin {
-            let keys: Vec<Vec<(u64, u64)>> = (to.iter())
-                .map(|ix| ix.iter().map(|&i| owned[i].key()).collect())
-                .collect();
-            let sync = Box::new(RankGhosts {
-                comm: world.dup(),
-                sends: keys,
-                fail: fail_requested(me, step).then_some(1),
-            });
-            if let Some(e) = &mut eng {
-                if let Err(x) = e.set_ghosts(sync, ghost_keys.clone()) {
-                    stop(&x);
-                }
-            }
-        }
-        let (forces, global, drag) = self.global_limits(&mut eng, thin, step)?;
+        let (forces, global, drag) =
+            Self::global_limits(world, &self.phys, eng.as_mut(), false, step)?;
         let mut plan = None;
         let mut next = Vec::new();
         if let (Some(e), Some(_)) = (&mut eng, forces) {
@@ -379,14 +616,11 @@ impl RankStepper {
                     }
                 };
                 e.take(&mut local, &p)?;
-                // The dust densities stay as a step leaves them (fresh only where the drag
-                // needs them each step): rank 0 computes them for an output.
                 e.sync(&mut local)?;
                 Ok(p)
             })();
             match r {
                 Ok(p) => plan = Some(p),
-                Err(x) if thin => stop(&x),
                 Err(x) => err = x.to_string(),
             }
             next = records(&local)
@@ -397,12 +631,6 @@ impl RankStepper {
         if world.any(!err.is_empty()) {
             return Err(failure(world, step, me, &err));
         }
-        if thin {
-            if let Some(need) = self.outran_margin(&lay, &next) {
-                return Ok(Tried::Moved { need });
-            }
-        }
-        let world = &self.world;
         // Every rank took the same step (a rank without particles learns it from the others).
         let mut tt = [if plan.is_some() {
             local.t
@@ -428,15 +656,16 @@ impl RankStepper {
     /// hold a particle of its own (a cell of ghosts only may lack members beyond the halo).
     /// Collective.
     fn global_limits(
-        &self,
-        eng: &mut Option<Backend>,
+        world: &World,
+        phys: &Physics,
+        eng: Option<&mut Backend>,
         thin: bool,
         step: u64,
     ) -> Result<(Option<Forces>, Forces, f64), String> {
-        let world = &self.world;
         let me = world.rank();
         let mut err = String::new();
         let mut forces = None;
+        let mut eng = eng;
         if let Some(e) = eng.as_mut() {
             match e.forces() {
                 Ok(f) => forces = Some(f),
@@ -458,7 +687,7 @@ impl RankStepper {
             acc_max: most[1],
             damp_rate_max: most[2],
         };
-        let explicit = self.phys.drag == crate::scene::DragMethod::Explicit;
+        let explicit = phys.drag == crate::scene::DragMethod::Explicit;
         if explicit && !thin {
             return Err(format!(
                 "step {step}: the explicit drag baseline (drag.method = \"explicit\") steps \
@@ -527,31 +756,6 @@ impl RankStepper {
         }))
     }
 
-    /// The thin halo after a step: whether every neighbour and cell-mate of an owned particle
-    /// at the new layer lay in the halo (two particles close in by at most twice the largest
-    /// displacement). `Some(need)`: the step must be taken again with a margin `need` beyond
-    /// the support; else the next step's margin is set from this step's motion (collective).
-    fn outran_margin(&mut self, lay: &LocalLayer, next: &[ParticleRecord]) -> Option<f64> {
-        let domain = self.phys.domain;
-        let old: KeyMap<[f64; 3]> = (lay.owned.iter()).map(|r| (r.key(), full_pos(r))).collect();
-        let halo = (lay.local_recs.len() - lay.owned.len()) as f64;
-        let mut worst = [0.0f64, 0.0, halo / lay.owned.len().max(1) as f64];
-        for r in next {
-            let d2 = domain.distance2(old[&r.key()], full_pos(r));
-            worst[0] = worst[0].max(d2.sqrt());
-            worst[1] = worst[1].max(r.solved_h());
-        }
-        self.world.max_f64(&mut worst);
-        self.halo_ratio = self.halo_ratio.max(worst[2]);
-        let need = (crate::step::SUPPORT * worst[1]).max(lay.near) + 2.0 * worst[0];
-        if need > lay.reach {
-            return Some(need - lay.near);
-        }
-        // The next step's margin: room for this step's motion, and more.
-        self.margin = (3.0 * worst[0]).max(MIN_MARGIN * lay.support);
-        None
-    }
-
     /// The momentum and its scale Σ m|v| of every rank's own particles, summed over the ranks
     /// (collective).
     pub fn momentum(&self) -> crate::step::Momentum {
@@ -575,6 +779,65 @@ impl RankStepper {
             l: [s[4], s[5], s[6]],
             inside: 0,
         }
+    }
+
+    /// Every rank's particles as one state on rank 0 for an output (`None` on the other
+    /// ranks), with the dust densities and stopping times each rank's engine computed for its
+    /// own particles, the ghosts refreshed between (collective). Where no rank steps on a thin
+    /// halo (the deep halo, a rank without gas) the stopping times are `None`: rank 0 computes
+    /// them on the gathered state.
+    #[allow(clippy::type_complexity)]
+    pub fn gather_output(
+        &mut self,
+        t: f64,
+        step: u64,
+    ) -> Result<Option<(State, Option<Vec<Vec<f64>>>)>, String> {
+        let t0 = std::time::Instant::now();
+        if self.thin && self.resident.is_none() {
+            self.resident = self.build_resident(step)?;
+            self.timers.add(STAGE_BUILD, t0.elapsed().as_secs_f64());
+        }
+        let t0 = std::time::Instant::now();
+        let Some(res) = self.resident.as_mut() else {
+            return Ok(self.gather(t, step)?.map(|st| (st, None)));
+        };
+        res.local.t = t;
+        res.local.step = step;
+        let world = &self.world;
+        let ts = (res.eng.dust_stopping_times(&mut res.local))
+            .unwrap_or_else(|x| abort_job(world, step, &x));
+        let mine = &res.mine;
+        let owned: Vec<ParticleRecord> = (records(&res.local).into_iter())
+            .filter(|r| mine.contains(&r.key()))
+            .collect();
+        let mut stops: Vec<[u64; 3]> = Vec::new();
+        for (k, (d, ts)) in res.local.dust.iter().zip(&ts).enumerate() {
+            for (&id, t_s) in d.id.iter().zip(ts) {
+                let key = (k as u64 + 1, id);
+                if mine.contains(&key) {
+                    stops.push([key.0, key.1, t_s.to_bits()]);
+                }
+            }
+        }
+        // The owned records as the engine now holds them (the output's dust densities too,
+        // which the next steps start from, as one process's engine does).
+        self.owned = owned;
+        let state = self.gather(t, step)?;
+        let parts = world.gather_bytes(bytemuck::cast_slice(&stops));
+        self.timers.add(STAGE_OUTPUT, t0.elapsed().as_secs_f64());
+        let (Some(state), Some(parts)) = (state, parts) else {
+            return Ok(None);
+        };
+        let mut all: Vec<[u64; 3]> = (parts.iter())
+            .flat_map(|b| b.chunks_exact(24))
+            .map(bytemuck::pod_read_unaligned::<[u64; 3]>)
+            .collect();
+        all.sort_unstable_by_key(|s| (s[0], s[1]));
+        let mut t_stop: Vec<Vec<f64>> = vec![Vec::new(); state.dust.len()];
+        for s in all {
+            t_stop[s[0] as usize - 1].push(f64::from_bits(s[2]));
+        }
+        Ok(Some((state, Some(t_stop))))
     }
 
     /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),

@@ -88,10 +88,6 @@ pub trait Observer {
     fn next_time(&self, _t: f64) -> Option<f64> {
         None
     }
-    /// Whether this observer reads the host state after every step (costs a download).
-    fn needs_state_every_step(&self) -> bool {
-        false
-    }
     fn before_step(&mut self, _sim: &mut Simulation) -> Result<Flow, RunError> {
         Ok(Flow::Continue)
     }
@@ -146,7 +142,7 @@ impl Simulation {
     /// particle's drag is off).
     pub fn dust_stopping_times(&mut self) -> Result<Vec<Vec<f64>>, StepError> {
         let Simulation { stepper, state, .. } = self;
-        stepper.engine(state)?.dust_stopping_times(state)
+        stepper.output_fields(state)
     }
 
     /// A simulation continuing from a checkpoint's diagnostics.
@@ -274,17 +270,12 @@ impl Simulation {
         self.stepper.sync(&mut self.state)
     }
 
-    /// The engine on the whole state, for what an output computes (after [`Simulation::sync`]).
-    pub fn engine(&mut self) -> Result<&mut Backend, StepError> {
-        self.stepper.engine(&mut self.state)
-    }
-
     /// The dust densities of the current state (computed where the step does not keep them
     /// fresh), the host state brought up to date.
     pub fn refresh_dust_density(&mut self) -> Result<(), StepError> {
         self.sync()?;
         let Simulation { stepper, state, .. } = self;
-        stepper.engine(state)?.refresh_dust_density(state)
+        stepper.refresh_dust_density(state)
     }
 
     /// This process writes the outputs (one process, or rank 0).
@@ -306,7 +297,6 @@ impl Simulation {
         checkpoints: Option<&mut dyn Checkpointer>,
     ) -> Result<Stop, RunError> {
         let mut checkpoints = checkpoints;
-        let every_step = observers.iter().any(|o| o.needs_state_every_step());
         while self.state.t < t_end {
             let mut flow = Flow::Continue;
             for o in observers.iter_mut() {
@@ -320,7 +310,7 @@ impl Simulation {
                 .filter_map(|o| o.next_time(self.state.t))
                 .fold(t_end, f64::min);
             let taken = self.step(target).map_err(step_err)?;
-            if every_step || taken.plan.landing {
+            if taken.plan.landing {
                 self.sync().map_err(step_err)?;
             }
             let mut flow = Flow::Continue;

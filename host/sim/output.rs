@@ -158,10 +158,8 @@ pub fn write_snapshot(
     // The state is synced (the loop syncs every process at a landing; over ranks this runs on
     // rank 0 alone, so nothing here may be collective).
     let Simulation { stepper, state, .. } = sim;
-    let eng = stepper.engine(state).map_err(step_err)?;
-    eng.refresh_dust_density(state).map_err(step_err)?;
-    let t_stop = eng.dust_stopping_times(state).map_err(step_err)?;
-    let phys = eng.phys();
+    let t_stop = stepper.output_fields(state).map_err(step_err)?;
+    let phys = stepper.phys();
     let h = phys.h;
     let g = &state.gas;
     // Variable h: the gas's own h; the dust's from its density (h = hfact (m/ρ)^(1/d), the
@@ -279,23 +277,22 @@ impl BallChecks {
         })
     }
 
-    /// Record the state as it stands. Root only.
-    pub fn record_now(&mut self, sim: &Simulation) {
-        if !sim.is_root() {
-            return;
+    /// Record the terms of the state as it stands (collective over ranks; rank 0 keeps them).
+    pub fn record_now(&mut self, sim: &mut Simulation) -> Result<(), RunError> {
+        let Simulation { stepper, state, .. } = sim;
+        let (i, rhs) = stepper
+            .lagrange_jacobi_terms(state, self.loaded.scene.dim())
+            .map_err(|e| RunError::Step(e.to_string()))?;
+        if sim.is_root() {
+            self.record.lagrange_jacobi.push((sim.state.t, i, rhs));
         }
-        let (i, rhs) = analysis::ball::lagrange_jacobi_terms(&sim.state, self.loaded.scene.dim());
-        self.record.lagrange_jacobi.push((sim.state.t, i, rhs));
+        Ok(())
     }
 }
 
 impl Observer for BallChecks {
-    fn needs_state_every_step(&self) -> bool {
-        true
-    }
-
     fn after_step(&mut self, sim: &mut Simulation, _: &Taken) -> Result<Flow, RunError> {
-        self.record_now(sim);
+        self.record_now(sim)?;
         Ok(Flow::Continue)
     }
 

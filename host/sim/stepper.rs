@@ -17,12 +17,16 @@ pub use crate::dist::ranks::RankStepper;
 pub enum Stepper {
     /// One process: the engine on its launcher; the host state is the whole state.
     Local(Backend),
-    /// MPI ranks: this rank's share. Rank 0's state is the gathered whole after a sync, and
-    /// `output` an engine on it for what an output computes (dust densities, stopping times).
+    /// MPI ranks: this rank's share. Rank 0's state is the gathered whole after a sync, with
+    /// the dust densities and stopping times the ranks' engines computed for it.
     #[cfg(feature = "mpi")]
     Ranks {
         ranks: Box<RankStepper>,
-        output: Backend,
+        /// The dust stopping times of the gathered state (rank 0), per fraction.
+        t_stop: Option<Vec<Vec<f64>>>,
+        /// Rank 0's engine on the gathered state, for an output the ranks' engines did not
+        /// compute (a step on the deep halo has none): built when needed.
+        output: Option<Backend>,
         /// `output` no longer matches the gathered state (rebuilt before its next use).
         stale: bool,
     },
@@ -66,18 +70,26 @@ impl Stepper {
         }
     }
 
-    /// Bring the host state up to date: from the engine, or every rank's particles gathered on
-    /// rank 0 (collective; the other ranks' states keep only their time and step).
+    /// Bring the host state up to date for an output: from the engine, or over ranks every
+    /// rank's particles gathered on rank 0 with the dust densities and stopping times each
+    /// rank's engine computed for its own (collective; the other ranks' states keep only their
+    /// time and step).
     pub fn sync(&mut self, state: &mut State) -> Result<(), StepError> {
         match self {
             Stepper::Local(eng) => eng.sync(state),
             #[cfg(feature = "mpi")]
-            Stepper::Ranks { ranks, stale, .. } => {
+            Stepper::Ranks {
+                ranks,
+                t_stop,
+                stale,
+                ..
+            } => {
                 let gathered = ranks
-                    .gather(state.t, state.step)
+                    .gather_output(state.t, state.step)
                     .map_err(StepError::Blowup)?;
-                if let Some(st) = gathered {
+                if let Some((st, ts)) = gathered {
                     *state = st;
+                    *t_stop = ts;
                     *stale = true;
                 }
                 Ok(())
@@ -85,36 +97,96 @@ impl Stepper {
         }
     }
 
-    /// An engine on the whole (synced) state, for what an output computes from it: the
-    /// stepping engine itself, or over ranks rank 0's engine rebuilt on the gathered state.
+    /// The dust densities (in `state`) and stopping times per fraction of the synced state,
+    /// for an output: computed by the stepping engine, or over ranks by the ranks' engines at
+    /// the sync (rank 0 only; nothing here is collective).
+    pub fn output_fields(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, StepError> {
+        #[cfg(feature = "mpi")]
+        if let Stepper::Ranks {
+            t_stop: Some(ts), ..
+        } = self
+        {
+            return Ok(ts.clone());
+        }
+        let eng = self.engine(state)?;
+        eng.refresh_dust_density(state)?;
+        eng.dust_stopping_times(state)
+    }
+
+    /// The dust densities of the synced state (over ranks, the sync computed them).
+    pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
+        #[cfg(feature = "mpi")]
+        if let Stepper::Ranks {
+            t_stop: Some(_), ..
+        } = self
+        {
+            return Ok(());
+        }
+        self.engine(state)?.refresh_dust_density(state)
+    }
+
+    /// An engine on the whole (synced) state: the stepping engine itself, or over ranks, where
+    /// the ranks' engines did not compute an output's fields, rank 0's engine rebuilt on the
+    /// gathered state.
     // The state is rank 0's gathered one over ranks; one process's engine is already on it.
     #[cfg_attr(not(feature = "mpi"), allow(unused_variables))]
-    pub fn engine(&mut self, state: &mut State) -> Result<&mut Backend, StepError> {
+    fn engine(&mut self, state: &mut State) -> Result<&mut Backend, StepError> {
         match self {
             Stepper::Local(eng) => Ok(eng),
             #[cfg(feature = "mpi")]
-            Stepper::Ranks { output, stale, .. } => {
-                if *stale {
-                    let phys = output.phys().clone();
-                    *output = Backend::new(DeviceChoice::Cpu, phys, state)?;
+            Stepper::Ranks {
+                ranks,
+                output,
+                stale,
+                ..
+            } => {
+                if *stale || output.is_none() {
+                    let phys = ranks.phys().clone();
+                    let mut eng = Backend::new(DeviceChoice::Cpu, phys, state)?;
                     // The ranks leave the dust densities as a step does (one process refreshes
                     // them for its outputs): a variable-h engine would otherwise keep the
                     // gathered ones.
-                    output.dust_density_as_after_step();
+                    eng.dust_density_as_after_step();
+                    *output = Some(eng);
                     *stale = false;
                 }
-                Ok(output)
+                Ok(output.as_mut().expect("built above"))
             }
         }
     }
 
-    /// The engine that steps (one process), or rank 0's output engine (over ranks): for its
-    /// physics, timers and description.
-    pub fn backend(&self) -> &Backend {
+    /// The run's physics.
+    pub fn phys(&self) -> &crate::step::Physics {
         match self {
-            Stepper::Local(eng) => eng,
+            Stepper::Local(eng) => eng.phys(),
             #[cfg(feature = "mpi")]
-            Stepper::Ranks { output, .. } => output,
+            Stepper::Ranks { ranks, .. } => ranks.phys(),
+        }
+    }
+
+    /// The stages' times of the steps: the engine's, or over ranks this rank's engines'.
+    pub fn timers(&self) -> crate::step::timers::Timers {
+        match self {
+            Stepper::Local(eng) => eng.timers().clone(),
+            #[cfg(feature = "mpi")]
+            Stepper::Ranks { ranks, .. } => ranks.timers(),
+        }
+    }
+
+    /// The ball's Lagrange–Jacobi terms (I, 2Σm|v|² + 2dΣm p/ρ) of every particle after the
+    /// last step (collective over ranks: each rank's own particles, summed).
+    pub fn lagrange_jacobi_terms(
+        &mut self,
+        state: &mut State,
+        dim: u32,
+    ) -> Result<(f64, f64), StepError> {
+        match self {
+            Stepper::Local(eng) => {
+                eng.sync(state)?;
+                Ok(crate::analysis::ball::lagrange_jacobi_terms(state, dim))
+            }
+            #[cfg(feature = "mpi")]
+            Stepper::Ranks { ranks, .. } => Ok(ranks.lagrange_jacobi_terms(dim)),
         }
     }
 
@@ -168,11 +240,9 @@ impl Stepper {
         match self {
             Stepper::Local(eng) => eng.describe(),
             #[cfg(feature = "mpi")]
-            Stepper::Ranks { ranks, output, .. } => format!(
-                "{}; set-up and outputs: {}",
-                ranks.describe(),
-                output.describe()
-            ),
+            Stepper::Ranks { ranks, .. } => {
+                format!("{}; set-up: cpu (rank 0)", ranks.describe())
+            }
         }
     }
 }

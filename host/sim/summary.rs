@@ -229,8 +229,8 @@ pub fn finish(
         radius_estimate_dust: radius_estimate(&state.dust.iter().collect::<Vec<_>>()),
     });
     let d = &sim.diagnostics;
-    let eng = sim.stepper.backend();
-    let phys = eng.phys();
+    let phys = sim.stepper.phys();
+    let timers = sim.stepper.timers();
     let summary = Summary {
         code: "dustsph",
         version: env!("CARGO_PKG_VERSION"),
@@ -265,7 +265,7 @@ pub fn finish(
             crate::scene::GradientMethod::Iad => "iad",
         },
         // The stages that ran, in the order they first ran (from the timers).
-        pipeline: eng.timers().entries().iter().map(|e| e.0).collect(),
+        pipeline: timers.entries().iter().map(|e| e.0).collect(),
         drag_method: phys.drag.name(),
         drag_limited_steps: d.drag_limited_steps,
         steps: state.step,
@@ -279,7 +279,7 @@ pub fn finish(
         conservation: conservation(d, state, phys),
         errors: outputs.errors,
         snapshots: outputs.snapshots,
-        stage_seconds: eng.timers().entries().to_vec(),
+        stage_seconds: timers.entries().to_vec(),
         rank_traffic: sim.stepper.traffic(),
         ball,
     };

@@ -256,7 +256,7 @@ pub fn step_over_ranks(
     steps: u64,
 ) -> Result<Option<StepReport>, String> {
     use crate::sim::{Simulation, Stepper};
-    use crate::step::backend::{Backend, DeviceChoice};
+    use crate::step::backend::DeviceChoice;
     let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
     let phys = crate::step::Physics::from_scene(scene, su.h, su.domain);
     let mut ranks = RankStepper::new(
@@ -271,11 +271,10 @@ pub fn step_over_ranks(
         ranks.use_deep_halo();
     }
     let err = |e: crate::step::StepError| e.to_string();
-    let output =
-        Backend::new(DeviceChoice::Cpu, phys.clone(), &mut su.state.shape()).map_err(err)?;
     let stepper = Stepper::Ranks {
         ranks: Box::new(ranks),
-        output,
+        t_stop: None,
+        output: None,
         stale: false,
     };
     let mut over =
@@ -283,31 +282,13 @@ pub fn step_over_ranks(
     for _ in 0..steps {
         over.step(scene.time.t_end).map_err(err)?;
     }
-    over.sync().map_err(err)?;
+    // The dust densities as an output over ranks has them: from the ranks' engines on the
+    // thin halo, from rank 0's on the gathered state after the deep halo's steps.
+    over.refresh_dust_density().map_err(err)?;
     if !over.is_root() {
         return Ok(None);
     }
     let mut dist = over.state.clone();
-    // The dust densities as an output over ranks has them: computed by rank 0 on the gathered
-    // state (the ranks leave them as a step does); the ranks' own gas densities are kept.
-    {
-        let mut out = dist.clone();
-        let mut eng =
-            Backend::new(DeviceChoice::Cpu, phys.clone(), &mut out).map_err(|e| e.to_string())?;
-        eng.dust_density_as_after_step();
-        eng.refresh_dust_density(&mut out)
-            .map_err(|e| e.to_string())?;
-        let fresh: std::collections::HashMap<(u64, u64), f64> = records(&out)
-            .iter()
-            .filter(|r| r.phase > 0)
-            .map(|r| (r.key(), r.rho))
-            .collect();
-        for (k, d) in dist.dust.iter_mut().enumerate() {
-            for (i, rho) in d.rho.iter_mut().enumerate() {
-                *rho = fresh[&(k as u64 + 1, d.id[i])];
-            }
-        }
-    }
     let (mut sim, _) = Simulation::of_scene(scene, DeviceChoice::Cpu)?;
     for _ in 0..steps {
         sim.step(scene.time.t_end).map_err(err)?;

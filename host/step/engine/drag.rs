@@ -346,8 +346,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
 
     /// Kernel coupling: the stopping time each dust particle feels (the CPU's
     /// the solve's t_s at the particle, spread back with the weights of the return).
-    pub(super) fn kernel_stopping_times(&mut self) -> Result<Vec<Vec<f64>>, GpuError> {
+    pub(super) fn kernel_stopping_times(&mut self) -> Result<Vec<Vec<f64>>, StepError> {
         self.coupling_norms()?;
+        self.ghost_sync(&Refresh::COUPLING_NORMS)?;
         let d = &self.d;
         let c = self.coupling.as_ref().expect("kernel coupling");
         let p = self.params(0.0)?;
@@ -360,6 +361,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             p: p.dev,
         };
         d.run(R::COUPLING_SOLVE, self.gas.n, &ca)?;
+        self.ghost_sync(&Refresh::COUPLING_SOLVE)?;
+        let d = &self.d;
+        let c = self.coupling.as_ref().expect("kernel coupling");
         let out: Buf<L, R> = d.buf(self.dust.n.max(1))?;
         let ra = th::ReturnArgs {
             gas: self.gas.bufs(d),

@@ -137,6 +137,24 @@ impl Refresh {
             SavedEnergy,
         ],
     };
+    /// The leapfrog's closing kick, energy half step and EOS, which the next step's first kick
+    /// reads (the resident engine over ranks keeps its ghosts across steps).
+    pub(super) const CLOSING: Refresh = Refresh {
+        name: "after the leapfrog's closing kick",
+        fields: &[
+            Velocity,
+            KineticLoss,
+            Energy,
+            Pressure,
+            SoundSpeed,
+            CouplingHeat,
+        ],
+    };
+    /// The dust densities an output computes, which its stopping times' cell sums read.
+    pub(super) const OUTPUT_DENSITY: Refresh = Refresh {
+        name: "after an output's dust densities",
+        fields: &[Density],
+    };
     /// The leapfrog's predicted velocities, which its forces at the new layer read.
     pub(super) const PREDICTOR: Refresh = Refresh {
         name: "after the leapfrog's predictor",
@@ -151,14 +169,17 @@ impl Refresh {
 /// of those passes (their neighbourhoods are cut off at the halo's edge) and out of the step's
 /// maxima.
 pub trait GhostSync: Send {
+    /// After each sort: every slot's key per phase table (gas, then the dust), in the new
+    /// order; the refreshes until the next sort read and write rows by these slots.
+    fn reorder(&mut self, slots: &[Vec<(u64, u64)>]) -> Result<(), String>;
     /// Overwrite the ghosts' rows (gas first, then the dust) with their owners' (collective).
-    fn refresh(&mut self, tables: &mut [GhostRows<'_>]) -> Result<(), String>;
+    fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String>;
 }
 
-/// One phase's particles as rows of bytes: `keys[i]` = (phase: 0 gas, 1 + k dust fraction k,
-/// particle id); row i is `data[i * row .. (i + 1) * row]`, every per-particle buffer's value.
-pub struct GhostRows<'a> {
-    pub keys: &'a [(u64, u64)],
+/// One phase's particles as rows of bytes, in the slot order of the last
+/// [`GhostSync::reorder`]: row i is `data[i * row .. (i + 1) * row]`, every per-particle
+/// buffer's value of the refresh's fields.
+pub struct GhostRows {
     pub row: usize,
     pub data: Vec<u8>,
 }
@@ -171,8 +192,6 @@ pub(super) struct Ghosts<L: Launcher> {
     pub(super) mask: [Option<Buf<L, u8>>; 2],
     /// 1 for a ghost only (not a wall), per phase: the explicit drag limit's cells.
     pub(super) only: [Option<Buf<L, u8>>; 2],
-    /// Every slot's key (phase, id), per phase, in the order of the last sort.
-    pub(super) slots: [Vec<(u64, u64)>; 2],
     /// `DUSTSPH_HALO_CHECK` was set when the ghosts were (read once, not at every refresh).
     pub(super) check: bool,
 }
@@ -212,7 +231,6 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             keys,
             mask: [None, None],
             only: [None, None],
-            slots: [Vec::new(), Vec::new()],
             check: std::env::var_os("DUSTSPH_HALO_CHECK").is_some(),
         });
         self.ghost_masks()?;
@@ -240,7 +258,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     }
 
     /// The slots' keys and the ghost masks in the current order (after each sort).
-    pub(super) fn ghost_masks(&mut self) -> Result<(), GpuError> {
+    pub(super) fn ghost_masks(&mut self) -> Result<(), StepError> {
         let Some(g) = &self.ghosts else {
             return Ok(());
         };
@@ -268,7 +286,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         if let Some(g) = &mut self.ghosts {
             g.mask = masks;
             g.only = only;
-            g.slots = slots;
+            g.sync
+                .reorder(&slots)
+                .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
         }
         Ok(())
     }
@@ -336,7 +356,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let mut out = Vec::new();
         for gas in [true, false] {
             for &f in fields {
-                for c in self.ghost_columns(gas, None, &[f])? {
+                for (_, c) in self.ghost_columns(gas, None, &[f])? {
                     out.push((gas, f, c));
                 }
             }
@@ -350,11 +370,13 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         for gas in [true, false] {
             let n = if gas { self.gas.n } else { self.dust.n };
             let cols = self.ghost_columns(gas, None, fields)?;
-            let row: usize = cols.iter().map(|c| c.len() / n.max(1)).sum();
+            // The row's width from the pipeline, not from the data: the same on a rank
+            // without particles of this phase as on its senders.
+            let row: usize = cols.iter().map(|c| c.0).sum();
             let mut data = vec![0u8; n * row];
             let mut at = 0;
-            for c in &cols {
-                let w = c.len() / n.max(1);
+            for (w, c) in &cols {
+                let w = *w;
                 for i in 0..n {
                     data[i * row + at..i * row + at + w].copy_from_slice(&c[i * w..(i + 1) * w]);
                 }
@@ -362,10 +384,10 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             }
             rows.push((row, data));
         }
-        // The slots' keys of the last sort (ghost_masks): no id download per refresh.
-        let Ghosts { sync, slots, .. } = self.ghosts.as_mut().expect("ghosts are set");
-        let mut tables: Vec<GhostRows<'_>> = (slots.iter().zip(rows))
-            .map(|(keys, (row, data))| GhostRows { keys, row, data })
+        // The rows are in the slot order the sync learnt at the last sort (ghost_masks).
+        let sync = &mut self.ghosts.as_mut().expect("ghosts are set").sync;
+        let mut tables: Vec<GhostRows> = (rows.into_iter())
+            .map(|(row, data)| GhostRows { row, data })
             .collect();
         sync.refresh(&mut tables)
             .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
@@ -376,14 +398,15 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         Ok(())
     }
 
-    /// A phase's per-particle buffers of `fields` as byte columns (`put` = None), or written
-    /// back from the rows of `put`; those this scene's pipeline does not use are left out.
+    /// A phase's per-particle buffers of `fields` as byte columns with their bytes per
+    /// particle (`put` = None), or written back from the rows of `put`; those this scene's
+    /// pipeline does not use are left out.
     pub(super) fn ghost_columns(
         &mut self,
         gas: bool,
         put: Option<(usize, &[u8])>,
         fields: &[Field],
-    ) -> Result<Vec<Vec<u8>>, GpuError> {
+    ) -> Result<Vec<(usize, Vec<u8>)>, GpuError> {
         /// Buffer `b` with `per` values per particle, particle-major.
         pub(super) fn one<L: Launcher, T: Copy>(
             d: &Device<L>,
@@ -391,18 +414,21 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             n: usize,
             per: usize,
             put: Option<((usize, &[u8]), &mut usize)>,
-            out: &mut Vec<Vec<u8>>,
+            out: &mut Vec<(usize, Vec<u8>)>,
         ) -> Result<(), GpuError> {
             let Some(b) = b else { return Ok(()) };
+            let w = std::mem::size_of::<T>() * per;
             if n == 0 || per == 0 {
+                if put.is_none() {
+                    out.push((w, Vec::new()));
+                }
                 return Ok(());
             }
-            let w = std::mem::size_of::<T>() * per;
             match put {
                 None => {
                     let mut bytes = vec![0u8; n * w];
                     d.launcher.download(&b.mem, &mut bytes)?;
-                    out.push(bytes);
+                    out.push((w, bytes));
                 }
                 Some(((row, data), at)) => {
                     let mut bytes = vec![0u8; n * w];

@@ -175,6 +175,6 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             })?;
         }
         self.kdk.closing = Some(f1);
-        Ok(())
+        self.ghost_sync(&Refresh::CLOSING)
     }
 }

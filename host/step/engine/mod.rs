@@ -432,8 +432,10 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     }
 
     /// Dust densities for output (kept fresh every step only when the drag law needs them).
+    /// Over ranks the ghosts' then come from their owners (collective).
     pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
         self.dust_density()?;
+        self.ghost_sync(&Refresh::OUTPUT_DENSITY)?;
         Ok(self.sync(state)?)
     }
 
