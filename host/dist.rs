@@ -200,6 +200,37 @@ pub mod comm {
             out
         }
 
+        /// Every rank's bytes, concatenated in rank order, on rank 0 only (`None` elsewhere):
+        /// [`World::gather_bytes`] without a copy per rank.
+        pub fn gather_concat(&self, mine: &[u8]) -> Option<Vec<u8>> {
+            let start = std::time::Instant::now();
+            let root = self.world.process_at_rank(0);
+            let n = mine.len() as Count;
+            let sent = if self.rank() == 0 { 0 } else { mine.len() };
+            let out = if self.rank() != 0 {
+                root.gather_into(&n);
+                root.gather_varcount_into(&heap(mine)[..]);
+                None
+            } else {
+                let mut counts = vec![0 as Count; self.size() as usize];
+                root.gather_into_root(&n, &mut counts[..]);
+                let displs = displacements(&counts);
+                let total: usize = counts.iter().map(|&c| c as usize).sum();
+                let mut buf = vec![0u8; total.max(1)];
+                {
+                    let mut part = PartitionMut::new(&mut buf[..total], &counts[..], &displs[..]);
+                    root.gather_varcount_into_root(&heap(mine)[..], &mut part);
+                }
+                buf.truncate(total);
+                Some(buf)
+            };
+            count(|t| {
+                t.gather_bytes += sent as u64;
+                t.gather_seconds += start.elapsed().as_secs_f64();
+            });
+            out
+        }
+
         fn gather_bytes_uncounted(&self, mine: &[u8]) -> Option<Vec<Vec<u8>>> {
             let mine = &heap(mine)[..];
             let root = self.world.process_at_rank(0);

@@ -10,8 +10,6 @@ use crate::sim::progress::{CheckpointEvery, Interrupt, ProgressBar};
 use crate::sim::start;
 use crate::sim::summary;
 use crate::sim::{Observer, Simulation, Stepper};
-#[cfg(feature = "mpi")]
-use crate::step::backend::Backend;
 use crate::step::backend::DeviceChoice;
 use crate::step::Physics;
 use std::path::{Path, PathBuf};
@@ -52,9 +50,9 @@ impl Run {
         Self::begin(loaded, opts, phys, state, source, Stepper::Local(eng))
     }
 
-    /// [`Run::start`] as one of several MPI ranks: rank 0 alone builds the engine on the whole
-    /// scene and checks its first step; its verdict reaches every rank before any goes on.
-    /// Every rank sets up the scene and keeps its share; rank 0 writes every output.
+    /// [`Run::start`] as one of several MPI ranks: every rank sets up the scene, keeps its
+    /// share and builds its engine on it; the first step is checked over every rank (its
+    /// verdict the same on each) before anything is written; rank 0 writes every output.
     #[cfg(feature = "mpi")]
     pub fn start_over_ranks(
         loaded: &LoadedScene,
@@ -62,25 +60,16 @@ impl Run {
         world: crate::dist::comm::World,
     ) -> Result<Run, RunError> {
         let root = world.rank() == 0;
-        let (phys, mut state, source) = start::prepare(loaded, None, root)?;
-        // The set-up (and rank 0's outputs) on the CPU; the steps on each rank's device.
-        let built = if root {
-            start::engine(
-                loaded,
-                phys.clone(),
-                &mut state,
-                DeviceChoice::Cpu,
-                opts.verbose,
-            )
-            .and_then(|mut eng| {
-                start::check_first_step(loaded, &mut eng, &state)?;
-                Ok(eng)
-            })
-            .map(Some)
-        } else {
-            Ok(None)
-        };
-        let stepper = over_ranks(world, &phys, &state, built, opts.device, opts.verbose)?;
+        let (phys, state, source) = start::prepare(loaded, None, root)?;
+        let stepper = over_ranks(
+            world,
+            loaded,
+            &phys,
+            &state,
+            opts.device,
+            opts.verbose,
+            true,
+        )?;
         Self::begin(loaded, opts, phys, state, source, stepper)
     }
 
@@ -170,13 +159,10 @@ impl Run {
         }
     }
 
-    /// Over ranks, only rank 0 keeps the whole state (for its outputs); every other rank steps
-    /// its share alone and drops the set-up's whole state, which it would otherwise hold,
-    /// unused, for the whole run.
+    /// Over ranks, no rank keeps the whole state: each steps its share, and rank 0 gathers the
+    /// whole for each output.
     fn shed_whole_state(&mut self) {
-        if !self.sim.is_root() {
-            self.sim.state = self.sim.state.shape();
-        }
+        self.sim.shed_gathered();
     }
 
     /// Continue a run from `DIR/checkpoint.h5`.
@@ -208,20 +194,8 @@ impl Run {
         let root = world.rank() == 0;
         let (state, loaded, progress) = checkpoint::read(dir)?;
         let layout = progress.layout;
-        let (phys, mut state) = start::prepare_resumed(&loaded, state, layout.as_ref(), root)?;
-        let built = if root {
-            start::engine(
-                &loaded,
-                phys.clone(),
-                &mut state,
-                DeviceChoice::Cpu,
-                verbose,
-            )
-            .map(Some)
-        } else {
-            Ok(None)
-        };
-        let stepper = over_ranks(world, &phys, &state, built, device, verbose)?;
+        let (phys, state) = start::prepare_resumed(&loaded, state, layout.as_ref(), root)?;
+        let stepper = over_ranks(world, &loaded, &phys, &state, device, verbose, false)?;
         let mut r = Self::resumed(&loaded, dir, phys, state, stepper, progress, verbose);
         r.shed_whole_state();
         Ok(r)
@@ -337,21 +311,24 @@ impl Run {
     }
 }
 
-/// The stepper of a run over ranks: rank 0's verdict on its engine (built on the whole scene,
-/// its first step checked) reaches every rank before any goes on; then each rank steps its
-/// share ([`crate::dist::ranks::RankStepper`]) on the device asked for.
+/// The stepper of a run over ranks: each rank's share of the scene and its engine on it, and
+/// (`check_first`, a run's start) the first step checked over every rank. A start refused is
+/// said before any rank leaves (mpirun stops the job at the first rank that exits non-zero,
+/// which could otherwise cut the others off before they speak).
 #[cfg(feature = "mpi")]
 fn over_ranks(
     world: crate::dist::comm::World,
+    loaded: &LoadedScene,
     phys: &Physics,
     state: &State,
-    built: Result<Option<Backend>, RunError>,
     device: DeviceChoice,
     verbose: bool,
+    check_first: bool,
 ) -> Result<Stepper, RunError> {
+    let root = world.rank() == 0;
     if phys.accretion_radius > 0.0 {
         // Removing particles rebuilds one process's engine; a rank's share cannot yet.
-        if world.rank() == 0 {
+        if root {
             eprintln!(
                 "error: gravity.accretion_radius: accretion runs on one process only (not over \
                  MPI ranks); run without mpirun or set it to 0"
@@ -360,17 +337,6 @@ fn over_ranks(
         world.any(true);
         return Err(RunError::InputReported);
     }
-    if world.any(built.is_err()) {
-        // Rank 0 says why before any rank leaves: mpirun stops the job at the first rank
-        // that exits non-zero, which could otherwise cut rank 0 off before it speaks.
-        if let Err(e) = &built {
-            eprintln!("error: {e}");
-        }
-        world.any(false);
-        return Err(RunError::InputReported);
-    }
-    // Rank 0's engine on the whole scene served the first step's check only.
-    drop(built);
     let mut ranks = crate::dist::ranks::RankStepper::new(
         world,
         phys.clone(),
@@ -380,7 +346,39 @@ fn over_ranks(
         verbose,
     )
     .map_err(RunError::Input)?;
-    ranks.prepare(state.step).map_err(RunError::Step)?;
+    let file = loaded.path.display().to_string();
+    let checked = match crate::sim::output::output_times(loaded, state.t).get(1) {
+        Some(&t1) if check_first => {
+            let planner = crate::step::timestep::StepPlanner::new(&loaded.scene.time, phys.h);
+            match ranks.plan_first(&planner, state.t, state.step, t1) {
+                Ok((forces, local)) => {
+                    if let (true, Some(f), Some(local)) = (root, forces, local) {
+                        // The warnings' neighbour count: rank 0's particles and halo.
+                        for w in start::start_warnings(loaded, phys, local, &f) {
+                            eprintln!("dustsph: warning: {w}");
+                        }
+                    }
+                    Ok(())
+                }
+                Err(e) => Err(format!("{file}: the first step cannot be taken: {e}")),
+            }
+        }
+        _ => ranks.prepare(state.step).map_err(|e| {
+            format!(
+                "{file}: the initial state cannot be set up (check idic.cell, sph.h/hfact, \
+                 sph.n): {e}"
+            )
+        }),
+    };
+    // Every rank's verdict is the same (the plan's from maxima over all ranks; a rank's own
+    // failure reaches the others as "another rank failed"): rank 0 says it, then all stop.
+    if let Err(e) = &checked {
+        if root || !e.contains("another rank failed") {
+            eprintln!("error: {e}");
+        }
+        ranks.any(true);
+        return Err(RunError::InputReported);
+    }
     Ok(Stepper::Ranks {
         ranks: Box::new(ranks),
         t_stop: None,

@@ -12,7 +12,7 @@
 //! results.
 use super::comm::World;
 use super::halo::{cut, fail_requested, halo_sends, migrate, shell, RankGhosts};
-use super::records::{full_pos, records, state_of, ParticleRecord};
+use super::records::{full_pos, records, records_where, state_from, state_of, ParticleRecord};
 use crate::particles::{KeyMap, KeySet, State};
 use crate::step::backend::{Backend, DeviceChoice};
 use crate::step::engine::InitialLayer;
@@ -71,9 +71,15 @@ struct LocalLayer {
 const MIN_MARGIN: f64 = 0.1;
 
 /// Steps a thin halo is built to serve: its margin is room for this many steps' motion at the
-/// last step's pace (at most half a support more), so that the rank's engine is rebuilt, and
-/// its particles migrate, about once in as many steps.
+/// last step's pace (up to [`MAX_MARGIN`]), so that the rank's engine is rebuilt, and its
+/// particles migrate, about once in as many steps.
 const HOLD_STEPS: f64 = 10.0;
+
+/// The largest margin held for [`HOLD_STEPS`], in supports: a ghost costs far less than an
+/// owned particle (no h, density or force pass), a rebuild about a step and a half (the seed
+/// ball at ≈57 neighbours over 2 ranks: 52.6 s at 0.5 supports, 38.3 s at 2, 31.9 s at 4;
+/// docs/scaling.md).
+const MAX_MARGIN: f64 = 4.0;
 
 /// The stages of a run over ranks beside the engine's (summary.json `stage_seconds`).
 const STAGE_BUILD: &str = "ranks: halo built (cut, migration, halo, engine on the rank's share)";
@@ -220,10 +226,9 @@ impl RankStepper {
         let (me, ranks) = (world.rank(), world.size());
         // By particle key, not position: rank 0's copy of the scene is sorted by its engine,
         // the others' are not.
-        let owned: Vec<ParticleRecord> = records(full)
-            .into_iter()
-            .filter(|r| (r.id.wrapping_add(r.phase) % ranks as u64) as u32 == me)
-            .collect();
+        let owned = records_where(full, |_, (phase, id)| {
+            (id.wrapping_add(phase) % ranks as u64) as u32 == me
+        });
         // The shape of the state (phases, energy, fixed particles), without its particles.
         let template = full.shape();
         let mut share = state_of(&owned, &template);
@@ -284,6 +289,35 @@ impl RankStepper {
             self.resident = self.build_resident(step)?;
         }
         Ok(())
+    }
+
+    /// The first step's forces and size toward `t_target` over every rank, nothing advanced
+    /// (a run's start; the first step computes the same forces again): the forces' maxima over
+    /// the ranks, or why the step cannot be taken (the same on every rank: collective). Rank 0's
+    /// own particles and halo come with it, for the start's warnings.
+    pub fn plan_first(
+        &mut self,
+        drv: &StepPlanner,
+        t: f64,
+        step: u64,
+        t_target: f64,
+    ) -> Result<(Option<Forces>, Option<&State>), String> {
+        self.prepare(step)?;
+        let Some(res) = self.resident.as_mut() else {
+            // A rank holds no gas: its first step takes the deep halo and plans there.
+            return Ok((None, None));
+        };
+        let (_, global, drag) =
+            Self::global_limits(&self.world, &self.phys, Some(&mut res.eng), true, step)?;
+        match drv.plan(&global, drag, t, step, t_target) {
+            Ok(_) => Ok((Some(global), Some(&res.local))),
+            Err(PlanError::NoLimit(m)) => Err(m),
+            // Every rank names its own culprits (where the step collapsed, they are one rank's).
+            Err(PlanError::Collapsed(m)) => Err(match res.eng.dt_culprits() {
+                Ok(c) => format!("{m}; on rank {}: {c}", self.world.rank()),
+                Err(_) => m,
+            }),
+        }
     }
 
     /// Step with the deep halo (`depth` supports) even where the thin one would do.
@@ -418,7 +452,7 @@ impl RankStepper {
     /// moving by `d` each (at least three steps', and [`MIN_MARGIN`] supports).
     fn margin_for(d: f64, support: f64) -> f64 {
         (3.0 * d)
-            .max((2.0 * HOLD_STEPS * d).min(0.5 * support))
+            .max((2.0 * HOLD_STEPS * d).min(MAX_MARGIN * support))
             .max(MIN_MARGIN * support)
     }
 
@@ -528,9 +562,7 @@ impl RankStepper {
         })();
         let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
         let t0 = std::time::Instant::now();
-        let next: Vec<ParticleRecord> = (records(local).into_iter())
-            .filter(|r| res.mine.contains(&r.key()))
-            .collect();
+        let next = own_records(e, local, &res.mine);
         // The motion since the halo was built, and the largest h, over every rank.
         let domain = self.phys.domain;
         let mut worst = [0.0f64, 0.0];
@@ -807,16 +839,20 @@ impl RankStepper {
         let ts = (res.eng.dust_stopping_times(&mut res.local))
             .unwrap_or_else(|x| abort_job(world, step, &x));
         let mine = &res.mine;
-        let owned: Vec<ParticleRecord> = (records(&res.local).into_iter())
-            .filter(|r| mine.contains(&r.key()))
-            .collect();
+        let owned = own_records(&res.eng, &res.local, mine);
+        let ghost = res.eng.ghost_flags();
         let mut stops: Vec<[u64; 3]> = Vec::new();
+        let mut n = res.local.gas.ph.len();
         for (k, (d, ts)) in res.local.dust.iter().zip(&ts).enumerate() {
             for (&id, t_s) in d.id.iter().zip(ts) {
                 let key = (k as u64 + 1, id);
-                if mine.contains(&key) {
+                let own = ghost
+                    .as_ref()
+                    .map_or_else(|| mine.contains(&key), |g| !g[n]);
+                if own {
                     stops.push([key.0, key.1, t_s.to_bits()]);
                 }
+                n += 1;
             }
         }
         // The owned records as the engine now holds them (the output's dust densities too,
@@ -843,20 +879,29 @@ impl RankStepper {
     /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),
     /// at time `t`, step `step`; `None` on the other ranks. Collective.
     pub fn gather(&self, t: f64, step: u64) -> Result<Option<State>, String> {
-        let bytes: Vec<u8> = bytemuck::cast_slice(&self.owned).to_vec();
-        let Some(parts) = self.world.gather_bytes(&bytes) else {
+        let Some(buf) = self.world.gather_concat(bytemuck::cast_slice(&self.owned)) else {
             return Ok(None);
         };
-        let mut all: Vec<ParticleRecord> = parts
-            .iter()
-            .flat_map(|b| b.chunks_exact(std::mem::size_of::<ParticleRecord>()))
-            .map(bytemuck::pod_read_unaligned::<ParticleRecord>)
-            .collect();
-        all.sort_unstable_by_key(|r| r.key());
-        let mut st = state_of(&all, &self.template);
+        // Read in key order from the one receive buffer: no second copy of the records.
+        const REC: usize = std::mem::size_of::<ParticleRecord>();
+        let read =
+            |i: usize| bytemuck::pod_read_unaligned::<ParticleRecord>(&buf[i * REC..][..REC]);
+        let mut order: Vec<((u64, u64), usize)> =
+            (0..buf.len() / REC).map(|i| (read(i).key(), i)).collect();
+        order.sort_unstable();
+        let mut st = state_from(order.into_iter().map(|(_, i)| read(i)), &self.template);
         st.t = t;
         st.step = step;
         Ok(Some(st))
+    }
+}
+
+/// The rank's own particles of its engine's synced `local` state, as records: those its
+/// engine does not flag as ghosts (or, without the flags, those in `mine`).
+fn own_records(eng: &Backend, local: &State, mine: &KeySet) -> Vec<ParticleRecord> {
+    match eng.ghost_flags() {
+        Some(ghost) => records_where(local, |n, _| !ghost[n]),
+        None => records_where(local, |_, key| mine.contains(&key)),
     }
 }
 

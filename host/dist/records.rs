@@ -77,12 +77,26 @@ pub(crate) fn full_pos(r: &ParticleRecord) -> [f64; 3] {
 
 /// Every particle of a state as records.
 pub fn records(st: &State) -> Vec<ParticleRecord> {
+    records_where(st, |_, _| true)
+}
+
+/// The particles of a state `keep(n, key)` says to keep, as records: n counts every
+/// particle, gas first, then each dust fraction (the order of [`records`]).
+pub fn records_where(
+    st: &State,
+    mut keep: impl FnMut(usize, (u64, u64)) -> bool,
+) -> Vec<ParticleRecord> {
     let mut out = Vec::new();
+    let mut n = 0;
     for (k, ph) in std::iter::once(&st.gas.ph)
         .chain(st.dust.iter())
         .enumerate()
     {
         for i in 0..ph.len() {
+            n += 1;
+            if !keep(n - 1, (k as u64, ph.id[i])) {
+                continue;
+            }
             let mut r = ParticleRecord::of(k, ph, i);
             if k == 0 {
                 let g = &st.gas;
@@ -112,6 +126,11 @@ pub fn records(st: &State) -> Vec<ParticleRecord> {
 /// A state from records (phases in order; `template` gives the phase count and whether the
 /// gas has an energy or fixed particles).
 pub fn state_of(recs: &[ParticleRecord], template: &State) -> State {
+    state_from(recs.iter().copied(), template)
+}
+
+/// [`state_of`] from records read one by one.
+pub fn state_from(recs: impl Iterator<Item = ParticleRecord>, template: &State) -> State {
     let nph = 1 + template.dust.len();
     let mut phases: Vec<Phase> = (0..nph).map(|_| Phase::default()).collect();
     let mut fixed: Vec<Vec<bool>> = vec![Vec::new(); nph];
@@ -119,8 +138,10 @@ pub fn state_of(recs: &[ParticleRecord], template: &State) -> State {
     let (mut h, mut omega, mut nf) = (Vec::new(), Vec::new(), Vec::new());
     let (mut pres, mut cs) = (Vec::new(), Vec::new());
     let (mut all_h, mut all_nf) = (true, true);
+    let mut some_gas = false;
     for r in recs {
         let k = r.phase as usize;
+        some_gas |= k == 0;
         let ph = &mut phases[k];
         ph.id.push(r.id);
         ph.x.push(r.x);
@@ -139,7 +160,6 @@ pub fn state_of(recs: &[ParticleRecord], template: &State) -> State {
             cs.push(r.c);
         }
     }
-    let some_gas = recs.iter().any(|r| r.phase == 0);
     // Fixed particles: the scene's walls, and the halo's outer shell.
     let with_fixed = |k: usize, t: &Phase| {
         (t.fixed.is_some() || fixed[k].iter().any(|&f| f)).then(|| fixed[k].clone())

@@ -278,6 +278,17 @@ impl Simulation {
         stepper.refresh_dust_density(state)
     }
 
+    /// Over ranks, drop the whole state rank 0 gathered for an output (it is gathered again
+    /// for the next): no rank holds the whole run between outputs.
+    pub fn shed_gathered(&mut self) {
+        #[cfg(feature = "mpi")]
+        if let Stepper::Ranks { t_stop, output, .. } = &mut self.stepper {
+            self.state = self.state.shape();
+            *t_stop = None;
+            *output = None;
+        }
+    }
+
     /// This process writes the outputs (one process, or rank 0).
     pub fn is_root(&self) -> bool {
         self.stepper.is_root()

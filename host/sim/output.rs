@@ -89,6 +89,7 @@ impl Outputs {
         self.record.snapshots.push(name);
         self.record.snapshot_times.push(sim.state.t);
         self.record.next_output += 1;
+        sim.shed_gathered();
         Ok(())
     }
 

@@ -131,7 +131,12 @@ pub fn check_first_step(
 /// What a physicist should hear before a run that will likely be noise or unstable: a fixed
 /// step above the CFL/force limit of the initial state, and kernels holding too few
 /// neighbours to be SPH sums (method.md §2).
-fn start_warnings(loaded: &LoadedScene, phys: &Physics, state: &State, f: &Forces) -> Vec<String> {
+pub fn start_warnings(
+    loaded: &LoadedScene,
+    phys: &Physics,
+    state: &State,
+    f: &Forces,
+) -> Vec<String> {
     let mut out = Vec::new();
     if let Some(dt) = loaded.scene.time.fixed_dt() {
         let (dt_cfl, dt_force) = dt_limits(phys.h, f);

@@ -402,6 +402,11 @@ impl Backend {
         each!(self, e => e.set_ghosts(sync, keys))
     }
 
+    /// See [`Engine::ghost_flags`].
+    pub fn ghost_flags(&self) -> Option<Vec<bool>> {
+        each!(self, e => e.ghost_flags())
+    }
+
     /// See [`Engine::dust_density_as_after_step`].
     pub fn dust_density_as_after_step(&mut self) {
         each!(self, e => e.dust_density_as_after_step())

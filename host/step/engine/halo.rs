@@ -192,6 +192,8 @@ pub(super) struct Ghosts<L: Launcher> {
     pub(super) mask: [Option<Buf<L, u8>>; 2],
     /// 1 for a ghost only (not a wall), per phase: the explicit drag limit's cells.
     pub(super) only: [Option<Buf<L, u8>>; 2],
+    /// The same flags on the host (the rank's own particles are those without).
+    pub(super) host_only: [Vec<u8>; 2],
     /// `DUSTSPH_HALO_CHECK` was set when the ghosts were (read once, not at every refresh).
     pub(super) check: bool,
 }
@@ -231,10 +233,24 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             keys,
             mask: [None, None],
             only: [None, None],
+            host_only: [Vec::new(), Vec::new()],
             check: std::env::var_os("DUSTSPH_HALO_CHECK").is_some(),
         });
         self.ghost_masks()?;
         self.ghost_sync(&Refresh::EVERYTHING)
+    }
+
+    /// Per particle in the order [`Engine::sync`] writes the state (the gas, then each dust
+    /// fraction), whether it is a ghost; `None` without ghosts.
+    pub fn ghost_flags(&self) -> Option<Vec<bool>> {
+        let g = self.ghosts.as_ref()?;
+        let n = [self.gas.n, self.dust.n];
+        Some(
+            (0..2)
+                .flat_map(|k| (0..n[k]).map(move |i| (k, i)))
+                .map(|(k, i)| g.host_only[k].get(i).is_some_and(|&f| f != 0))
+                .collect(),
+        )
     }
 
     /// Every slot's key (phase, id) of a phase, in the current order.
@@ -264,6 +280,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         };
         let mut masks: [Option<Buf<L, u8>>; 2] = [None, None];
         let mut only: [Option<Buf<L, u8>>; 2] = [None, None];
+        let mut host_only = [Vec::new(), Vec::new()];
         let mut slots = [Vec::new(), Vec::new()];
         for (k, gas) in [true, false].into_iter().enumerate() {
             let ph = if gas { &self.gas } else { &self.dust };
@@ -282,10 +299,12 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             let m: Vec<u8> = (ghost.iter().zip(&fixed)).map(|(&g, &f)| g | f).collect();
             masks[k] = Some(self.d.from(&m)?);
             only[k] = Some(self.d.from(&ghost)?);
+            host_only[k] = ghost;
         }
         if let Some(g) = &mut self.ghosts {
             g.mask = masks;
             g.only = only;
+            g.host_only = host_only;
             g.sync
                 .reorder(&slots)
                 .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
