@@ -192,6 +192,24 @@ impl GhostSync for RankGhosts {
         Ok(())
     }
 
+    fn permute(&mut self, new_of_old: &[Vec<u32>]) -> Result<(), String> {
+        let moved = |k: usize, i: usize| -> Result<usize, String> {
+            (new_of_old[k].get(i).map(|&j| j as usize))
+                .ok_or_else(|| "a sort changed the particles of a halo".to_string())
+        };
+        for to in self.send_slots.iter_mut() {
+            for (k, i) in to.iter_mut() {
+                *i = moved(*k, *i)?;
+            }
+        }
+        for (k, slot) in self.recv_slots.iter_mut() {
+            if let Some(i) = slot {
+                *i = moved(*k, *i)?;
+            }
+        }
+        Ok(())
+    }
+
     fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String> {
         use std::sync::atomic::Ordering;
         match self.fail.load(Ordering::Relaxed) {
@@ -263,8 +281,9 @@ pub(super) fn shell(
     }
     let sep2 = |a: [f64; 3], b: [f64; 3]| domain.distance2(a, b);
     // Along axis k, the cells within `radius` of coordinate v: (index, lower bound of the
-    // distance, less a rounding margin); every cell of a period the reach spans whole.
-    let cells_along = |k: usize, v: f64, radius: f64, out: &mut Vec<(i64, f64)>| {
+    // distance, less a rounding margin, and upper bound, plus one); every cell of a period the
+    // reach spans whole (upper bound +∞ there).
+    let cells_along = |k: usize, v: f64, radius: f64, out: &mut Vec<(i64, f64, f64)>| {
         out.clear();
         let r2 = radius * radius;
         let (lo, size, n) = axes[k];
@@ -272,40 +291,42 @@ pub(super) fn shell(
         let reach = (radius / size).ceil() as i64;
         if let Some(n) = n {
             if 2 * reach + 1 >= n {
-                out.extend((0..n).map(|i| (i, 0.0)));
+                out.extend((0..n).map(|i| (i, 0.0, f64::INFINITY)));
                 return;
             }
         }
         let face_lo = v - (lo + c as f64 * size);
         let face_hi = size - face_lo;
         for o in -reach..=reach {
-            let g = match o {
-                0 => 0.0,
-                o if o > 0 => (o - 1) as f64 * size + face_hi,
-                o => (-o - 1) as f64 * size + face_lo,
+            let (g, far) = match o {
+                0 => (0.0, face_lo.max(face_hi)),
+                o if o > 0 => ((o - 1) as f64 * size + face_hi, o as f64 * size + face_hi),
+                o => ((-o - 1) as f64 * size + face_lo, -o as f64 * size + face_lo),
             };
             let g = (g - 1e-9 * size).max(0.0);
+            let far = far + 1e-9 * size;
             if g * g <= r2 {
                 let i = n.map_or(c + o, |n| (c + o).rem_euclid(n));
-                out.push((i, g * g));
+                out.push((i, g * g, far * far));
             }
         }
     };
     let (mut cx, mut cy, mut cz) = (Vec::new(), Vec::new(), Vec::new());
-    // Whether an owned particle lies within `radius` of x.
+    // Whether an owned particle lies within `radius` of x: a cell wholly within it answers
+    // without a scan of its particles.
     let mut within = |x: [f64; 3], radius: f64| -> bool {
         let r2 = radius * radius;
         cells_along(0, x[0], radius, &mut cx);
         cells_along(1, x[1], radius, &mut cy);
         cells_along(2, x[2], radius, &mut cz);
-        cz.iter().any(|&(iz, gz)| {
-            cy.iter().any(|&(iy, gy)| {
+        cz.iter().any(|&(iz, gz, fz)| {
+            cy.iter().any(|&(iy, gy, fy)| {
                 gz + gy <= r2
-                    && cx.iter().any(|&(ix, gx)| {
+                    && cx.iter().any(|&(ix, gx, fx)| {
                         gz + gy + gx <= r2
-                            && grid
-                                .get(&[ix, iy, iz])
-                                .is_some_and(|v| v.iter().any(|&o| sep2(o, x) <= r2))
+                            && grid.get(&[ix, iy, iz]).is_some_and(|v| {
+                                fz + fy + fx <= r2 || v.iter().any(|&o| sep2(o, x) <= r2)
+                            })
                     })
             })
         })

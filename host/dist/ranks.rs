@@ -12,7 +12,9 @@
 //! results.
 use super::comm::World;
 use super::halo::{cut, fail_requested, halo_sends, migrate, shell, RankGhosts};
-use super::records::{full_pos, records, records_where, state_from, state_of, ParticleRecord};
+use super::records::{
+    full_pos, records, records_into, records_where, state_from, state_of, ParticleRecord,
+};
 use crate::particles::{KeyMap, KeySet, State};
 use crate::step::backend::{Backend, DeviceChoice};
 use crate::step::engine::InitialLayer;
@@ -562,7 +564,8 @@ impl RankStepper {
         })();
         let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
         let t0 = std::time::Instant::now();
-        let next = own_records(e, local, &res.mine);
+        let mut next = Vec::new();
+        own_records(e, local, &res.mine, &mut next);
         // The motion since the halo was built, and the largest h, over every rank.
         let domain = self.phys.domain;
         let mut worst = [0.0f64, 0.0];
@@ -839,7 +842,8 @@ impl RankStepper {
         let ts = (res.eng.dust_stopping_times(&mut res.local))
             .unwrap_or_else(|x| abort_job(world, step, &x));
         let mine = &res.mine;
-        let owned = own_records(&res.eng, &res.local, mine);
+        let mut owned = Vec::new();
+        own_records(&res.eng, &res.local, mine, &mut owned);
         let ghost = res.eng.ghost_flags();
         let mut stops: Vec<[u64; 3]> = Vec::new();
         let mut n = res.local.gas.ph.len();
@@ -898,10 +902,10 @@ impl RankStepper {
 
 /// The rank's own particles of its engine's synced `local` state, as records: those its
 /// engine does not flag as ghosts (or, without the flags, those in `mine`).
-fn own_records(eng: &Backend, local: &State, mine: &KeySet) -> Vec<ParticleRecord> {
+fn own_records(eng: &Backend, local: &State, mine: &KeySet, out: &mut Vec<ParticleRecord>) {
     match eng.ghost_flags() {
-        Some(ghost) => records_where(local, |n, _| !ghost[n]),
-        None => records_where(local, |_, key| mine.contains(&key)),
+        Some(ghost) => records_into(local, |n, _| !ghost[n], out),
+        None => records_into(local, |_, key| mine.contains(&key), out),
     }
 }
 

@@ -84,9 +84,20 @@ pub fn records(st: &State) -> Vec<ParticleRecord> {
 /// particle, gas first, then each dust fraction (the order of [`records`]).
 pub fn records_where(
     st: &State,
-    mut keep: impl FnMut(usize, (u64, u64)) -> bool,
+    keep: impl FnMut(usize, (u64, u64)) -> bool,
 ) -> Vec<ParticleRecord> {
     let mut out = Vec::new();
+    records_into(st, keep, &mut out);
+    out
+}
+
+/// [`records_where`] into `out` (emptied first; its allocation kept).
+pub fn records_into(
+    st: &State,
+    mut keep: impl FnMut(usize, (u64, u64)) -> bool,
+    out: &mut Vec<ParticleRecord>,
+) {
+    out.clear();
     let mut n = 0;
     for (k, ph) in std::iter::once(&st.gas.ph)
         .chain(st.dust.iter())
@@ -120,7 +131,6 @@ pub fn records_where(
             out.push(r);
         }
     }
-    out
 }
 
 /// A state from records (phases in order; `template` gives the phase count and whether the

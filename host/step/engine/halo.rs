@@ -172,6 +172,8 @@ pub trait GhostSync: Send {
     /// After each sort: every slot's key per phase table (gas, then the dust), in the new
     /// order; the refreshes until the next sort read and write rows by these slots.
     fn reorder(&mut self, slots: &[Vec<(u64, u64)>]) -> Result<(), String>;
+    /// After a later sort of the same particles: slot i of table k moved to `new_of_old[k][i]`.
+    fn permute(&mut self, new_of_old: &[Vec<u32>]) -> Result<(), String>;
     /// Overwrite the ghosts' rows (gas first, then the dust) with their owners' (collective).
     fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String>;
 }
@@ -194,6 +196,9 @@ pub(super) struct Ghosts<L: Launcher> {
     pub(super) only: [Option<Buf<L, u8>>; 2],
     /// The same flags on the host (the rank's own particles are those without).
     pub(super) host_only: [Vec<u8>; 2],
+    /// The flags and the sync's slots were found by key (once, when the ghosts were set):
+    /// after each sort they follow its permutation.
+    pub(super) keyed: bool,
     /// `DUSTSPH_HALO_CHECK` was set when the ghosts were (read once, not at every refresh).
     pub(super) check: bool,
 }
@@ -234,10 +239,44 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             mask: [None, None],
             only: [None, None],
             host_only: [Vec::new(), Vec::new()],
+            keyed: false,
             check: std::env::var_os("DUSTSPH_HALO_CHECK").is_some(),
         });
         self.ghost_masks()?;
         self.ghost_sync(&Refresh::EVERYTHING)
+    }
+
+    /// The ghost flags and the sync's slots after a sort of the same particles: moved by the
+    /// sort's permutation (slot i now holds what slot perm[i] held), without a key lookup.
+    fn permute_ghosts(&mut self) -> Result<(), StepError> {
+        let mut g = self.ghosts.take().expect("ghosts are set");
+        let mut new_of_old = [Vec::new(), Vec::new()];
+        for (k, gas) in [true, false].into_iter().enumerate() {
+            let ph = if gas { &self.gas } else { &self.dust };
+            if ph.n == 0 {
+                continue;
+            }
+            let perm = self.d.get(&ph.perm, ph.n)?;
+            let old = &g.host_only[k];
+            let mut ghost = vec![0u8; ph.n];
+            let mut new = vec![0u32; ph.n];
+            for (i, &p) in perm.iter().enumerate() {
+                ghost[i] = old[p as usize];
+                new[p as usize] = i as u32;
+            }
+            let fixed = match &ph.fixed {
+                Some(f) => self.d.get(f, ph.n)?,
+                None => vec![0; ph.n],
+            };
+            let m: Vec<u8> = (ghost.iter().zip(&fixed)).map(|(&g, &f)| g | f).collect();
+            g.mask[k] = Some(self.d.from(&m)?);
+            g.only[k] = Some(self.d.from(&ghost)?);
+            g.host_only[k] = ghost;
+            new_of_old[k] = new;
+        }
+        let r = g.sync.permute(&new_of_old);
+        self.ghosts = Some(g);
+        r.map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))
     }
 
     /// Per particle in the order [`Engine::sync`] writes the state (the gas, then each dust
@@ -278,6 +317,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let Some(g) = &self.ghosts else {
             return Ok(());
         };
+        if g.keyed {
+            return self.permute_ghosts();
+        }
         let mut masks: [Option<Buf<L, u8>>; 2] = [None, None];
         let mut only: [Option<Buf<L, u8>>; 2] = [None, None];
         let mut host_only = [Vec::new(), Vec::new()];
@@ -305,6 +347,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             g.mask = masks;
             g.only = only;
             g.host_only = host_only;
+            g.keyed = true;
             g.sync
                 .reorder(&slots)
                 .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
