@@ -244,6 +244,11 @@ impl GhostSync for RankGhosts {
     }
 }
 
+/// The shell test's cells, in units of its radius: small enough that a halo particle beyond
+/// the radius scans few owned particles (those in cells the sphere cuts), large enough that
+/// it visits few cells.
+const SHELL_CELL: f64 = 0.25;
+
 /// The halo as the step needs it: particles within `inner` of an owned particle are stepped
 /// (their passes recomputed here); those up to `outer` (one support further) are held fixed at
 /// their owners' values (their density and pressure are exact at the start of the step, so the
@@ -257,14 +262,14 @@ pub(super) fn shell(
     domain: &crate::grid::Domain,
 ) -> Vec<ParticleRecord> {
     use std::collections::HashMap;
-    // Cells of about half the test radius (on a periodic axis a whole number per period, the
+    // Cells of [`SHELL_CELL`] × the test radius (on a periodic axis a whole number per period, the
     // indices wrapping): a halo particle scans only the cells across the edge of its sphere.
     let axes: [(f64, f64, Option<i64>); 3] = [0, 1, 2].map(|k| match domain.periodic[k] {
         Some((lo, len)) => {
-            let n = (len / (0.5 * inner)).ceil().max(1.0) as i64;
+            let n = (len / (SHELL_CELL * inner)).ceil().max(1.0) as i64;
             (lo, len / n as f64, Some(n))
         }
-        None => (0.0, 0.5 * inner, None),
+        None => (0.0, SHELL_CELL * inner, None),
     });
     let index = |k: usize, v: f64| -> i64 {
         let (lo, size, n) = axes[k];

@@ -72,16 +72,13 @@ struct LocalLayer {
 /// The thin halo's least margin beyond the support, in supports.
 const MIN_MARGIN: f64 = 0.1;
 
-/// Steps a thin halo is built to serve: its margin is room for this many steps' motion at the
-/// last step's pace (up to [`MAX_MARGIN`]), so that the rank's engine is rebuilt, and its
-/// particles migrate, about once in as many steps.
-const HOLD_STEPS: f64 = 10.0;
-
-/// The largest margin held for [`HOLD_STEPS`], in supports: a ghost costs far less than an
-/// owned particle (no h, density or force pass), a rebuild about a step and a half (the seed
-/// ball at ≈57 neighbours over 2 ranks: 52.6 s at 0.5 supports, 38.3 s at 2, 31.9 s at 4;
-/// docs/scaling.md).
+/// The largest margin of a thin halo, in supports.
 const MAX_MARGIN: f64 = 4.0;
+
+/// A ghost's cost per step relative to an owned particle's, for the choice of the margin
+/// ([`RankStepper::margin_for`]): it takes no h, density or force pass, only the cell sums,
+/// the kick, the drift, the sort and its refreshes.
+const GHOST_COST: f64 = 0.5;
 
 /// The stages of a run over ranks beside the engine's (summary.json `stage_seconds`).
 const STAGE_BUILD: &str = "ranks: halo built (cut, migration, halo, engine on the rank's share)";
@@ -106,6 +103,11 @@ struct Resident {
     /// step), and the steps taken on this halo.
     moved: f64,
     steps: u64,
+    /// The largest halo over the ranks as a multiple of a rank's own particles, the build's
+    /// time, and a step's (the slowest rank's; the mean over the halo's steps).
+    ratio: f64,
+    build_seconds: f64,
+    step_seconds: f64,
 }
 
 /// One rank's share of a scene stepped over the ranks.
@@ -450,18 +452,31 @@ impl RankStepper {
         }
     }
 
-    /// The thin halo's margin beyond the reach for a halo built to serve [`HOLD_STEPS`] steps
-    /// moving by `d` each (at least three steps', and [`MIN_MARGIN`] supports).
-    fn margin_for(d: f64, support: f64) -> f64 {
-        (3.0 * d)
-            .max((2.0 * HOLD_STEPS * d).min(MAX_MARGIN * support))
-            .max(MIN_MARGIN * support)
+    /// The thin halo's margin beyond the reach for the next build, from what this one cost
+    /// (docs/scaling.md, "A resident engine"): a wider margin holds a halo for more steps
+    /// (m / 2d steps at motion d per step) but makes it larger (in proportion to its reach).
+    /// Per step, a halo costs [`GHOST_COST`] × its ratio to the owned particles, and a build
+    /// B steps' time spread over the steps it holds: G r(m) + 2dB/m is least at
+    /// m = √(2dB (near + m₀) / (G r₀)), r₀ and m₀ this halo's ratio and margin. At least three
+    /// steps' motion and [`MIN_MARGIN`], at most [`MAX_MARGIN`] supports.
+    fn margin_for(d: f64, res: &Resident) -> f64 {
+        let s = res.support;
+        let least = (3.0 * d).max(MIN_MARGIN * s);
+        let b = res.build_seconds / res.step_seconds.max(1e-12);
+        let m0 = res.reach - res.near;
+        let best = if res.ratio > 0.0 {
+            (2.0 * d * b * (res.near + m0) / (GHOST_COST * res.ratio)).sqrt()
+        } else {
+            MAX_MARGIN * s
+        };
+        best.min(MAX_MARGIN * s).max(least)
     }
 
     /// This rank's resident engine on its owned particles and a thin halo, `margin` beyond the
     /// reach: the cut, the migration, the halo, the engine and its ghosts' refresh (collective).
     /// `None` when a rank holds no gas.
     fn build_resident(&mut self, step: u64) -> Result<Option<Resident>, String> {
+        let t0 = std::time::Instant::now();
         let Some(lay) = self.local_layer(true)? else {
             return Ok(None);
         };
@@ -500,6 +515,8 @@ impl RankStepper {
             abort_job(world, step, &x);
         }
         self.builds += 1;
+        let mut seconds = [t0.elapsed().as_secs_f64()];
+        world.max_f64(&mut seconds);
         Ok(Some(Resident {
             eng,
             local,
@@ -510,6 +527,9 @@ impl RankStepper {
             reach,
             moved: 0.0,
             steps: 0,
+            ratio: ratio[0],
+            build_seconds: seconds[0],
+            step_seconds: 0.0,
         }))
     }
 
@@ -544,6 +564,7 @@ impl RankStepper {
         let res = self.resident.as_mut().expect("built above");
         res.local.t = t;
         res.local.step = step;
+        let t_step = std::time::Instant::now();
         let (_, global, drag) =
             Self::global_limits(world, &self.phys, Some(&mut res.eng), true, step)?;
         let (e, local) = (&mut res.eng, &mut res.local);
@@ -563,12 +584,14 @@ impl RankStepper {
             Ok(p)
         })();
         let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
+        let stepped = t_step.elapsed().as_secs_f64();
         let t0 = std::time::Instant::now();
         let mut next = Vec::new();
         own_records(e, local, &res.mine, &mut next);
+        let t_new = local.t;
         // The motion since the halo was built, and the largest h, over every rank.
         let domain = self.phys.domain;
-        let mut worst = [0.0f64, 0.0];
+        let mut worst = [0.0f64, 0.0, stepped];
         for r in &next {
             let d2 = domain.distance2(res.anchor[&r.key()], full_pos(r));
             worst[0] = worst[0].max(d2.sqrt());
@@ -579,14 +602,14 @@ impl RankStepper {
         // This step's motion (a cumulative largest displacement does not add up exactly; this
         // estimate only sets when the halo is rebuilt, the test above keeps it exact).
         let d = (worst[0] - res.moved).max(worst[0] / (res.steps + 1) as f64);
-        let margin = Self::margin_for(d, res.support) + (need - 2.0 * worst[0] - res.near);
+        res.step_seconds += (worst[2] - res.step_seconds) / (res.steps + 1) as f64;
+        let margin = Self::margin_for(d, res) + (need - 2.0 * worst[0] - res.near);
         if need > res.reach {
             self.drop_resident();
             return Ok(Tried::Moved { margin });
         }
         res.moved = worst[0];
         res.steps += 1;
-        let t_new = local.t;
         self.timers.add(STAGE_MOTION, t0.elapsed().as_secs_f64());
         // Rebuild before the next step where its motion could use up the margin.
         if need + 2.0 * d > res.reach {
