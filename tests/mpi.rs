@@ -230,6 +230,31 @@ fn each_halo_refresh_moves_every_field_written_since_the_last() {
 /// The last snapshot of a run directory, by particle: (phase, id) → (x, v, ρ), and the
 /// velocity scale (largest |v| or sqrt(p/ρ)).
 type ById = std::collections::BTreeMap<(u8, u64), ([f64; 3], [f64; 3], f64)>;
+
+/// The dust's stopping times in a run's last snapshot, by (1 + fraction, id).
+fn last_stopping_times(dir: &std::path::Path) -> std::collections::BTreeMap<(u8, u64), f64> {
+    let mut snaps: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| {
+            let p = e.ok()?.path();
+            (p.extension().is_some_and(|x| x == "h5") && !p.ends_with("checkpoint.h5")).then_some(p)
+        })
+        .collect();
+    snaps.sort();
+    let s = dustsph::io::snapshot::read_snapshot(snaps.last().unwrap()).unwrap();
+    let mut out = std::collections::BTreeMap::new();
+    if let Some(d) = &s.dust {
+        let ts = d
+            .t_stop
+            .as_ref()
+            .expect("StoppingTime in every snapshot with dust");
+        for i in 0..d.id.len() {
+            let f = d.fraction.as_ref().map_or(0, |f| f[i]) as u8;
+            out.insert((1 + f, d.id[i]), ts[i]);
+        }
+    }
+    out
+}
 fn last_snapshot(dir: &std::path::Path) -> (ById, f64, f64) {
     let mut snaps: Vec<_> = std::fs::read_dir(dir)
         .unwrap()
@@ -274,14 +299,52 @@ fn assert_same(reference: &ById, got: &ById, vscale: f64, what: &str) {
 }
 
 /// `mpirun -n 2/3/4 dustsph run` on the box, the 1D wave, the Phantom slab (leapfrog, variable
-/// h, IAD), the shock tube, the settling column (kernel coupling) and the small ball ends where
-/// one process ends: every particle of
-/// the last snapshot (rank 0 writes it, matched by ParticleIDs) within 1e-12 of the field's
-/// scale, and one summary.
+/// h, IAD), the shock tube, the settling column (kernel coupling), the small ball, and the ball
+/// continued from one of its snapshots as initial conditions from a file, ends where one
+/// process ends: every particle of the last snapshot (rank 0 writes it, matched by
+/// ParticleIDs) within 1e-12 of the field's scale, the dust's stopping times (which the ranks'
+/// engines compute for an output) within 1e-12 of each, and one summary. Each rank keeps its
+/// engine across steps: fewer halos built than steps taken.
 #[test]
 fn a_run_over_ranks_ends_where_one_process_ends() {
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [&[&str]; 6] = [
+    let bin = env!("CARGO_BIN_EXE_dustsph");
+    // The ball's snapshot at t = 0.01 as a file of initial conditions.
+    let ball = tmp.path().join("ball");
+    let mut cmd = Command::new(bin);
+    cmd.args([
+        "run",
+        "configs/dusty_ball.toml",
+        "--set",
+        "sph.n=12",
+        "--set",
+    ])
+    .args([
+        "sph.h=0.17",
+        "--set",
+        "time.t_end=0.01",
+        "--set",
+        "time.output_dt=0.01",
+    ])
+    .args(["-q", "--out"])
+    .arg(&ball);
+    assert!(finish(cmd, "the ball's initial conditions")
+        .status
+        .success());
+    let from_file = tmp.path().join("from_file.toml");
+    std::fs::write(
+        &from_file,
+        format!(
+            "[scene]\nname = \"from_file\"\nproblem = \"file\"\ndim = 3\n\n[file]\npath = {:?}\n\n\
+             [gas]\neos = \"adiabatic\"\ngamma = 1.4\n\n[dust]\nlaw = \"epstein\"\n\
+             [[dust.fractions]]\ns_rho = 1e-3\n\n[sph]\nh = 0.17\n\n[idic]\ncell = 0.5\n\n\
+             [time]\nt_end = 0.04\ndt = 0.005\noutput_dt = 0.03\n",
+            ball.join("snapshot_0001.h5")
+        ),
+    )
+    .unwrap();
+    let from_file = from_file.display().to_string();
+    let cases: [&[&str]; 7] = [
         &["configs/dustybox.toml", "--set", "time.t_end=0.2"],
         &["configs/dustywave.toml", "--set", "time.t_end=0.3"],
         &[
@@ -300,8 +363,8 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             "--set",
             "time.t_end=0.02",
         ],
+        &[&from_file],
     ];
-    let bin = env!("CARGO_BIN_EXE_dustsph");
     for (c, args) in cases.iter().enumerate() {
         let one = tmp.path().join(format!("one{c}"));
         let mut cmd = Command::new(bin);
@@ -313,6 +376,7 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             String::from_utf8_lossy(&o.stderr)
         );
         let (reference, vscale, t1) = last_snapshot(&one);
+        let stops = last_stopping_times(&one);
         let summary = std::fs::read_to_string(one.join("summary.json")).unwrap();
         assert!(
             !summary.contains("rank_traffic"),
@@ -346,9 +410,26 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
                 assert!(n("exchange_bytes") > 0.0, "{args:?} rank {r}: {t}");
                 assert_eq!(n("gather_bytes") > 0.0, r > 0, "{args:?} rank {r}: {t}");
             }
+            // The resident engine: built at the start and rebuilt only where the motion used up
+            // its halo's margin (not every step).
+            let backend = s["backend"].as_str().unwrap();
+            let built: u64 = (backend.split(" built ").nth(1))
+                .and_then(|b| b.split(' ').next()?.parse().ok())
+                .unwrap_or_else(|| panic!("{args:?}: {backend}"));
+            assert!(built < steps, "{args:?} -n {ranks}: {backend}");
             let (got, _, t) = last_snapshot(&dir);
             assert_eq!(t, t1, "-n {ranks} {args:?}");
             assert_same(&reference, &got, vscale, &format!("-n {ranks} {args:?}"));
+            let got = last_stopping_times(&dir);
+            assert_eq!(got.len(), stops.len(), "{args:?}");
+            for (k, t) in &stops {
+                let d = (got[k] - t).abs() / t.abs().max(1e-300);
+                assert!(
+                    d < 1e-12 || (t.is_infinite() && got[k] == *t),
+                    "-n {ranks} {args:?}: stopping time of {k:?} {} against {t}",
+                    got[k]
+                );
+            }
         }
     }
 }
