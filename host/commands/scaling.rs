@@ -4,12 +4,13 @@
 //! halo per rank, peers, the bytes a step exchanges and what they cost on an interconnect.
 use crate::decomp::{CellBox, Cells, Partition};
 
-/// Bytes a halo particle carries per step: the density pass needs x, m, h (5 × 8 B); the force
-/// pass v, ρ, p, c_s, Ω (7 × 8 B); f64.
-pub const HALO_BYTES_F64: f64 = 96.0;
-/// Halo exchanges per step (before the density and the force passes) and the message latency
-/// assumed per peer and exchange.
-pub const EXCHANGES: f64 = 2.0;
+/// Bytes a ghost receives per step, and the exchanges a step takes (the named refreshes), as
+/// measured over 2 ranks on the Phantom slab (`summary.json` `rank_traffic`: exchange bytes per
+/// step over the ghosts, exchanges per step; docs/scaling.md "Measured"): the defaults of
+/// `--halo-bytes` and `--exchanges`.
+pub const HALO_BYTES_F64: f64 = 160.0;
+pub const EXCHANGES: f64 = 5.0;
+/// The message latency assumed per peer and exchange.
 pub const LATENCY_S: f64 = 2e-6;
 
 /// One row of the model.
@@ -71,7 +72,15 @@ pub fn cloud(kind: &str, n: f64, depth: f64) -> (CellBox, Box<dyn Iterator<Item 
 
 /// The model for `kind` ("ball" or "slab") at N particles over each rank count, with a halo
 /// `depth` kernel supports deep.
-pub fn model(kind: &str, n: f64, ranks: &[u32], bandwidth: f64, depth: f64) -> (u64, Vec<Row>) {
+pub fn model(
+    kind: &str,
+    n: f64,
+    ranks: &[u32],
+    bandwidth: f64,
+    depth: f64,
+    traffic: (f64, f64),
+) -> (u64, Vec<Row>) {
+    let (halo_bytes, exchanges) = traffic;
     let (cbox, pts) = cloud(kind, n, depth);
     let cells = Cells::bin(pts, cbox);
     let rows = ranks
@@ -87,8 +96,8 @@ pub fn model(kind: &str, n: f64, ranks: &[u32], bandwidth: f64, depth: f64) -> (
                 halo_max,
                 halo_mean: p.halo.iter().sum::<u64>() as f64 / r as f64,
                 peers_max,
-                comm_s: halo_max as f64 * HALO_BYTES_F64 / bandwidth
-                    + EXCHANGES * peers_max as f64 * LATENCY_S,
+                comm_s: halo_max as f64 * halo_bytes / bandwidth
+                    + exchanges * peers_max as f64 * LATENCY_S,
             }
         })
         .collect();
@@ -118,6 +127,12 @@ pub struct ScalingArgs {
     /// also the redundant compute)
     #[arg(long, default_value_t = 1.0)]
     depth: f64,
+    /// Bytes a ghost receives per step (default: measured over ranks, docs/scaling.md)
+    #[arg(long, default_value_t = HALO_BYTES_F64)]
+    halo_bytes: f64,
+    /// Exchanges per step, each a message to every peer (default: measured)
+    #[arg(long, default_value_t = EXCHANGES)]
+    exchanges: f64,
 }
 
 pub fn execute(a: ScalingArgs) -> u8 {
@@ -129,21 +144,27 @@ pub fn execute(a: ScalingArgs) -> u8 {
     if a.ranks.is_empty()
         || a.ranks.contains(&0)
         || !(a.gbps > 0.0 && a.rate > 0.0 && a.depth >= 1.0 && a.depth <= 64.0)
+        || !(a.halo_bytes >= 0.0 && a.halo_bytes.is_finite())
+        || !(a.exchanges >= 0.0 && a.exchanges.is_finite())
     {
-        eprintln!("error: --ranks must be ≥ 1, --gbps and --rate > 0, --depth in [1, 64]");
+        eprintln!(
+            "error: --ranks must be ≥ 1, --gbps and --rate > 0, --depth in [1, 64], \
+             --halo-bytes and --exchanges ≥ 0"
+        );
         return 2;
     }
     let bw = a.gbps * 1e9 / 8.0;
     for kind in ["ball", "slab"] {
         let t0 = std::time::Instant::now();
-        let (n, rows) = scaling::model(kind, a.particles, &a.ranks, bw, a.depth);
+        let traffic = (a.halo_bytes, a.exchanges);
+        let (n, rows) = scaling::model(kind, a.particles, &a.ranks, bw, a.depth, traffic);
         println!(
             "\n{kind}: {n} particles, h = 1.2 Δ, halo {} × 2h deep ({:.1} s); {} B per halo particle, \
              {} exchanges per step, {} µs per message; compute at {:.3e} particle-steps/s per rank",
             a.depth,
             t0.elapsed().as_secs_f64(),
-            scaling::HALO_BYTES_F64,
-            scaling::EXCHANGES,
+            a.halo_bytes,
+            a.exchanges,
             scaling::LATENCY_S * 1e6,
             a.rate
         );
@@ -161,7 +182,7 @@ pub fn execute(a: ScalingArgs) -> u8 {
                 r.halo_max as f64,
                 r.halo_max as f64 / r.per_rank,
                 r.peers_max,
-                r.halo_max as f64 * scaling::HALO_BYTES_F64 / 1e6,
+                r.halo_max as f64 * a.halo_bytes / 1e6,
                 r.comm_s * 1e3,
                 compute * 1e3,
                 r.comm_s / compute,
