@@ -311,7 +311,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         }
         self.refresh_dust_density(state)?;
         if self.coupling.is_some() {
-            return Ok(self.kernel_stopping_times()?);
+            return self.kernel_stopping_times();
         }
         self.cell_step(0.0, true)?;
         let d = &self.d;

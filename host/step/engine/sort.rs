@@ -215,7 +215,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             self.cells.sparse = Some(u.len() as u32);
         }
         self.reset_list()?;
-        Ok(self.ghost_masks()?)
+        self.ghost_masks()
     }
 
     /// A fresh neighbour list for the gas's current layer (when lists are on): emptied, to be
