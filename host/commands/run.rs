@@ -60,12 +60,12 @@ impl Run {
         world: crate::dist::comm::World,
     ) -> Result<Run, RunError> {
         let root = world.rank() == 0;
-        let (phys, state, source) = start::prepare(loaded, None, root)?;
+        let (phys, mut state, source) = start::prepare(loaded, None, root)?;
         let stepper = over_ranks(
             world,
             loaded,
             &phys,
-            &state,
+            &mut state,
             opts.device,
             opts.verbose,
             true,
@@ -79,7 +79,7 @@ impl Run {
         loaded: &LoadedScene,
         opts: &RunOptions,
         phys: Physics,
-        state: State,
+        mut state: State,
         source: Option<crate::setup::file::IcSource>,
         mut stepper: Stepper,
     ) -> Result<Run, RunError> {
@@ -111,6 +111,11 @@ impl Run {
             initial_conditions: source,
             ..Default::default()
         };
+        // Over ranks the whole state comes together on rank 0 here, its output fields computed
+        // by the ranks' engines (one process syncs what it already holds).
+        stepper
+            .sync(&mut state)
+            .map_err(|e| RunError::Step(e.to_string()))?;
         let sim = Simulation::new(phys, &loaded.scene.time, state, stepper)
             .map_err(|e| RunError::Step(e.to_string()))?;
         let mut r = Run::with(
@@ -125,9 +130,6 @@ impl Run {
         if let Some(b) = &mut r.ball {
             b.record_now(&mut r.sim)?;
         }
-        // Over ranks the first output's fields come from the ranks' engines too (one process
-        // syncs what it already holds).
-        r.sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
         r.outputs.write_next(&mut r.sim)?;
         r.shed_whole_state();
         Ok(r)
@@ -194,8 +196,8 @@ impl Run {
         let root = world.rank() == 0;
         let (state, loaded, progress) = checkpoint::read(dir)?;
         let layout = progress.layout;
-        let (phys, state) = start::prepare_resumed(&loaded, state, layout.as_ref(), root)?;
-        let stepper = over_ranks(world, &loaded, &phys, &state, device, verbose, false)?;
+        let (phys, mut state) = start::prepare_resumed(&loaded, state, layout.as_ref(), root)?;
+        let stepper = over_ranks(world, &loaded, &phys, &mut state, device, verbose, false)?;
         let mut r = Self::resumed(&loaded, dir, phys, state, stepper, progress, verbose);
         r.shed_whole_state();
         Ok(r)
@@ -312,7 +314,9 @@ impl Run {
 }
 
 /// The stepper of a run over ranks: each rank's share of the scene and its engine on it, and
-/// (`check_first`, a run's start) the first step checked over every rank. A start refused is
+/// (`check_first`, a run's start) the first step checked over every rank. Every rank drops the
+/// whole `state` once its share is taken (before its engine is built); rank 0 gathers it again
+/// for each output. A start refused is
 /// said before any rank leaves (mpirun stops the job at the first rank that exits non-zero,
 /// which could otherwise cut the others off before they speak).
 #[cfg(feature = "mpi")]
@@ -320,7 +324,7 @@ fn over_ranks(
     world: crate::dist::comm::World,
     loaded: &LoadedScene,
     phys: &Physics,
-    state: &State,
+    state: &mut State,
     device: DeviceChoice,
     verbose: bool,
     check_first: bool,
@@ -346,6 +350,7 @@ fn over_ranks(
         verbose,
     )
     .map_err(RunError::Input)?;
+    *state = state.shape();
     let file = loaded.path.display().to_string();
     let checked = match crate::sim::output::output_times(loaded, state.t).get(1) {
         Some(&t1) if check_first => {

@@ -495,7 +495,15 @@ impl RankStepper {
         let mut ratio = [(local_recs.len() - owned.len()) as f64 / owned.len().max(1) as f64];
         world.max_f64(&mut ratio);
         self.halo_ratio = self.halo_ratio.max(ratio[0]);
+        // What the engine needs of the records, then the records go before it is built (a
+        // rank's peak memory is its engine's).
+        let keys: Vec<Vec<(u64, u64)>> = (to.iter())
+            .map(|ix| ix.iter().map(|&i| owned[i].key()).collect())
+            .collect();
+        let anchor: KeyMap<[f64; 3]> = (owned.iter()).map(|r| (r.key(), full_pos(r))).collect();
+        drop((to, owned));
         let mut local = state_of(&local_recs, &self.template);
+        drop(local_recs);
         let layer = if self.layer_given {
             InitialLayer::FromState
         } else {
@@ -507,9 +515,6 @@ impl RankStepper {
             return Err(failure(world, step, me, &err.unwrap_or_default()));
         }
         let mut eng = built.map_err(|x| x.to_string())?;
-        let keys: Vec<Vec<(u64, u64)>> = (to.iter())
-            .map(|ix| ix.iter().map(|&i| owned[i].key()).collect())
-            .collect();
         let sync = RankGhosts::new(world.dup(), keys, self.fail.clone())?;
         if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys) {
             abort_job(world, step, &x);
@@ -521,7 +526,7 @@ impl RankStepper {
             eng,
             local,
             mine,
-            anchor: (owned.iter()).map(|r| (r.key(), full_pos(r))).collect(),
+            anchor,
             support,
             near,
             reach,
