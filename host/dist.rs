@@ -186,44 +186,22 @@ pub mod comm {
         /// Every rank's bytes, in rank order, on rank 0 only (`None` elsewhere): the output's
         /// gather (MPI_Gatherv; the other ranks receive nothing).
         pub fn gather_bytes(&self, mine: &[u8]) -> Option<Vec<Vec<u8>>> {
-            let start = std::time::Instant::now();
-            let out = self.gather_bytes_uncounted(mine);
-            let sent = if self.rank() == 0 {
-                0
-            } else {
-                mine.len() as u64
-            };
-            count(|t| {
-                t.gather_bytes += sent;
-                t.gather_seconds += start.elapsed().as_secs_f64();
-            });
-            out
+            let (buf, counts, displs) = self.gather_counted(mine)?;
+            Some(split(&buf, &counts, &displs))
         }
 
         /// Every rank's bytes, concatenated in rank order, on rank 0 only (`None` elsewhere):
         /// [`World::gather_bytes`] without a copy per rank.
         pub fn gather_concat(&self, mine: &[u8]) -> Option<Vec<u8>> {
+            Some(self.gather_counted(mine)?.0)
+        }
+
+        /// The gather, its bytes and time counted: on rank 0 the buffer, every rank's count
+        /// and displacement in it.
+        fn gather_counted(&self, mine: &[u8]) -> Option<(Vec<u8>, Vec<Count>, Vec<Count>)> {
             let start = std::time::Instant::now();
-            let root = self.world.process_at_rank(0);
-            let n = mine.len() as Count;
+            let out = self.gather_uncounted(mine);
             let sent = if self.rank() == 0 { 0 } else { mine.len() };
-            let out = if self.rank() != 0 {
-                root.gather_into(&n);
-                root.gather_varcount_into(&heap(mine)[..]);
-                None
-            } else {
-                let mut counts = vec![0 as Count; self.size() as usize];
-                root.gather_into_root(&n, &mut counts[..]);
-                let displs = displacements(&counts);
-                let total: usize = counts.iter().map(|&c| c as usize).sum();
-                let mut buf = vec![0u8; total.max(1)];
-                {
-                    let mut part = PartitionMut::new(&mut buf[..total], &counts[..], &displs[..]);
-                    root.gather_varcount_into_root(&heap(mine)[..], &mut part);
-                }
-                buf.truncate(total);
-                Some(buf)
-            };
             count(|t| {
                 t.gather_bytes += sent as u64;
                 t.gather_seconds += start.elapsed().as_secs_f64();
@@ -231,7 +209,7 @@ pub mod comm {
             out
         }
 
-        fn gather_bytes_uncounted(&self, mine: &[u8]) -> Option<Vec<Vec<u8>>> {
+        fn gather_uncounted(&self, mine: &[u8]) -> Option<(Vec<u8>, Vec<Count>, Vec<Count>)> {
             let mine = &heap(mine)[..];
             let root = self.world.process_at_rank(0);
             let n = mine.len() as Count;
@@ -249,7 +227,8 @@ pub mod comm {
                 let mut part = PartitionMut::new(&mut buf[..total], &counts[..], &displs[..]);
                 root.gather_varcount_into_root(mine, &mut part);
             }
-            Some(split(&buf[..total], &counts, &displs))
+            buf.truncate(total);
+            Some((buf, counts, displs))
         }
 
         /// All-to-all of plain records: `sends[q]` goes to rank q; returns what every rank sent

@@ -482,15 +482,14 @@ impl RankStepper {
         };
         let world = &self.world;
         let me = world.rank();
+        let (support, near, reach) = (lay.support, lay.near, lay.reach);
         let LocalLayer {
             owned,
             to,
             local_recs,
             ghost_keys,
             mine,
-            support,
-            near,
-            reach,
+            ..
         } = lay;
         let mut ratio = [(local_recs.len() - owned.len()) as f64 / owned.len().max(1) as f64];
         world.max_f64(&mut ratio);
@@ -573,21 +572,7 @@ impl RankStepper {
         let (_, global, drag) =
             Self::global_limits(world, &self.phys, Some(&mut res.eng), true, step)?;
         let (e, local) = (&mut res.eng, &mut res.local);
-        let r = (|| -> Result<Plan, crate::step::StepError> {
-            let p = match drv.plan(&global, drag, t, step, t_target) {
-                Ok(p) => p,
-                Err(PlanError::NoLimit(m)) => return Err(crate::step::StepError::Blowup(m)),
-                Err(PlanError::Collapsed(m)) => {
-                    let why = format!("{m}; {}", e.dt_culprits()?);
-                    return Err(crate::step::StepError::Blowup(why));
-                }
-            };
-            e.take(local, &p)?;
-            // The dust densities stay as a step leaves them (fresh only where the drag needs
-            // them each step): an output computes them.
-            e.sync(local)?;
-            Ok(p)
-        })();
+        let r = take_planned(e, local, drv, (&global, drag), (t, step, t_target));
         let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
         let stepped = t_step.elapsed().as_secs_f64();
         let t0 = std::time::Instant::now();
@@ -669,19 +654,7 @@ impl RankStepper {
         let mut plan = None;
         let mut next = Vec::new();
         if let (Some(e), Some(_)) = (&mut eng, forces) {
-            let r = (|| -> Result<Plan, crate::step::StepError> {
-                let p = match drv.plan(&global, drag, t, step, t_target) {
-                    Ok(p) => p,
-                    Err(PlanError::NoLimit(m)) => return Err(crate::step::StepError::Blowup(m)),
-                    Err(PlanError::Collapsed(m)) => {
-                        let why = format!("{m}; {}", e.dt_culprits()?);
-                        return Err(crate::step::StepError::Blowup(why));
-                    }
-                };
-                e.take(&mut local, &p)?;
-                e.sync(&mut local)?;
-                Ok(p)
-            })();
+            let r = take_planned(e, &mut local, drv, (&global, drag), (t, step, t_target));
             match r {
                 Ok(p) => plan = Some(p),
                 Err(x) => err = x.to_string(),
@@ -926,6 +899,29 @@ impl RankStepper {
         st.step = step;
         Ok(Some(st))
     }
+}
+
+/// The step the planner's rule gives from the maxima over all ranks (`limits`: the forces',
+/// the explicit drag's), taken on this rank's engine, its host state `local` synced after
+/// (the dust densities as a step leaves them: an output computes them).
+fn take_planned(
+    e: &mut Backend,
+    local: &mut State,
+    drv: &StepPlanner,
+    limits: (&Forces, f64),
+    (t, step, t_target): (f64, u64, f64),
+) -> Result<Plan, crate::step::StepError> {
+    let p = match drv.plan(limits.0, limits.1, t, step, t_target) {
+        Ok(p) => p,
+        Err(PlanError::NoLimit(m)) => return Err(crate::step::StepError::Blowup(m)),
+        Err(PlanError::Collapsed(m)) => {
+            let why = format!("{m}; {}", e.dt_culprits()?);
+            return Err(crate::step::StepError::Blowup(why));
+        }
+    };
+    e.take(local, &p)?;
+    e.sync(local)?;
+    Ok(p)
 }
 
 /// The rank's own particles of its engine's synced `local` state, as records: those its
