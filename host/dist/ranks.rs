@@ -1,12 +1,13 @@
-//! Stepping a scene over MPI ranks (docs/scaling.md). Each step the particles are cut along
-//! the Morton curve and migrated, and every rank builds an engine on its owned particles plus a
-//! halo, in one of two forms:
+//! Stepping a scene over MPI ranks (docs/scaling.md). The particles are cut along the Morton
+//! curve and migrated, and every rank steps an engine on its owned particles plus a halo, in
+//! one of two forms:
 //! - thin (a run's): ghosts within one reach (kernel support or IDIC cell, plus a margin for
-//!   the step's motion), refreshed from their owners between the step's neighbour passes
-//!   ([`RankGhosts`], the engine's `GhostSync` hooks); a step that outran the margin is retaken;
+//!   the particles' motion), refreshed from their owners between the step's neighbour passes
+//!   ([`RankGhosts`], the engine's `GhostSync` hooks); the engine ([`Resident`]) is kept across
+//!   steps until the motion uses up the margin, a step that outran it is retaken;
 //! - deep (`mpi-check --depth K`, and a step where a rank holds no gas): a halo K supports deep
 //!   whose chain of passes is recomputed here, and a shell one support beyond held fixed at the
-//!   owners' values.
+//!   owners' values, on an engine built for that step.
 //!
 //! The step size comes from the maxima over all ranks; each rank keeps its owned particles'
 //! results.
@@ -93,7 +94,6 @@ struct Resident {
     eng: Backend,
     /// The engine's host copy (synced after each step: the owned records come from it).
     local: State,
-    mine: KeySet,
     /// Where each owned particle was when the halo was built.
     anchor: KeyMap<[f64; 3]>,
     support: f64,
@@ -488,7 +488,6 @@ impl RankStepper {
             to,
             local_recs,
             ghost_keys,
-            mine,
             ..
         } = lay;
         let mut ratio = [(local_recs.len() - owned.len()) as f64 / owned.len().max(1) as f64];
@@ -524,7 +523,6 @@ impl RankStepper {
         Ok(Some(Resident {
             eng,
             local,
-            mine,
             anchor,
             support,
             near,
@@ -577,7 +575,7 @@ impl RankStepper {
         let stepped = t_step.elapsed().as_secs_f64();
         let t0 = std::time::Instant::now();
         let mut next = Vec::new();
-        own_records(e, local, &res.mine, &mut next);
+        own_records(e, local, &mut next);
         let t_new = local.t;
         // The motion since the halo was built, and the largest h, over every rank.
         let domain = self.phys.domain;
@@ -842,19 +840,15 @@ impl RankStepper {
         let world = &self.world;
         let ts = (res.eng.dust_stopping_times(&mut res.local))
             .unwrap_or_else(|x| abort_job(world, step, &x));
-        let mine = &res.mine;
         let mut owned = Vec::new();
-        own_records(&res.eng, &res.local, mine, &mut owned);
-        let ghost = res.eng.ghost_flags();
+        own_records(&res.eng, &res.local, &mut owned);
+        let ghost = ghost_flags(&res.eng);
         let mut stops: Vec<[u64; 3]> = Vec::new();
         let mut n = res.local.gas.ph.len();
         for (k, (d, ts)) in res.local.dust.iter().zip(&ts).enumerate() {
             for (&id, t_s) in d.id.iter().zip(ts) {
                 let key = (k as u64 + 1, id);
-                let own = ghost
-                    .as_ref()
-                    .map_or_else(|| mine.contains(&key), |g| !g[n]);
-                if own {
+                if !ghost[n] {
                     stops.push([key.0, key.1, t_s.to_bits()]);
                 }
                 n += 1;
@@ -925,12 +919,15 @@ fn take_planned(
 }
 
 /// The rank's own particles of its engine's synced `local` state, as records: those its
-/// engine does not flag as ghosts (or, without the flags, those in `mine`).
-fn own_records(eng: &Backend, local: &State, mine: &KeySet, out: &mut Vec<ParticleRecord>) {
-    match eng.ghost_flags() {
-        Some(ghost) => records_into(local, |n, _| !ghost[n], out),
-        None => records_into(local, |_, key| mine.contains(&key), out),
-    }
+/// engine does not flag as ghosts.
+fn own_records(eng: &Backend, local: &State, out: &mut Vec<ParticleRecord>) {
+    let ghost = ghost_flags(eng);
+    records_into(local, |n, _| !ghost[n], out);
+}
+
+/// A resident engine's ghost flags (its ghosts are set when it is built).
+fn ghost_flags(eng: &Backend) -> Vec<bool> {
+    eng.ghost_flags().expect("a resident engine has its ghosts")
 }
 
 /// Stop the whole job on a failure inside a step with a thin halo, its message first: the

@@ -131,7 +131,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     }
 
     /// As [`Engine::new`]; with [`InitialLayer::FromState`] the state's densities, pressures and sound
-    /// speeds are its layer's (a step over MPI ranks rebuilds its engine on particles that
+    /// speeds are its layer's (a rank over MPI builds its engine, at a new halo, on particles that
     /// their owners stepped): the gas's summation density is not redone, and the dust's only
     /// where its drag needs it each step (and then it is the state's too).
     pub fn with_layer(
