@@ -63,12 +63,26 @@ pub fn core_check(
 /// I = Σ m r² over all particles, and the right side of the Lagrange–Jacobi identity
 /// d²I/dt² = 2 Σ m|v|² + 6 Σ_gas m p/ρ (valid in 3D; in d dimensions 2d replaces 6).
 pub fn lagrange_jacobi_terms(state: &State, dim: u32) -> (f64, f64) {
+    lagrange_jacobi_terms_where(state, dim, |_| true)
+}
+
+/// [`lagrange_jacobi_terms`] over the particles `keep(n)` keeps, n counting every particle,
+/// the gas first, then each dust fraction (a rank's own particles beside its ghosts).
+pub fn lagrange_jacobi_terms_where(
+    state: &State,
+    dim: u32,
+    keep: impl Fn(usize) -> bool,
+) -> (f64, f64) {
     let mut i = 0.0;
     let mut ke2 = 0.0;
+    let mut n = 0;
     let mut add = |ph: &crate::particles::Phase| {
         for (m, (x, v)) in ph.m.iter().zip(ph.x.iter().zip(&ph.v)) {
-            i += m * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
-            ke2 += 2.0 * m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            if keep(n) {
+                i += m * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+                ke2 += 2.0 * m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            }
+            n += 1;
         }
     };
     add(&state.gas.ph);
@@ -77,6 +91,7 @@ pub fn lagrange_jacobi_terms(state: &State, dim: u32) -> (f64, f64) {
     }
     let g = &state.gas;
     let pv: f64 = (0..g.ph.len())
+        .filter(|&k| keep(k))
         .map(|k| g.ph.m[k] * g.p[k] / g.ph.rho[k])
         .sum();
     (i, ke2 + 2.0 * dim as f64 * pv)

@@ -50,8 +50,8 @@ pub fn cut(world: &World, xs: &[[f64; 3]], domain: &crate::grid::Domain, reach: 
     Partition::with_ring(&cells, world.size(), ring)
 }
 
-/// Every record to the rank owning its cell (collective): what this rank now owns, and the
-/// bytes it sent to other ranks.
+/// Every record to the rank owning its cell (collective): what this rank now owns (its own
+/// that stay, then those that arrived, in rank order), and the bytes it sent to other ranks.
 pub fn migrate<T: bytemuck::Pod>(
     world: &World,
     part: &Partition,
@@ -69,7 +69,10 @@ pub fn migrate<T: bytemuck::Pod>(
         .filter(|(q, _)| *q != me)
         .map(|(_, s)| std::mem::size_of_val(s.as_slice()))
         .sum();
-    Ok((world.exchange(&sends)?, bytes))
+    // Only the particles that leave go through the exchange (its buffers hold them alone).
+    let mut kept = std::mem::take(&mut sends[me]);
+    kept.extend(world.exchange(&sends)?);
+    Ok((kept, bytes))
 }
 
 /// Copies of the owned records in cells next to another rank's cells, to those ranks
@@ -302,7 +305,8 @@ pub(super) fn shell(
         }
         let face_lo = v - (lo + c as f64 * size);
         let face_hi = size - face_lo;
-        for o in -reach..=reach {
+        // Nearest cells first: a particle within the radius is found in few lookups.
+        for o in (0..=2 * reach).map(|j| if j % 2 == 1 { (j + 1) / 2 } else { -(j / 2) }) {
             let (g, far) = match o {
                 0 => (0.0, face_lo.max(face_hi)),
                 o if o > 0 => ((o - 1) as f64 * size + face_hi, o as f64 * size + face_hi),
@@ -342,7 +346,7 @@ pub(super) fn shell(
             if within(x, inner) {
                 return Some(*h);
             }
-            within(x, outer).then(|| {
+            (outer > inner && within(x, outer)).then(|| {
                 let mut r = *h;
                 r.fixed = 1;
                 r

@@ -16,7 +16,7 @@ use super::halo::{cut, fail_requested, halo_sends, migrate, shell, RankGhosts};
 use super::records::{
     full_pos, records, records_into, records_where, state_from, state_of, ParticleRecord,
 };
-use crate::particles::{KeyMap, KeySet, State};
+use crate::particles::{KeySet, State};
 use crate::step::backend::{Backend, DeviceChoice};
 use crate::step::engine::InitialLayer;
 use crate::step::timestep::{Plan, PlanError, StepPlanner};
@@ -84,7 +84,7 @@ const GHOST_COST: f64 = 0.5;
 /// The stages of a run over ranks beside the engine's (summary.json `stage_seconds`).
 const STAGE_BUILD: &str = "ranks: halo built (cut, migration, halo, engine on the rank's share)";
 const STAGE_MOTION: &str =
-    "ranks: owned particles copied out and the motion since the halo reduced";
+    "ranks: the motion since the halo reduced, the engine's particles copied to the host";
 const STAGE_OUTPUT: &str =
     "ranks: an output's dust densities and stopping times, gathered on rank 0";
 
@@ -92,10 +92,11 @@ const STAGE_OUTPUT: &str =
 /// since the halo was built uses up its margin (docs/scaling.md, "A resident engine").
 struct Resident {
     eng: Backend,
-    /// The engine's host copy (synced after each step: the owned records come from it).
+    /// The engine's host copy, synced after each step that holds (a retaken step leaves it
+    /// at the step's start), and its ghost flags then: where the rank's own particles are read
+    /// from until the next output or build ([`RankStepper::owned_stale`]).
     local: State,
-    /// Where each owned particle was when the halo was built.
-    anchor: KeyMap<[f64; 3]>,
+    flags: Vec<bool>,
     support: f64,
     near: f64,
     reach: f64,
@@ -115,7 +116,12 @@ pub struct RankStepper {
     pub world: World,
     phys: Physics,
     template: State,
+    /// The rank's own particles as records (at the last build, output or retake; after a
+    /// step on the resident engine they are its `local` state's, [`RankStepper::owned_stale`]).
     owned: Vec<ParticleRecord>,
+    /// `owned` is behind the resident engine's `local` state: read the own particles there
+    /// (they become records only where a build, an output or a retake needs them).
+    owned_stale: bool,
     depth: f64,
     /// Where this rank steps: its own GPU (rank r on device r mod count), or the CPU.
     dev: RankDevice,
@@ -269,6 +275,7 @@ impl RankStepper {
             phys,
             template,
             owned,
+            owned_stale: false,
             depth,
             dev,
             devices,
@@ -331,9 +338,13 @@ impl RankStepper {
     }
 
     /// Drop the resident engine (its halo is rebuilt before the next step), keeping its
-    /// stages' times.
+    /// stages' times and its own particles (as records).
     fn drop_resident(&mut self) {
         if let Some(r) = self.resident.take() {
+            if self.owned_stale {
+                records_into(&r.local, |n, _| !r.flags[n], &mut self.owned);
+                self.owned_stale = false;
+            }
             for &(name, s) in r.eng.timers().entries() {
                 self.timers.add(name, s);
             }
@@ -358,8 +369,11 @@ impl RankStepper {
 
     /// The ball's Lagrange–Jacobi terms of every rank's own particles, summed (collective).
     pub fn lagrange_jacobi_terms(&self, dim: u32) -> (f64, f64) {
-        let st = state_of(&self.owned, &self.template);
-        let (i, rhs) = crate::analysis::ball::lagrange_jacobi_terms(&st, dim);
+        use crate::analysis::ball::lagrange_jacobi_terms_where as terms;
+        let (i, rhs) = match (&self.resident, self.owned_stale) {
+            (Some(r), true) => terms(&r.local, dim, |n| !r.flags[n]),
+            _ => terms(&state_of(&self.owned, &self.template), dim, |_| true),
+        };
         let mut s = [i, rhs];
         self.world.sum_f64(&mut s);
         (s[0], s[1])
@@ -498,7 +512,6 @@ impl RankStepper {
         let keys: Vec<Vec<(u64, u64)>> = (to.iter())
             .map(|ix| ix.iter().map(|&i| owned[i].key()).collect())
             .collect();
-        let anchor: KeyMap<[f64; 3]> = (owned.iter()).map(|r| (r.key(), full_pos(r))).collect();
         drop((to, owned));
         let mut local = state_of(&local_recs, &self.template);
         drop(local_recs);
@@ -517,13 +530,14 @@ impl RankStepper {
         if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys) {
             abort_job(world, step, &x);
         }
+        let flags = ghost_flags(&eng);
         self.builds += 1;
         let mut seconds = [t0.elapsed().as_secs_f64()];
         world.max_f64(&mut seconds);
         Ok(Some(Resident {
             eng,
             local,
-            anchor,
+            flags,
             support,
             near,
             reach,
@@ -574,29 +588,33 @@ impl RankStepper {
         let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
         let stepped = t_step.elapsed().as_secs_f64();
         let t0 = std::time::Instant::now();
-        let mut next = Vec::new();
-        own_records(e, local, &mut next);
         let t_new = local.t;
         // The motion since the halo was built, and the largest h, over every rank.
-        let domain = self.phys.domain;
-        let mut worst = [0.0f64, 0.0, stepped];
-        for r in &next {
-            let d2 = domain.distance2(res.anchor[&r.key()], full_pos(r));
-            worst[0] = worst[0].max(d2.sqrt());
-            worst[1] = worst[1].max(r.solved_h());
-        }
+        let m = (e.owned_motion())
+            .unwrap_or_else(|x| abort_job(world, step, &x))
+            .expect("a resident engine has its ghosts");
+        let (lo, hi) = (m.lo, m.hi);
+        let mut worst = [
+            m.largest, m.h_max, stepped, hi[0], hi[1], hi[2], -lo[0], -lo[1], -lo[2],
+        ];
         world.max_f64(&mut worst);
-        let need = (crate::step::SUPPORT * worst[1]).max(res.near) + 2.0 * worst[0];
+        let lo = [-worst[6], -worst[7], -worst[8]];
+        let moved = relative_motion(worst[0], lo, [worst[3], worst[4], worst[5]]);
+        let need = (crate::step::SUPPORT * worst[1]).max(res.near) + 2.0 * moved;
         // This step's motion (a cumulative largest displacement does not add up exactly; this
         // estimate only sets when the halo is rebuilt, the test above keeps it exact).
-        let d = (worst[0] - res.moved).max(worst[0] / (res.steps + 1) as f64);
+        let d = (moved - res.moved).max(moved / (res.steps + 1) as f64);
         res.step_seconds += (worst[2] - res.step_seconds) / (res.steps + 1) as f64;
-        let margin = Self::margin_for(d, res) + (need - 2.0 * worst[0] - res.near);
+        let margin = Self::margin_for(d, res) + (need - 2.0 * moved - res.near);
         if need > res.reach {
+            // Taken again from its start: `local` still holds it (synced after the last step).
             self.drop_resident();
             return Ok(Tried::Moved { margin });
         }
-        res.moved = worst[0];
+        (res.eng.sync(&mut res.local)).unwrap_or_else(|x| abort_job(world, step, &x));
+        res.flags = ghost_flags(&res.eng);
+        self.owned_stale = true;
+        res.moved = moved;
         res.steps += 1;
         self.timers.add(STAGE_MOTION, t0.elapsed().as_secs_f64());
         // Rebuild before the next step where its motion could use up the margin.
@@ -604,7 +622,6 @@ impl RankStepper {
             self.drop_resident();
             self.margin = margin;
         }
-        self.owned = next;
         self.layer_given = true;
         Ok(Tried::Done((plan, t_new, global.vsig_max)))
     }
@@ -653,7 +670,7 @@ impl RankStepper {
         let mut next = Vec::new();
         if let (Some(e), Some(_)) = (&mut eng, forces) {
             let r = take_planned(e, &mut local, drv, (&global, drag), (t, step, t_target));
-            match r {
+            match r.and_then(|p| e.sync(&mut local).map(|_| p)) {
                 Ok(p) => plan = Some(p),
                 Err(x) => err = x.to_string(),
             }
@@ -796,14 +813,28 @@ impl RankStepper {
         // Accretion is refused over ranks, so no particle is counted inside a radius here.
         let c = self.phys.gravity.pos;
         let mut s = [0.0f64; 7];
-        for r in &self.owned {
-            let x = dustsph_device::sub(r.x, c);
-            for (sk, vk) in s.iter_mut().zip(r.v) {
-                *sk += r.m * vk;
+        let mut add = |m: f64, x: [f64; 3], v: [f64; 3]| {
+            let x = dustsph_device::sub(x, c);
+            for (sk, vk) in s.iter_mut().zip(v) {
+                *sk += m * vk;
             }
-            s[3] += r.m * dustsph_device::dot(r.v, r.v).sqrt();
-            for (sk, lk) in s[4..].iter_mut().zip(dustsph_device::cross(x, r.v)) {
-                *sk += r.m * lk;
+            s[3] += m * dustsph_device::dot(v, v).sqrt();
+            for (sk, lk) in s[4..].iter_mut().zip(dustsph_device::cross(x, v)) {
+                *sk += m * lk;
+            }
+        };
+        match (&self.resident, self.owned_stale) {
+            (Some(r), true) => {
+                let phases = std::iter::once(&r.local.gas.ph).chain(&r.local.dust);
+                let each = phases.flat_map(|ph| (0..ph.len()).map(move |i| (ph, i)));
+                for ((ph, i), _) in each.zip(&r.flags).filter(|(_, &g)| !g) {
+                    add(ph.m[i], ph.x[i], ph.v[i]);
+                }
+            }
+            _ => {
+                for r in &self.owned {
+                    add(r.m, full_pos(r), r.v);
+                }
             }
         }
         self.world.sum_f64(&mut s);
@@ -857,6 +888,7 @@ impl RankStepper {
         // The owned records as the engine now holds them (the output's dust densities too,
         // which the next steps start from, as one process's engine does).
         self.owned = owned;
+        self.owned_stale = false;
         let state = self.gather(t, step)?;
         let parts = world.gather_bytes(bytemuck::cast_slice(&stops));
         self.timers.add(STAGE_OUTPUT, t0.elapsed().as_secs_f64());
@@ -896,8 +928,8 @@ impl RankStepper {
 }
 
 /// The step the planner's rule gives from the maxima over all ranks (`limits`: the forces',
-/// the explicit drag's), taken on this rank's engine, its host state `local` synced after
-/// (the dust densities as a step leaves them: an output computes them).
+/// the explicit drag's), taken on this rank's engine (its host state `local` not synced: it
+/// keeps the step's start until the caller syncs it).
 fn take_planned(
     e: &mut Backend,
     local: &mut State,
@@ -914,7 +946,6 @@ fn take_planned(
         }
     };
     e.take(local, &p)?;
-    e.sync(local)?;
     Ok(p)
 }
 
@@ -923,6 +954,19 @@ fn take_planned(
 fn own_records(eng: &Backend, local: &State, out: &mut Vec<ParticleRecord>) {
     let ghost = ghost_flags(eng);
     records_into(local, |n, _| !ghost[n], out);
+}
+
+/// The largest displacement that two particles' relative position can have taken, from every
+/// rank's own particles' motion: |dᵢ − dⱼ| ≤ 2 min(max |d|, max |d − u|) for any u, and with u
+/// the centre of the displacements' box |d − u| is at most its half-diagonal. Under a common
+/// drift (the dusty box's gas and dust each moving as one) this is half the relative motion,
+/// where the largest displacement alone counts the drift too.
+fn relative_motion(largest: f64, lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    let half_diagonal = (0..3)
+        .map(|a| (0.5 * (hi[a] - lo[a])).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    largest.min(half_diagonal)
 }
 
 /// A resident engine's ghost flags (its ghosts are set when it is built).

@@ -407,6 +407,11 @@ impl Backend {
         each!(self, e => e.ghost_flags())
     }
 
+    /// See [`Engine::owned_motion`].
+    pub fn owned_motion(&self) -> Result<Option<engine::OwnedMotion>, StepError> {
+        each!(self, e => Ok(e.owned_motion()?))
+    }
+
     /// See [`Engine::dust_density_as_after_step`].
     pub fn dust_density_as_after_step(&mut self) {
         each!(self, e => e.dust_density_as_after_step())

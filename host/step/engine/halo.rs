@@ -201,6 +201,21 @@ pub(super) struct Ghosts<L: Launcher> {
     pub(super) keyed: bool,
     /// `DUSTSPH_HALO_CHECK` was set when the ghosts were (read once, not at every refresh).
     pub(super) check: bool,
+    /// Per phase, each slot's position when the ghosts were set (following the sorts, as
+    /// the flags do): the motion since ([`Engine::owned_motion`]).
+    pub(super) anchor: [Vec<V3>; 2],
+}
+
+/// How far a rank's own particles moved since its ghosts were set ([`Engine::owned_motion`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OwnedMotion {
+    /// The largest displacement (minimum image on periodic axes).
+    pub largest: f64,
+    /// The displacements' bounding box, per axis.
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+    /// The largest solved h (0 where h is fixed).
+    pub h_max: f64,
 }
 
 impl<L: Launcher, R: Float> Engine<L, R> {
@@ -241,8 +256,16 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             host_only: [Vec::new(), Vec::new()],
             keyed: false,
             check: std::env::var_os("DUSTSPH_HALO_CHECK").is_some(),
+            anchor: [Vec::new(), Vec::new()],
         });
         self.ghost_masks()?;
+        let anchor = [
+            self.d.get(&self.gas.x, self.gas.n)?,
+            self.d.get(&self.dust.x, self.dust.n)?,
+        ];
+        if let Some(g) = &mut self.ghosts {
+            g.anchor = anchor;
+        }
         self.ghost_sync(&Refresh::EVERYTHING)
     }
 
@@ -272,6 +295,10 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             g.mask[k] = Some(self.d.from(&m)?);
             g.only[k] = Some(self.d.from(&ghost)?);
             g.host_only[k] = ghost;
+            if g.anchor[k].len() == ph.n {
+                let old = std::mem::take(&mut g.anchor[k]);
+                g.anchor[k] = perm.iter().map(|&p| old[p as usize]).collect();
+            }
             new_of_old[k] = new;
         }
         let r = g.sync.permute(&new_of_old);
@@ -290,6 +317,53 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 .map(|(k, i)| g.host_only[k].get(i).is_some_and(|&f| f != 0))
                 .collect(),
         )
+    }
+
+    /// How far the particles that are not ghosts moved since the ghosts were set, and their
+    /// largest solved h: what decides whether the halo still holds every neighbour
+    /// (docs/scaling.md, "A resident engine"). `None` without ghosts.
+    pub fn owned_motion(&self) -> Result<Option<OwnedMotion>, GpuError> {
+        let Some(g) = &self.ghosts else {
+            return Ok(None);
+        };
+        let domain = self.phys.domain;
+        let mut m = OwnedMotion {
+            largest: 0.0,
+            lo: [f64::INFINITY; 3],
+            hi: [f64::NEG_INFINITY; 3],
+            h_max: 0.0,
+        };
+        for (k, gas) in [true, false].into_iter().enumerate() {
+            let ph = if gas { &self.gas } else { &self.dust };
+            if ph.n == 0 {
+                continue;
+            }
+            let x = self.d.get(&ph.x, ph.n)?;
+            let h = match (&self.sm.gas_h, gas) {
+                (Some(h), true) => self.d.get_f64(h, ph.n)?,
+                _ => Vec::new(),
+            };
+            for (i, (xi, ai)) in x.iter().zip(&g.anchor[k]).enumerate() {
+                if g.host_only[k][i] != 0 {
+                    continue;
+                }
+                let mut d2 = 0.0;
+                for a in 0..3 {
+                    let mut d = xi[a] - ai[a];
+                    if let Some((_, len)) = domain.periodic[a] {
+                        d = dustsph_device::update::min_image(d, len);
+                    }
+                    m.lo[a] = m.lo[a].min(d);
+                    m.hi[a] = m.hi[a].max(d);
+                    d2 += d * d;
+                }
+                m.largest = m.largest.max(d2.sqrt());
+                if let Some(&hi) = h.get(i) {
+                    m.h_max = m.h_max.max(hi);
+                }
+            }
+        }
+        Ok(Some(m))
     }
 
     /// Every slot's key (phase, id) of a phase, in the current order.
