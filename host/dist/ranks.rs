@@ -494,6 +494,9 @@ impl RankStepper {
         let Some(lay) = self.local_layer(true)? else {
             return Ok(None);
         };
+        // The rank's own particles are the layer's now, and then the engine's host copy's
+        // (below): their records go until a build, an output or a retake.
+        self.owned = Vec::new();
         let world = &self.world;
         let me = world.rank();
         let (support, near, reach) = (lay.support, lay.near, lay.reach);
@@ -530,7 +533,12 @@ impl RankStepper {
         if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys) {
             abort_job(world, step, &x);
         }
+        // The engine's host copy, in its order beside its ghost flags.
+        if let Err(x) = eng.sync(&mut local) {
+            abort_job(world, step, &x);
+        }
         let flags = ghost_flags(&eng);
+        self.owned_stale = true;
         self.builds += 1;
         let mut seconds = [t0.elapsed().as_secs_f64()];
         world.max_f64(&mut seconds);
@@ -885,11 +893,11 @@ impl RankStepper {
                 n += 1;
             }
         }
-        // The owned records as the engine now holds them (the output's dust densities too,
-        // which the next steps start from, as one process's engine does).
-        self.owned = owned;
-        self.owned_stale = false;
-        let state = self.gather(t, step)?;
+        // The engine's host copy keeps the rank's own particles (the output's dust densities
+        // too, which the next steps start from, as one process's engine does): their records
+        // only pass through the gather.
+        let state = self.gather_of(&owned, t, step)?;
+        drop(owned);
         let parts = world.gather_bytes(bytemuck::cast_slice(&stops));
         self.timers.add(STAGE_OUTPUT, t0.elapsed().as_secs_f64());
         let (Some(state), Some(parts)) = (state, parts) else {
@@ -909,8 +917,18 @@ impl RankStepper {
 
     /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),
     /// at time `t`, step `step`; `None` on the other ranks. Collective.
-    pub fn gather(&self, t: f64, step: u64) -> Result<Option<State>, String> {
-        let Some(buf) = self.world.gather_concat(bytemuck::cast_slice(&self.owned)) else {
+    fn gather(&self, t: f64, step: u64) -> Result<Option<State>, String> {
+        self.gather_of(&self.owned, t, step)
+    }
+
+    /// [`RankStepper::gather`] of the records `owned`.
+    fn gather_of(
+        &self,
+        owned: &[ParticleRecord],
+        t: f64,
+        step: u64,
+    ) -> Result<Option<State>, String> {
+        let Some(buf) = self.world.gather_concat(bytemuck::cast_slice(owned)) else {
             return Ok(None);
         };
         // Read in key order from the one receive buffer: no second copy of the records.
