@@ -291,11 +291,10 @@ pub mod comm {
                 let mut rp = PartitionMut::new(&mut recv[..total], &recv_counts[..], &rd[..]);
                 self.world.all_to_all_varcount_into(&sp, &mut rp);
             }
-            // Records are read back by value (the byte buffer has no alignment for T).
-            Ok(recv[..total]
-                .chunks_exact(item)
-                .map(bytemuck::pod_read_unaligned::<T>)
-                .collect())
+            // Records are copied out whole (the byte buffer has no alignment for T).
+            let mut out = vec![T::zeroed(); total / item];
+            bytemuck::cast_slice_mut::<T, u8>(&mut out).copy_from_slice(&recv[..total]);
+            Ok(out)
         }
     }
 

@@ -41,6 +41,8 @@ macro_rules! kernel_table {
                 // Positions are f64 in every precision.
                 GATHER_X: gather_x(GatherArgs<[f64; 3]>),
                 BOUNDS: bounds(BoundsArgs),
+                PACK_ROWS: pack_rows(RowsArgs),
+                UNPACK_ROWS: unpack_rows(RowsArgs),
             }
             float {
                 KEYS: keys(KeysArgs),

@@ -5,7 +5,7 @@ use super::comm::World;
 use super::records::{full_pos, ParticleRecord};
 use crate::decomp::{CellBox, Cells, Partition};
 use crate::particles::{IntHasher, KeyMap};
-use crate::step::engine::{GhostRows, GhostSync};
+use crate::step::engine::GhostSync;
 
 /// Decomposition cells per halo reach: cells half the reach wide (the halo then spans the
 /// cells within three of a rank's own), so that a reach of several supports still leaves a
@@ -134,6 +134,10 @@ pub(super) struct RankGhosts {
     send_slots: Vec<Vec<(usize, usize)>>,
     /// Per arriving row, its table and its slot here (`None`: not held as a ghost).
     recv_slots: Vec<(usize, Option<usize>)>,
+    /// Per table, the slots of the rows sent (rank by rank) and of the rows written (in the
+    /// order they arrive, those not held left out): [`GhostSync::send_slots`], `recv_slots`.
+    send_list: [Vec<u32>; 2],
+    recv_list: [Vec<u32>; 2],
     /// Refreshes before one fails (`DUSTSPH_FAIL_IN_STEP`, set per step by the rank's
     /// stepper; negative: none fails).
     fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
@@ -164,8 +168,27 @@ impl RankGhosts {
             sends,
             arriving,
             recv_slots: Vec::new(),
+            send_list: [Vec::new(), Vec::new()],
+            recv_list: [Vec::new(), Vec::new()],
             fail,
         })
+    }
+
+    /// The per-table slot lists from the per-rank ones (after each sort).
+    fn relist(&mut self) {
+        for l in self.send_list.iter_mut().chain(self.recv_list.iter_mut()) {
+            l.clear();
+        }
+        for to in &self.send_slots {
+            for &(k, i) in to {
+                self.send_list[k].push(i as u32);
+            }
+        }
+        for &(k, slot) in &self.recv_slots {
+            if let Some(i) = slot {
+                self.recv_list[k].push(i as u32);
+            }
+        }
     }
 }
 
@@ -192,6 +215,7 @@ impl GhostSync for RankGhosts {
         self.recv_slots = (self.arriving.iter())
             .map(|&key| (table(key), at[table(key)].get(&key).copied()))
             .collect();
+        self.relist();
         Ok(())
     }
 
@@ -210,40 +234,56 @@ impl GhostSync for RankGhosts {
                 *i = moved(*k, *i)?;
             }
         }
+        self.relist();
         Ok(())
     }
 
-    fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String> {
+    fn send_slots(&self, table: usize) -> &[u32] {
+        &self.send_list[table]
+    }
+
+    fn recv_slots(&self, table: usize) -> &[u32] {
+        &self.recv_list[table]
+    }
+
+    fn refresh(&mut self, row: [usize; 2], out: [Vec<u8>; 2]) -> Result<[Vec<u8>; 2], String> {
         use std::sync::atomic::Ordering;
         match self.fail.load(Ordering::Relaxed) {
             0 => return Err("failure requested by DUSTSPH_FAIL_IN_STEP".into()),
             n if n > 0 => self.fail.store(n - 1, Ordering::Relaxed),
             _ => {}
         }
-        let rows: Vec<usize> = tables.iter().map(|t| t.row).collect();
-        let out: Vec<Vec<u8>> = (self.send_slots.iter())
+        // Each rank's rows in its send order, taken from the tables in turn.
+        let mut next = [0usize; 2];
+        let sends: Vec<Vec<u8>> = (self.send_slots.iter())
             .map(|to| {
-                let mut b = Vec::with_capacity(to.iter().map(|&(k, _)| rows[k]).sum());
-                for &(k, i) in to {
-                    b.extend_from_slice(&tables[k].data[i * rows[k]..(i + 1) * rows[k]]);
+                let mut b = Vec::with_capacity(to.iter().map(|&(k, _)| row[k]).sum());
+                for &(k, _) in to {
+                    let r = row[k];
+                    b.extend_from_slice(&out[k][next[k] * r..(next[k] + 1) * r]);
+                    next[k] += 1;
                 }
                 b
             })
             .collect();
-        let got = self.comm.exchange(&out)?;
-        let expected: usize = self.recv_slots.iter().map(|&(k, _)| rows[k]).sum();
+        let got = self.comm.exchange(&sends)?;
+        let expected: usize = self.recv_slots.iter().map(|&(k, _)| row[k]).sum();
         if got.len() != expected {
             return Err("a rank sent ghost rows of another layout".into());
         }
+        let mut back = [
+            Vec::with_capacity(self.recv_list[0].len() * row[0]),
+            Vec::with_capacity(self.recv_list[1].len() * row[1]),
+        ];
         let mut at = 0;
         for &(k, slot) in &self.recv_slots {
-            let r = rows[k];
-            if let Some(i) = slot {
-                tables[k].data[i * r..(i + 1) * r].copy_from_slice(&got[at..at + r]);
+            let r = row[k];
+            if slot.is_some() {
+                back[k].extend_from_slice(&got[at..at + r]);
             }
             at += r;
         }
-        Ok(())
+        Ok(back)
     }
 }
 

@@ -185,6 +185,53 @@ pub unsafe fn gather<T: Copy>(t: usize, a: &GatherArgs<T>) {
     }
 }
 
+/// Rows of a halo refresh (docs/scaling.md, "Named refreshes"): one field of a phase, `width`
+/// bytes per particle, packed into (or unpacked from) rows of `stride` bytes at `offset`, row
+/// t belonging to slot `slots[t]` (`u32::MAX`: a row no slot here takes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct RowsArgs {
+    pub field: *mut u8,
+    pub rows: *mut u8,
+    pub slots: *const u32,
+    pub n: u32,
+    pub width: u32,
+    pub stride: u32,
+    pub offset: u32,
+}
+
+/// Row t of a refresh's send table takes its slot's value of the field.
+pub unsafe fn pack_rows(t: usize, a: &RowsArgs) {
+    if t >= a.n as usize {
+        return;
+    }
+    let s = *a.slots.add(t);
+    if s == u32::MAX {
+        return;
+    }
+    let (w, row) = (
+        a.width as usize,
+        a.rows.add(t * a.stride as usize + a.offset as usize),
+    );
+    core::ptr::copy_nonoverlapping(a.field.add(s as usize * w), row, w);
+}
+
+/// Row t of a refresh's arriving table overwrites its slot's value of the field.
+pub unsafe fn unpack_rows(t: usize, a: &RowsArgs) {
+    if t >= a.n as usize {
+        return;
+    }
+    let s = *a.slots.add(t);
+    if s == u32::MAX {
+        return;
+    }
+    let (w, row) = (
+        a.width as usize,
+        a.rows.add(t * a.stride as usize + a.offset as usize),
+    );
+    core::ptr::copy_nonoverlapping(row, a.field.add(s as usize * w), w);
+}
+
 pub type GatherV3Args<R> = GatherArgs<[R; 3]>;
 pub type CopyV3Args<R> = CopyArgs<[R; 3]>;
 

@@ -174,16 +174,15 @@ pub trait GhostSync: Send {
     fn reorder(&mut self, slots: &[Vec<(u64, u64)>]) -> Result<(), String>;
     /// After a later sort of the same particles: slot i of table k moved to `new_of_old[k][i]`.
     fn permute(&mut self, new_of_old: &[Vec<u32>]) -> Result<(), String>;
-    /// Overwrite the ghosts' rows (gas first, then the dust) with their owners' (collective).
-    fn refresh(&mut self, tables: &mut [GhostRows]) -> Result<(), String>;
-}
-
-/// One phase's particles as rows of bytes, in the slot order of the last
-/// [`GhostSync::reorder`]: row i is `data[i * row .. (i + 1) * row]`, every per-particle
-/// buffer's value of the refresh's fields.
-pub struct GhostRows {
-    pub row: usize,
-    pub data: Vec<u8>,
+    /// The slots of table k (0 the gas, 1 the dust) whose rows each refresh sends, in the
+    /// order it takes them (a slot held as a ghost by several ranks appears once per rank).
+    fn send_slots(&self, table: usize) -> &[u32];
+    /// The slots of table k that the rows each refresh returns overwrite, in their order.
+    fn recv_slots(&self, table: usize) -> &[u32];
+    /// Send `out[k]`, the rows of table k (`row[k]` bytes each, in [`GhostSync::send_slots`]
+    /// order), to the ranks holding them as ghosts; per table, the owners' rows of this rank's
+    /// ghosts, in [`GhostSync::recv_slots`] order (collective).
+    fn refresh(&mut self, row: [usize; 2], out: [Vec<u8>; 2]) -> Result<[Vec<u8>; 2], String>;
 }
 
 /// The ghosts of an engine: the refresh, the ghosts' keys, and per phase a mask (fixed or ghost)
@@ -204,6 +203,11 @@ pub(super) struct Ghosts<L: Launcher> {
     /// Per phase, each slot's position when the ghosts were set (following the sorts, as
     /// the flags do): the motion since ([`Engine::owned_motion`]).
     pub(super) anchor: [Vec<V3>; 2],
+}
+
+/// Bytes per element of a buffer.
+fn elem_bytes<L: Launcher, T>(_: &Buf<L, T>) -> usize {
+    std::mem::size_of::<T>()
 }
 
 /// How far a rank's own particles moved since its ghosts were set ([`Engine::owned_motion`]).
@@ -491,150 +495,164 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     fn field_bytes(&mut self, fields: &[Field]) -> Result<Vec<(bool, Field, Vec<u8>)>, GpuError> {
         let mut out = Vec::new();
         for gas in [true, false] {
+            let n = if gas { self.gas.n } else { self.dust.n };
+            let every: Vec<u32> = (0..n as u32).collect();
             for &f in fields {
-                for (_, c) in self.ghost_columns(gas, None, &[f])? {
-                    out.push((gas, f, c));
-                }
+                out.push((gas, f, self.pack_rows(gas, &[f], &every)?.1));
             }
         }
         Ok(out)
     }
 
-    /// Send the owners' values of `fields` and write them into the ghosts' rows (collective).
+    /// Send the owners' values of `fields` and write them into the ghosts' rows (collective):
+    /// only the rows that go out are packed, and only the ghosts' rows written, on the launcher.
     fn exchange_rows(&mut self, fields: &[Field]) -> Result<(), StepError> {
-        let mut rows = Vec::with_capacity(2);
-        for gas in [true, false] {
-            let n = if gas { self.gas.n } else { self.dust.n };
-            let cols = self.ghost_columns(gas, None, fields)?;
-            // The row's width from the pipeline, not from the data: the same on a rank
-            // without particles of this phase as on its senders.
-            let row: usize = cols.iter().map(|c| c.0).sum();
-            let mut data = vec![0u8; n * row];
-            let mut at = 0;
-            for (w, c) in &cols {
-                let w = *w;
-                for i in 0..n {
-                    data[i * row + at..i * row + at + w].copy_from_slice(&c[i * w..(i + 1) * w]);
-                }
-                at += w;
-            }
-            rows.push((row, data));
-        }
-        // The rows are in the slot order the sync learnt at the last sort (ghost_masks).
+        let g = self.ghosts.as_ref().expect("ghosts are set");
+        let (gas_rows, dust_rows) = (
+            self.pack_rows(true, fields, g.sync.send_slots(0))?,
+            self.pack_rows(false, fields, g.sync.send_slots(1))?,
+        );
+        // The row's width from the pipeline, not from the data: the same on a rank without
+        // particles of this phase as on its senders.
+        let row = [gas_rows.0, dust_rows.0];
         let sync = &mut self.ghosts.as_mut().expect("ghosts are set").sync;
-        let mut tables: Vec<GhostRows> = (rows.into_iter())
-            .map(|(row, data)| GhostRows { row, data })
-            .collect();
-        sync.refresh(&mut tables)
+        let got = (sync.refresh(row, [gas_rows.1, dust_rows.1]))
             .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
-        let rows: Vec<(usize, Vec<u8>)> = tables.into_iter().map(|t| (t.row, t.data)).collect();
-        for ((row, data), gas) in rows.iter().zip([true, false]) {
-            self.ghost_columns(gas, Some((*row, data)), fields)?;
+        let g = self.ghosts.as_ref().expect("ghosts are set");
+        for (k, gas) in [true, false].into_iter().enumerate() {
+            self.unpack_rows(gas, fields, g.sync.recv_slots(k), row[k], &got[k])?;
         }
         Ok(())
     }
 
-    /// A phase's per-particle buffers of `fields` as byte columns with their bytes per
-    /// particle (`put` = None), or written back from the rows of `put`; those this scene's
-    /// pipeline does not use are left out.
-    pub(super) fn ghost_columns(
-        &mut self,
+    /// The rows (`fields` of one phase, each row its particle's values in field order) of
+    /// `slots`, packed on the launcher: the row's bytes and the rows.
+    fn pack_rows(
+        &self,
         gas: bool,
-        put: Option<(usize, &[u8])>,
         fields: &[Field],
-    ) -> Result<Vec<(usize, Vec<u8>)>, GpuError> {
-        /// Buffer `b` with `per` values per particle, particle-major.
-        pub(super) fn one<L: Launcher, T: Copy>(
-            d: &Device<L>,
-            b: Option<&mut Buf<L, T>>,
-            n: usize,
-            per: usize,
-            put: Option<((usize, &[u8]), &mut usize)>,
-            out: &mut Vec<(usize, Vec<u8>)>,
-        ) -> Result<(), GpuError> {
-            let Some(b) = b else { return Ok(()) };
-            let w = std::mem::size_of::<T>() * per;
-            if n == 0 || per == 0 {
-                if put.is_none() {
-                    out.push((w, Vec::new()));
-                }
-                return Ok(());
-            }
-            match put {
-                None => {
-                    let mut bytes = vec![0u8; n * w];
-                    d.launcher.download(&b.mem, &mut bytes)?;
-                    out.push((w, bytes));
-                }
-                Some(((row, data), at)) => {
-                    let mut bytes = vec![0u8; n * w];
-                    for i in 0..n {
-                        bytes[i * w..(i + 1) * w]
-                            .copy_from_slice(&data[i * row + *at..i * row + *at + w]);
-                    }
-                    *at += w;
-                    d.launcher.upload(&mut b.mem, &bytes)?;
-                }
-            }
-            Ok(())
+        slots: &[u32],
+    ) -> Result<(usize, Vec<u8>), GpuError> {
+        let cols = self.ghost_fields(gas, fields);
+        let row: usize = cols.iter().map(|c| c.1).sum();
+        if slots.is_empty() || row == 0 {
+            return Ok((row, Vec::new()));
         }
-        let mut out = Vec::new();
-        let mut at = 0usize;
         let d = &self.d;
+        let idx = d.from(slots)?;
+        let rows = d.buf::<u8>(slots.len() * row)?;
+        self.run_rows(kt::PACK_ROWS, &cols, &idx, &rows, slots.len(), row)?;
+        Ok((row, d.get(&rows, slots.len() * row)?))
+    }
+
+    /// Write the rows `data` (as [`Engine::pack_rows`] packs them, `row` bytes each) into
+    /// the `fields` of one phase at `slots`, on the launcher.
+    fn unpack_rows(
+        &self,
+        gas: bool,
+        fields: &[Field],
+        slots: &[u32],
+        row: usize,
+        data: &[u8],
+    ) -> Result<(), GpuError> {
+        if slots.is_empty() || row == 0 {
+            return Ok(());
+        }
+        let cols = self.ghost_fields(gas, fields);
+        let d = &self.d;
+        let idx = d.from(slots)?;
+        let rows = d.from(data)?;
+        self.run_rows(kt::UNPACK_ROWS, &cols, &idx, &rows, slots.len(), row)
+    }
+
+    /// One launch of `k` per field column.
+    fn run_rows(
+        &self,
+        k: Kernel<th::RowsArgs>,
+        cols: &[(*mut u8, usize)],
+        idx: &Buf<L, u32>,
+        rows: &Buf<L, u8>,
+        n: usize,
+        row: usize,
+    ) -> Result<(), GpuError> {
+        let d = &self.d;
+        let mut offset = 0;
+        for &(field, width) in cols {
+            let a = th::RowsArgs {
+                field,
+                rows: d.ptr(rows),
+                slots: d.ptr(idx),
+                n: n as u32,
+                width: width as u32,
+                stride: row as u32,
+                offset: offset as u32,
+            };
+            d.run(k, n, &a)?;
+            offset += width;
+        }
+        Ok(())
+    }
+
+    /// A phase's per-particle buffers of `fields`, as (address, bytes per particle), in the
+    /// rows' column order; those this scene's pipeline does not use are left out.
+    pub(super) fn ghost_fields(&self, gas: bool, fields: &[Field]) -> Vec<(*mut u8, usize)> {
+        let mut out = Vec::new();
+        let d = &self.d;
+        let mut one = |ptr: *mut u8, w: usize| out.push((ptr, w));
         // Which buffers: by the scene's pipeline (the same on every rank), never by a length.
         let save = self.stages.kdk || self.phys.position_update == PositionUpdate::Old;
         let smooth = self.stages.variable_h || self.stages.iad;
         let iad = self.stages.iad;
         macro_rules! col {
-            ($f:ident, $b:expr, $n:expr) => {
-                col!($f, $b, $n, 1)
+            ($f:ident, $b:expr) => {
+                col!($f, $b, 1)
             };
-            ($f:ident, $b:expr, $n:expr, $per:expr) => {
+            ($f:ident, $b:expr, $per:expr) => {
                 if fields.contains(&Field::$f) {
-                    one(d, $b, $n, $per, put.map(|t| (t, &mut at)), &mut out)?
+                    if let Some(b) = $b {
+                        one(d.ptr(b) as *mut u8, elem_bytes(b) * $per);
+                    }
                 }
             };
         }
         let nf = self.dust.groups;
         if gas {
-            let n = self.gas.n;
-            col!(Position, Some(&mut self.gas.x), n);
-            col!(Velocity, Some(&mut self.gas.v), n);
-            col!(Mass, Some(&mut self.gas.m), n);
-            col!(Density, Some(&mut self.gas.rho), n);
-            col!(KineticLoss, self.gas.loss.as_mut(), n);
-            col!(Pressure, Some(&mut self.pres), n);
-            col!(SoundSpeed, Some(&mut self.cs), n);
-            col!(Energy, self.e.as_mut(), n);
-            col!(Acceleration, Some(&mut self.acc), n);
-            col!(EnergyRate, self.dedt.as_mut(), n);
-            col!(SignalSpeed, self.kdk.vsig.as_mut(), n);
-            col!(SavedVelocity, save.then_some(&mut self.kdk.v_save), n);
-            col!(SavedEnergy, self.kdk.e_save.as_mut(), n);
-            col!(SmoothingLength, self.sm.gas_h.as_mut(), n);
-            col!(Omega, self.sm.gas_omega.as_mut(), n);
-            col!(KernelAt, smooth.then_some(&mut self.sm.kernel_at), n);
-            col!(PressureTerm, smooth.then_some(&mut self.sm.pt), n);
-            col!(IadMatrix, iad.then_some(&mut self.sm.iad), n);
-            if let Some(c) = &mut self.coupling {
-                col!(CouplingNorm, Some(&mut c.s_gas), n);
-                col!(GasIncrement, Some(&mut c.dv), n);
-                col!(DustIncrement, Some(&mut c.du), n, nf);
-                col!(CouplingStoppingTime, Some(&mut c.t_stop), n, nf);
-                col!(CouplingHeat, c.heat.as_mut(), n);
+            col!(Position, Some(&self.gas.x));
+            col!(Velocity, Some(&self.gas.v));
+            col!(Mass, Some(&self.gas.m));
+            col!(Density, Some(&self.gas.rho));
+            col!(KineticLoss, self.gas.loss.as_ref());
+            col!(Pressure, Some(&self.pres));
+            col!(SoundSpeed, Some(&self.cs));
+            col!(Energy, self.e.as_ref());
+            col!(Acceleration, Some(&self.acc));
+            col!(EnergyRate, self.dedt.as_ref());
+            col!(SignalSpeed, self.kdk.vsig.as_ref());
+            col!(SavedVelocity, save.then_some(&self.kdk.v_save));
+            col!(SavedEnergy, self.kdk.e_save.as_ref());
+            col!(SmoothingLength, self.sm.gas_h.as_ref());
+            col!(Omega, self.sm.gas_omega.as_ref());
+            col!(KernelAt, smooth.then_some(&self.sm.kernel_at));
+            col!(PressureTerm, smooth.then_some(&self.sm.pt));
+            col!(IadMatrix, iad.then_some(&self.sm.iad));
+            if let Some(c) = &self.coupling {
+                col!(CouplingNorm, Some(&c.s_gas));
+                col!(GasIncrement, Some(&c.dv));
+                col!(DustIncrement, Some(&c.du), nf);
+                col!(CouplingStoppingTime, Some(&c.t_stop), nf);
+                col!(CouplingHeat, c.heat.as_ref());
             }
         } else {
-            let n = self.dust.n;
-            col!(Position, Some(&mut self.dust.x), n);
-            col!(Velocity, Some(&mut self.dust.v), n);
-            col!(Mass, Some(&mut self.dust.m), n);
-            col!(Density, Some(&mut self.dust.rho), n);
-            col!(KineticLoss, self.dust.loss.as_mut(), n);
-            col!(SavedVelocity, save.then_some(&mut self.kdk.u_save), n);
-            if let Some(c) = &mut self.coupling {
-                col!(CouplingNorm, Some(&mut c.s_dust), n);
+            col!(Position, Some(&self.dust.x));
+            col!(Velocity, Some(&self.dust.v));
+            col!(Mass, Some(&self.dust.m));
+            col!(Density, Some(&self.dust.rho));
+            col!(KineticLoss, self.dust.loss.as_ref());
+            col!(SavedVelocity, save.then_some(&self.kdk.u_save));
+            if let Some(c) = &self.coupling {
+                col!(CouplingNorm, Some(&c.s_dust));
             }
         }
-        Ok(out)
+        out
     }
 }

@@ -35,7 +35,7 @@ use rayon::prelude::*;
 use std::marker::PhantomData;
 
 pub use buffers::{Float, LIST_BYTES_PER_GAS_PARTICLE};
-pub use halo::{GhostRows, GhostSync, OwnedMotion};
+pub use halo::{GhostSync, OwnedMotion};
 use halo::{Ghosts, Refresh};
 
 /// Device memory a run needs per particle (gas or dust), by precision: measured with the rayon
