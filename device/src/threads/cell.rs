@@ -78,6 +78,34 @@ pub struct CellBufs<R> {
     pub beta: *mut R,
     pub t_stop: *mut R,
     pub u_new: *mut Vec3<R>,
+    /// 1 where the cell holds a particle of this rank's own (every cell on one process): the
+    /// cell step solves only those; the kicks and the heat leave the others' particles (all
+    /// ghosts) as they are, for the halo's refresh after the drift (docs/scaling.md).
+    pub mine: *mut u8,
+}
+
+/// Whether IDIC cell k holds a particle that is not a ghost (ghost flags per phase, null: no
+/// ghosts): a cell of ghosts alone is another rank's to solve.
+#[inline(always)]
+unsafe fn holds_own<R: Real>(
+    gas: &PhaseBufs<R>,
+    dust: &PhaseBufs<R>,
+    (gas_ghost, dust_ghost): (*const u8, *const u8),
+    p: &StepParams<R>,
+    k: u64,
+) -> bool {
+    if gas_ghost.is_null() && dust_ghost.is_null() {
+        return true;
+    }
+    let own = |ph: &PhaseBufs<R>, ghost: *const u8, g: usize| -> bool {
+        let (lo, hi) = ph.cell_range(p, g, k);
+        (lo..hi).any(|i| ghost.is_null() || *ghost.add(i) == 0)
+    };
+    let mut any = own(gas, gas_ghost, 0);
+    for f in 0..p.nf as usize {
+        any |= own(dust, dust_ghost, f);
+    }
+    any
 }
 
 #[repr(C)]
@@ -88,11 +116,14 @@ pub struct CellArgs<R> {
     pub pres: *const R,
     pub acc: *const Vec3<R>,
     pub cells: CellBufs<R>,
+    /// Per phase, 1 for a ghost (null: no ghosts, one process).
+    pub gas_ghost: *const u8,
+    pub dust_ghost: *const u8,
     pub p: Params<R>,
 }
 
 /// The IDIC cell step of union cell t: sums (in particle order, as on the CPU), ε, t*, β and
-/// the implicit solve.
+/// the implicit solve; a cell of ghosts alone is left to its owners (`CellBufs::mine`).
 pub unsafe fn cell_step<R: Real>(t: usize, a: &CellArgs<R>) {
     let p = &a.p;
     let nu = union_count(&a.cells, p);
@@ -101,6 +132,11 @@ pub unsafe fn cell_step<R: Real>(t: usize, a: &CellArgs<R>) {
     }
     let k = *a.cells.ukey.add(t);
     let (g, d) = (&a.gas, &a.dust);
+    let mine = holds_own(g, d, (a.gas_ghost, a.dust_ghost), p, k);
+    *a.cells.mine.add(t) = mine as u8;
+    if !mine {
+        return;
+    }
     let eos = p.eos();
     let tau = p.tau;
     let acc = sl(a.acc, g.len());
@@ -169,19 +205,9 @@ pub unsafe fn explicit_limit<R: Real>(t: usize, a: &LimitArgs<R>) {
         return;
     }
     let nf = a.p.nf as usize;
-    if !a.gas_ghost.is_null() || !a.dust_ghost.is_null() {
-        let k = *a.cells.ukey.add(t);
-        let own = |ph: &PhaseBufs<R>, ghost: *const u8, g: usize| -> bool {
-            let (lo, hi) = ph.cell_range(&a.p, g, k);
-            (lo..hi).any(|i| ghost.is_null() || *ghost.add(i) == 0)
-        };
-        let mut any = own(&a.gas, a.gas_ghost, 0);
-        for f in 0..nf {
-            any |= own(&a.dust, a.dust_ghost, f);
-        }
-        if !any {
-            return;
-        }
+    let k = *a.cells.ukey.add(t);
+    if !holds_own(&a.gas, &a.dust, (a.gas_ghost, a.dust_ghost), &a.p, k) {
+        return;
     }
     let mut inv_t = [R::ZERO; MAX_FRACTIONS];
     for (k, r) in inv_t.iter_mut().enumerate().take(nf) {
@@ -245,7 +271,11 @@ pub unsafe fn gas_kick<R: Real>(t: usize, a: &KickArgs<R>) {
     let vt = crate::axpy(v, a.p.tau, crate::add(*a.acc.add(t), a.p.ext_gas));
     let vn = if a.drag != 0 {
         let nf = a.p.nf as usize;
-        let c = cell_of(g, &a.p, &a.cells, t) * nf;
+        let cell = cell_of(g, &a.p, &a.cells, t);
+        if *a.cells.mine.add(cell) == 0 {
+            return;
+        }
+        let c = cell * nf;
         let update = if a.p.explicit_drag != 0 {
             drag::explicit_gas_update
         } else {
@@ -274,6 +304,9 @@ pub unsafe fn dust_kick<R: Real>(t: usize, a: &KickArgs<R>) {
     }
     let nf = a.p.nf as usize;
     let c = cell_of(d, &a.p, &a.cells, t);
+    if *a.cells.mine.add(c) == 0 {
+        return;
+    }
     let s = c * nf + d.group_of(t);
     let u = *d.v.add(t);
     let update = if a.p.explicit_drag != 0 {
@@ -305,7 +338,7 @@ pub struct HeatArgs<R> {
 /// gas first, then fraction by fraction, in particle order: a fixed order, so the sums are deterministic.
 pub unsafe fn heat<R: Real>(t: usize, a: &HeatArgs<R>) {
     let p = &a.p;
-    if t >= union_count(&a.cells, p) {
+    if t >= union_count(&a.cells, p) || *a.cells.mine.add(t) == 0 {
         return;
     }
     let k = *a.cells.ukey.add(t);
@@ -372,7 +405,12 @@ pub unsafe fn energy<R: Real>(t: usize, a: &EnergyArgs<R>) {
     } else if a.heat_per_particle != 0 {
         *a.heat.add(t)
     } else {
-        *a.heat.add(cell_of(g, &a.p, &a.cells, t))
+        let c = cell_of(g, &a.p, &a.cells, t);
+        if *a.cells.mine.add(c) == 0 {
+            // Another rank's cell: this ghost's energy arrives with the refresh.
+            return;
+        }
+        *a.heat.add(c)
     };
     let e = a.e.add(t);
     *e = update::energy(*e, *a.dedt.add(t), a.p.tau) + q;

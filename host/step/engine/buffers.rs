@@ -475,6 +475,8 @@ pub(super) struct CellBuffers<L: Launcher, R: Float> {
     pub(super) t_stop: Buf<L, R>,
     pub(super) u_new: Buf<L, [R; 3]>,
     pub(super) heat: Buf<L, R>,
+    /// Per union cell, whether it holds a particle of this rank's own (`th::CellBufs::mine`).
+    pub(super) mine: Buf<L, u8>,
     /// Sparse mode: the union was built at the sort (its size); `None`: dense, built by the
     /// union kernels.
     pub(super) sparse: Option<u32>,
@@ -496,6 +498,7 @@ impl<L: Launcher, R: Float> CellBuffers<L, R> {
             beta: d.ptr(&self.beta),
             t_stop: d.ptr(&self.t_stop),
             u_new: d.ptr(&self.u_new),
+            mine: d.ptr(&self.mine),
         }
     }
 }
@@ -587,6 +590,7 @@ impl<L: Launcher, R: Float> CellBuffers<L, R> {
             t_stop: d.buf(cap * nf.max(1))?,
             u_new: d.buf(cap * nf.max(1))?,
             heat: d.buf(cap)?,
+            mine: d.buf(cap)?,
             sparse: None,
             union_fresh: false,
         })

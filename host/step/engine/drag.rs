@@ -13,18 +13,13 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         self.cell_step(0.0, true)?;
         let d = &self.d;
         d.put(&mut self.limits, &[0, 0, 0])?;
-        let only = |k: usize| -> *const u8 {
-            (self.ghosts.as_ref())
-                .and_then(|g| g.only[k].as_ref())
-                .map_or(std::ptr::null(), |b| d.ptr(b) as *const u8)
-        };
         let a = th::LimitArgs {
             cells: self.cells.bufs(d),
             rate: d.ptr(&self.limits),
             gas: self.gas.bufs(d),
             dust: self.dust.bufs(d),
-            gas_ghost: only(0),
-            dust_ghost: only(1),
+            gas_ghost: self.ghost_only(0),
+            dust_ghost: self.ghost_only(1),
             p: self.params(0.0)?.dev,
         };
         d.run(R::EXPLICIT_LIMIT, self.cells.ukey.len, &a)?;
@@ -71,6 +66,8 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             pres: d.ptr(&self.pres),
             acc: d.ptr(if acc_zero { &self.zero_acc } else { &self.acc }),
             cells: self.cells.bufs(d),
+            gas_ghost: self.ghost_only(0),
+            dust_ghost: self.ghost_only(1),
             p: p.dev,
         };
         // The union count stays on the device: launch one thread per possible cell.

@@ -323,6 +323,14 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         )
     }
 
+    /// Phase k's (0 the gas, 1 the dust) ghost flags on the launcher, null without ghosts:
+    /// for the kernels that leave a cell of ghosts alone to its owners.
+    pub(super) fn ghost_only(&self, k: usize) -> *const u8 {
+        (self.ghosts.as_ref())
+            .and_then(|g| g.only[k].as_ref())
+            .map_or(std::ptr::null(), |b| self.d.ptr(b) as *const u8)
+    }
+
     /// How far the particles that are not ghosts moved since the ghosts were set, and their
     /// largest solved h: what decides whether the halo still holds every neighbour
     /// (docs/scaling.md, "A resident engine"). `None` without ghosts.
