@@ -1010,3 +1010,52 @@ fn failure(_world: &World, step: u64, me: u32, err: &str) -> String {
         format!("step {step}: rank {me}: {err}")
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::relative_motion;
+
+    /// The bound the halo's rebuild rests on: for displacements d of every particle,
+    /// |dᵢ − dⱼ| ≤ 2 · relative_motion for every pair, and under a common drift the bound is
+    /// the spread of the displacements, not the drift.
+    #[test]
+    fn relative_motion_bounds_every_pair_and_ignores_a_common_drift() {
+        // A deterministic scatter of displacement sets: a spread around a drift.
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for set in 0..200 {
+            let drift = [3.0 * next(), 3.0 * next(), 3.0 * next()];
+            let spread = if set % 2 == 0 { 0.01 } else { 1.0 };
+            let d: Vec<[f64; 3]> = (0..50)
+                .map(|_| [0, 1, 2].map(|k| drift[k] + spread * next()))
+                .collect();
+            let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let largest = d.iter().map(|&v| norm(v)).fold(0.0, f64::max);
+            let lo = [0, 1, 2].map(|k| d.iter().map(|v| v[k]).fold(f64::INFINITY, f64::min));
+            let hi = [0, 1, 2].map(|k| d.iter().map(|v| v[k]).fold(f64::NEG_INFINITY, f64::max));
+            let bound = relative_motion(largest, lo, hi);
+            for a in &d {
+                for b in &d {
+                    let gap = norm([a[0] - b[0], a[1] - b[1], a[2] - b[2]]);
+                    assert!(
+                        gap <= 2.0 * bound * (1.0 + 1e-12),
+                        "set {set}: {gap} > 2 × {bound}"
+                    );
+                }
+            }
+            assert!(bound <= largest);
+            if spread < 0.1 {
+                // The drift is up to 2.6 long, the spread 0.01 a side: the bound is the spread.
+                assert!(
+                    bound <= 0.01 * 3f64.sqrt() / 2.0 * (1.0 + 1e-12),
+                    "set {set}: {bound}"
+                );
+            }
+        }
+    }
+}
