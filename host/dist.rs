@@ -169,13 +169,8 @@ pub mod comm {
 
         /// Every rank's bytes, in rank order, on every rank.
         pub fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
-            let copy;
-            let mine = if mine.is_empty() {
-                copy = heap(mine);
-                &copy[..]
-            } else {
-                mine
-            };
+            let held = real(mine);
+            let mine = &held[..];
             let mut counts = vec![0 as Count; self.size() as usize];
             self.world
                 .all_gather_into(&(mine.len() as Count), &mut counts[..]);
@@ -216,13 +211,8 @@ pub mod comm {
         }
 
         fn gather_uncounted(&self, mine: &[u8]) -> Option<(Vec<u8>, Vec<Count>, Vec<Count>)> {
-            let copy;
-            let mine = if mine.is_empty() {
-                copy = heap(mine);
-                &copy[..]
-            } else {
-                mine
-            };
+            let held = real(mine);
+            let mine = &held[..];
             let root = self.world.process_at_rank(0);
             let n = mine.len() as Count;
             if self.rank() != 0 {
@@ -298,13 +288,15 @@ pub mod comm {
         }
     }
 
-    /// A copy of `b` in a real allocation, even when empty (the gathers' empty contributions):
-    /// an empty slice's dangling address is 0x1, which OpenMPI reads as MPI_IN_PLACE (an error
-    /// on a non-root rank of a gather, and a silent in-place operation in an all-gather).
-    fn heap(b: &[u8]) -> Vec<u8> {
-        let mut v = Vec::with_capacity(b.len().max(1));
-        v.extend_from_slice(b);
-        v
+    /// `b`, or where it is empty an empty slice of a real allocation: an empty slice's dangling
+    /// address is 0x1, which OpenMPI reads as MPI_IN_PLACE (an error on a non-root rank of a
+    /// gather, and a silent in-place operation in an all-gather).
+    fn real(b: &[u8]) -> std::borrow::Cow<'_, [u8]> {
+        if b.is_empty() {
+            std::borrow::Cow::Owned(Vec::with_capacity(1))
+        } else {
+            std::borrow::Cow::Borrowed(b)
+        }
     }
 
     fn displacements(counts: &[Count]) -> Vec<Count> {

@@ -200,36 +200,33 @@ pub struct RowsArgs {
     pub offset: u32,
 }
 
-/// Row t of a refresh's send table takes its slot's value of the field.
-pub unsafe fn pack_rows(t: usize, a: &RowsArgs) {
+/// Row t's bytes of the field and its slot's value (`None`: past the rows, or a row no slot
+/// takes).
+#[inline(always)]
+unsafe fn row_and_value(t: usize, a: &RowsArgs) -> Option<(*mut u8, *mut u8)> {
     if t >= a.n as usize {
-        return;
+        return None;
     }
     let s = *a.slots.add(t);
     if s == u32::MAX {
-        return;
+        return None;
     }
-    let (w, row) = (
-        a.width as usize,
-        a.rows.add(t * a.stride as usize + a.offset as usize),
-    );
-    core::ptr::copy_nonoverlapping(a.field.add(s as usize * w), row, w);
+    let row = a.rows.add(t * a.stride as usize + a.offset as usize);
+    Some((row, a.field.add(s as usize * a.width as usize)))
+}
+
+/// Row t of a refresh's send table takes its slot's value of the field.
+pub unsafe fn pack_rows(t: usize, a: &RowsArgs) {
+    if let Some((row, value)) = row_and_value(t, a) {
+        core::ptr::copy_nonoverlapping(value, row, a.width as usize);
+    }
 }
 
 /// Row t of a refresh's arriving table overwrites its slot's value of the field.
 pub unsafe fn unpack_rows(t: usize, a: &RowsArgs) {
-    if t >= a.n as usize {
-        return;
+    if let Some((row, value)) = row_and_value(t, a) {
+        core::ptr::copy_nonoverlapping(row, value, a.width as usize);
     }
-    let s = *a.slots.add(t);
-    if s == u32::MAX {
-        return;
-    }
-    let (w, row) = (
-        a.width as usize,
-        a.rows.add(t * a.stride as usize + a.offset as usize),
-    );
-    core::ptr::copy_nonoverlapping(row, a.field.add(s as usize * w), w);
 }
 
 pub type GatherV3Args<R> = GatherArgs<[R; 3]>;
