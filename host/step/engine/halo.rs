@@ -164,10 +164,10 @@ impl Refresh {
 
 /// Ghost particles: copies of particles another MPI rank owns, within one interaction reach of
 /// this rank's own (docs/scaling.md, "A thin halo"). Between the step's neighbour passes the
-/// engine hands every particle's per-particle values to [`GhostSync::refresh`], which writes
-/// the owners' values into the ghosts' rows; the ghosts keep their density, h and forces out
-/// of those passes (their neighbourhoods are cut off at the halo's edge) and out of the step's
-/// maxima.
+/// engine packs the rows of the particles other ranks hold as ghosts and hands them to
+/// [`GhostSync::refresh`], which returns the owners' rows of this rank's ghosts; the ghosts
+/// keep their density, h and forces out of those passes (their neighbourhoods are cut off at
+/// the halo's edge) and out of the step's maxima.
 pub trait GhostSync: Send {
     /// After each sort: every slot's key per phase table (gas, then the dust), in the new
     /// order; the refreshes until the next sort read and write rows by these slots.
