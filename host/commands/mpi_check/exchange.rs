@@ -242,6 +242,8 @@ fn decode(s: &str) -> RankReport {
 #[derive(Debug, Clone)]
 pub struct StepReport {
     pub steps: u64,
+    /// How the ranks stepped (the summary's `backend`: halos built, steps retaken, …).
+    pub stepping: String,
     pub particles: usize,
     /// (field, max |a − b| / max |b|).
     pub fields: Vec<(&'static str, f64)>,
@@ -288,6 +290,7 @@ pub fn step_over_ranks(
     if !over.is_root() {
         return Ok(None);
     }
+    let stepping = over.stepper.describe();
     let mut dist = over.state.clone();
     let (mut sim, _) = Simulation::of_scene(scene, DeviceChoice::Cpu)?;
     for _ in 0..steps {
@@ -343,6 +346,7 @@ pub fn step_over_ranks(
         .collect();
     Ok(Some(StepReport {
         steps,
+        stepping,
         particles: reference.len(),
         fields: out,
     }))

@@ -112,6 +112,7 @@ pub fn execute(a: MpiCheckArgs) -> u8 {
                          (max |difference| / field scale):",
                         r.steps, size, r.particles
                     );
+                    println!("  stepped: {}", r.stepping);
                     let mut pass = true;
                     for (name, d) in &r.fields {
                         let ok = *d <= 1e-12;
