@@ -203,6 +203,11 @@ pub(super) struct Ghosts<L: Launcher> {
     /// Per phase, each slot's position when the ghosts were set (following the sorts, as
     /// the flags do): the motion since ([`Engine::owned_motion`]).
     pub(super) anchor: [Vec<V3>; 2],
+    /// Per table, the sync's send and receive slots on the launcher (uploaded after each
+    /// sort, not at each refresh), and the refresh's rows (grown as needed).
+    pub(super) send_on: [Option<Buf<L, u32>>; 2],
+    pub(super) recv_on: [Option<Buf<L, u32>>; 2],
+    pub(super) rows: std::cell::RefCell<Option<Buf<L, u8>>>,
 }
 
 /// Bytes per element of a buffer.
@@ -261,6 +266,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             keyed: false,
             check: std::env::var_os("DUSTSPH_HALO_CHECK").is_some(),
             anchor: [Vec::new(), Vec::new()],
+            send_on: [None, None],
+            recv_on: [None, None],
+            rows: Default::default(),
         });
         self.ghost_masks()?;
         let anchor = [
@@ -307,7 +315,21 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         }
         let r = g.sync.permute(&new_of_old);
         self.ghosts = Some(g);
-        r.map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))
+        r.map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
+        Ok(self.upload_slots()?)
+    }
+
+    /// The sync's slots (after a sort) onto the launcher, for the refreshes until the next.
+    fn upload_slots(&mut self) -> Result<(), GpuError> {
+        let Some(g) = &mut self.ghosts else {
+            return Ok(());
+        };
+        for k in 0..2 {
+            let up = |s: &[u32]| (!s.is_empty()).then(|| self.d.from(s)).transpose();
+            g.send_on[k] = up(g.sync.send_slots(k))?;
+            g.recv_on[k] = up(g.sync.recv_slots(k))?;
+        }
+        Ok(())
     }
 
     /// Per particle in the order [`Engine::sync`] writes the state (the gas, then each dust
@@ -438,7 +460,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 .reorder(&slots)
                 .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
         }
-        Ok(())
+        Ok(self.upload_slots()?)
     }
 
     /// Refresh the ghosts from their owners (a no-op without ghosts): the fields `refresh`
@@ -504,9 +526,11 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let mut out = Vec::new();
         for gas in [true, false] {
             let n = if gas { self.gas.n } else { self.dust.n };
-            let every: Vec<u32> = (0..n as u32).collect();
+            let every = (n > 0)
+                .then(|| self.d.from(&(0..n as u32).collect::<Vec<_>>()))
+                .transpose()?;
             for &f in fields {
-                out.push((gas, f, self.pack_rows(gas, &[f], &every)?.1));
+                out.push((gas, f, self.pack_rows(gas, &[f], every.as_ref(), n)?.1));
             }
         }
         Ok(out)
@@ -516,9 +540,10 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     /// only the rows that go out are packed, and only the ghosts' rows written, on the launcher.
     fn exchange_rows(&mut self, fields: &[Field]) -> Result<(), StepError> {
         let g = self.ghosts.as_ref().expect("ghosts are set");
+        let sent = |k: usize| g.sync.send_slots(k).len();
         let (gas_rows, dust_rows) = (
-            self.pack_rows(true, fields, g.sync.send_slots(0))?,
-            self.pack_rows(false, fields, g.sync.send_slots(1))?,
+            self.pack_rows(true, fields, g.send_on[0].as_ref(), sent(0))?,
+            self.pack_rows(false, fields, g.send_on[1].as_ref(), sent(1))?,
         );
         // The row's width from the pipeline, not from the data: the same on a rank without
         // particles of this phase as on its senders.
@@ -528,49 +553,63 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
         let g = self.ghosts.as_ref().expect("ghosts are set");
         for (k, gas) in [true, false].into_iter().enumerate() {
-            self.unpack_rows(gas, fields, g.sync.recv_slots(k), row[k], &got[k])?;
+            let n = g.sync.recv_slots(k).len();
+            self.unpack_rows(gas, fields, (g.recv_on[k].as_ref(), n), row[k], &got[k])?;
         }
         Ok(())
     }
 
     /// The rows (`fields` of one phase, each row its particle's values in field order) of
-    /// `slots`, packed on the launcher: the row's bytes and the rows.
+    /// the `n` slots in `idx`, packed on the launcher: the row's bytes and the rows.
     fn pack_rows(
         &self,
         gas: bool,
         fields: &[Field],
-        slots: &[u32],
+        idx: Option<&Buf<L, u32>>,
+        n: usize,
     ) -> Result<(usize, Vec<u8>), GpuError> {
         let cols = self.ghost_fields(gas, fields);
         let row: usize = cols.iter().map(|c| c.1).sum();
-        if slots.is_empty() || row == 0 {
+        let Some(idx) = idx.filter(|_| n > 0 && row > 0) else {
             return Ok((row, Vec::new()));
-        }
-        let d = &self.d;
-        let idx = d.from(slots)?;
-        let rows = d.buf::<u8>(slots.len() * row)?;
-        self.run_rows(kt::PACK_ROWS, &cols, &idx, &rows, slots.len(), row)?;
-        Ok((row, d.get(&rows, slots.len() * row)?))
+        };
+        let rows = self.rows_scratch(n * row)?;
+        let rows = rows.as_ref().expect("grown above");
+        self.run_rows(kt::PACK_ROWS, &cols, idx, rows, n, row)?;
+        Ok((row, self.d.get(rows, n * row)?))
     }
 
     /// Write the rows `data` (as [`Engine::pack_rows`] packs them, `row` bytes each) into
-    /// the `fields` of one phase at `slots`, on the launcher.
+    /// the `fields` of one phase at the `n` slots in `idx`, on the launcher.
     fn unpack_rows(
         &self,
         gas: bool,
         fields: &[Field],
-        slots: &[u32],
+        (idx, n): (Option<&Buf<L, u32>>, usize),
         row: usize,
         data: &[u8],
     ) -> Result<(), GpuError> {
-        if slots.is_empty() || row == 0 {
+        let Some(idx) = idx.filter(|_| n > 0 && row > 0) else {
             return Ok(());
-        }
+        };
         let cols = self.ghost_fields(gas, fields);
-        let d = &self.d;
-        let idx = d.from(slots)?;
-        let rows = d.from(data)?;
-        self.run_rows(kt::UNPACK_ROWS, &cols, &idx, &rows, slots.len(), row)
+        let mut rows = self.rows_scratch(data.len())?;
+        let rows = rows.as_mut().expect("grown above");
+        self.d.put(rows, data)?;
+        self.run_rows(kt::UNPACK_ROWS, &cols, idx, rows, n, row)
+    }
+
+    /// The refresh's rows buffer, at least `bytes` long (kept across refreshes).
+    fn rows_scratch(
+        &self,
+        bytes: usize,
+    ) -> Result<std::cell::RefMut<'_, Option<Buf<L, u8>>>, GpuError> {
+        let g = self.ghosts.as_ref().expect("ghosts are set");
+        let mut rows = g.rows.borrow_mut();
+        if rows.as_ref().is_none_or(|b| b.len < bytes) {
+            *rows = Some(self.d.buf(bytes + bytes / 2)?);
+        }
+        Ok(rows)
     }
 
     /// One launch of `k` per field column.
