@@ -236,28 +236,44 @@ pub mod comm {
         /// All-to-all of plain records: `sends[q]` goes to rank q; returns what every rank sent
         /// here, in rank order. Per rank pair at most 2 GiB (MPI's int counts).
         pub fn exchange<T: bytemuck::Pod>(&self, sends: &[Vec<T>]) -> Result<Vec<T>, String> {
-            let start = std::time::Instant::now();
-            let me = self.rank() as usize;
-            let sent: usize = (sends.iter().enumerate())
-                .filter(|(q, _)| *q != me)
-                .map(|(_, s)| std::mem::size_of_val(s.as_slice()))
-                .sum();
-            let out = self.exchange_uncounted(sends);
-            count(|t| {
-                t.exchanges += 1;
-                t.exchange_bytes += sent as u64;
-                t.exchange_seconds += start.elapsed().as_secs_f64();
-            });
-            out
+            let mut send: Vec<u8> = Vec::new();
+            for s in sends {
+                send.extend_from_slice(bytemuck::cast_slice::<T, u8>(s));
+            }
+            let counts: Vec<usize> = (sends.iter())
+                .map(|s| std::mem::size_of_val(s.as_slice()))
+                .collect();
+            let mut recv = Vec::new();
+            self.exchange_bytes(&send, &counts, &mut recv)?;
+            drop(send);
+            // Records are copied out whole (the byte buffer has no alignment for T).
+            let mut out = vec![T::zeroed(); recv.len() / std::mem::size_of::<T>()];
+            bytemuck::cast_slice_mut::<T, u8>(&mut out).copy_from_slice(&recv);
+            Ok(out)
         }
 
-        fn exchange_uncounted<T: bytemuck::Pod>(&self, sends: &[Vec<T>]) -> Result<Vec<T>, String> {
+        /// All-to-all of bytes laid out rank by rank in `send` (`counts[q]` of them to rank
+        /// q): what every rank sent here, in rank order, into `recv`, whose allocation is
+        /// reused (a refresh's buffers are kept across refreshes: fresh pages of tens of MB
+        /// per refresh cost more than the copy, docs/scaling.md "Measured costs"); returns how
+        /// many bytes came from each rank. Per rank pair at most 2 GiB (MPI's int counts).
+        pub fn exchange_bytes(
+            &self,
+            send: &[u8],
+            counts: &[usize],
+            recv: &mut Vec<u8>,
+        ) -> Result<Vec<usize>, String> {
+            let start = std::time::Instant::now();
+            let me = self.rank() as usize;
             let size = self.size() as usize;
-            assert_eq!(sends.len(), size, "one send list per rank");
-            let item = std::mem::size_of::<T>();
+            assert_eq!(counts.len(), size, "one count per rank");
+            assert_eq!(
+                counts.iter().sum::<usize>(),
+                send.len(),
+                "counts of the send"
+            );
             let mut send_counts = Vec::with_capacity(size);
-            for s in sends {
-                let bytes = s.len() * item;
+            for &bytes in counts {
                 send_counts.push(
                     Count::try_from(bytes)
                         .map_err(|_| format!("{bytes} B to one rank: above MPI's 2 GiB"))?,
@@ -266,25 +282,26 @@ pub mod comm {
             let mut recv_counts = vec![0 as Count; size];
             self.world
                 .all_to_all_into(&send_counts[..], &mut recv_counts[..]);
-            // Never an empty allocation: an empty Vec's dangling address is 0x1, which OpenMPI
-            // reads as MPI_IN_PLACE (MPI_ERR_ARG here) even with no data.
-            let mut send: Vec<u8> = Vec::with_capacity(1);
-            for s in sends {
-                send.extend_from_slice(bytemuck::cast_slice::<T, u8>(s));
-            }
             let sd = displacements(&send_counts);
             let rd = displacements(&recv_counts);
             let total: usize = recv_counts.iter().map(|&c| c as usize).sum();
-            let mut recv = vec![0u8; total.max(1)];
+            // Never an empty buffer: an empty slice's dangling address is 0x1, which OpenMPI
+            // reads as MPI_IN_PLACE (MPI_ERR_ARG here) even with no data.
+            let held = real(send);
+            recv.resize(total.max(1), 0);
             {
-                let sp = Partition::new(&send[..], &send_counts[..], &sd[..]);
+                let sp = Partition::new(&held[..], &send_counts[..], &sd[..]);
                 let mut rp = PartitionMut::new(&mut recv[..total], &recv_counts[..], &rd[..]);
                 self.world.all_to_all_varcount_into(&sp, &mut rp);
             }
-            // Records are copied out whole (the byte buffer has no alignment for T).
-            let mut out = vec![T::zeroed(); total / item];
-            bytemuck::cast_slice_mut::<T, u8>(&mut out).copy_from_slice(&recv[..total]);
-            Ok(out)
+            recv.truncate(total);
+            let sent = send.len() - counts[me];
+            count(|t| {
+                t.exchanges += 1;
+                t.exchange_bytes += sent as u64;
+                t.exchange_seconds += start.elapsed().as_secs_f64();
+            });
+            Ok(recv_counts.iter().map(|&c| c as usize).collect())
         }
     }
 

@@ -141,6 +141,9 @@ pub(super) struct RankGhosts {
     /// Refreshes before one fails (`DUSTSPH_FAIL_IN_STEP`, set per step by the rank's
     /// stepper; negative: none fails).
     fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
+    /// The refresh's send and receive buffers, kept across refreshes.
+    send_buf: Vec<u8>,
+    recv_buf: Vec<u8>,
 }
 
 /// The phase table of a key: 0 the gas, 1 the dust (every fraction).
@@ -171,6 +174,8 @@ impl RankGhosts {
             send_list: [Vec::new(), Vec::new()],
             recv_list: [Vec::new(), Vec::new()],
             fail,
+            send_buf: Vec::new(),
+            recv_buf: Vec::new(),
         })
     }
 
@@ -246,35 +251,42 @@ impl GhostSync for RankGhosts {
         &self.recv_list[table]
     }
 
-    fn refresh(&mut self, row: [usize; 2], out: [Vec<u8>; 2]) -> Result<[Vec<u8>; 2], String> {
+    fn refresh(
+        &mut self,
+        row: [usize; 2],
+        out: [&[u8]; 2],
+        back: &mut [Vec<u8>; 2],
+    ) -> Result<(), String> {
         use std::sync::atomic::Ordering;
         match self.fail.load(Ordering::Relaxed) {
             0 => return Err("failure requested by DUSTSPH_FAIL_IN_STEP".into()),
             n if n > 0 => self.fail.store(n - 1, Ordering::Relaxed),
             _ => {}
         }
-        // Each rank's rows in its send order, taken from the tables in turn.
+        // Each rank's rows in its send order, taken from the tables in turn, into the one
+        // send buffer (kept, as the receive buffer is, across refreshes).
         let mut next = [0usize; 2];
-        let sends: Vec<Vec<u8>> = (self.send_slots.iter())
-            .map(|to| {
-                let mut b = Vec::with_capacity(to.iter().map(|&(k, _)| row[k]).sum());
-                for &(k, _) in to {
-                    let r = row[k];
-                    b.extend_from_slice(&out[k][next[k] * r..(next[k] + 1) * r]);
-                    next[k] += 1;
-                }
-                b
-            })
-            .collect();
-        let got = self.comm.exchange(&sends)?;
+        let mut counts = Vec::with_capacity(self.send_slots.len());
+        self.send_buf.clear();
+        for to in &self.send_slots {
+            let start = self.send_buf.len();
+            for &(k, _) in to {
+                let r = row[k];
+                self.send_buf
+                    .extend_from_slice(&out[k][next[k] * r..(next[k] + 1) * r]);
+                next[k] += 1;
+            }
+            counts.push(self.send_buf.len() - start);
+        }
+        (self.comm).exchange_bytes(&self.send_buf, &counts, &mut self.recv_buf)?;
+        let got = &self.recv_buf;
         let expected: usize = self.recv_slots.iter().map(|&(k, _)| row[k]).sum();
         if got.len() != expected {
             return Err("a rank sent ghost rows of another layout".into());
         }
-        let mut back = [
-            Vec::with_capacity(self.recv_list[0].len() * row[0]),
-            Vec::with_capacity(self.recv_list[1].len() * row[1]),
-        ];
+        for b in back.iter_mut() {
+            b.clear();
+        }
         let mut at = 0;
         for &(k, slot) in &self.recv_slots {
             let r = row[k];
@@ -283,7 +295,7 @@ impl GhostSync for RankGhosts {
             }
             at += r;
         }
-        Ok(back)
+        Ok(())
     }
 }
 

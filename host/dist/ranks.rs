@@ -55,14 +55,14 @@ enum Tried {
 
 /// A rank's particles for one step ([`RankStepper::local_layer`]).
 struct LocalLayer {
-    /// The records this rank owns after the step's migration.
-    owned: Vec<ParticleRecord>,
+    /// How many records this rank owns after the step's migration (the first of
+    /// `local_recs`).
+    owned: usize,
     /// Per rank, the indices of the owned records it holds as halo.
     to: Vec<Vec<usize>>,
     /// Owned records, then the halo's.
     local_recs: Vec<ParticleRecord>,
     ghost_keys: KeySet,
-    mine: KeySet,
     support: f64,
     /// The reach of one neighbour pass: the support or an IDIC cell's diagonal.
     near: f64,
@@ -78,8 +78,9 @@ const MAX_MARGIN: f64 = 4.0;
 
 /// A ghost's cost per step relative to an owned particle's, for the choice of the margin
 /// ([`RankStepper::margin_for`]): it takes no h, density or force pass, only the cell sums,
-/// the kick, the drift, the sort and its refreshes.
-const GHOST_COST: f64 = 0.5;
+/// the kick, the drift, the sort and its refreshes. Measured from the passes' time on 2 ranks
+/// against one process on as many threads (docs/scaling.md, "Measured costs"): 0.1–0.2.
+const GHOST_COST: f64 = 0.2;
 
 /// The stages of a run over ranks beside the engine's (summary.json `stage_seconds`).
 const STAGE_BUILD: &str = "ranks: halo built (cut, migration, halo, engine on the rank's share)";
@@ -507,15 +508,15 @@ impl RankStepper {
             ghost_keys,
             ..
         } = lay;
-        let mut ratio = [(local_recs.len() - owned.len()) as f64 / owned.len().max(1) as f64];
+        let mut ratio = [(local_recs.len() - owned) as f64 / owned.max(1) as f64];
         world.max_f64(&mut ratio);
         self.halo_ratio = self.halo_ratio.max(ratio[0]);
         // What the engine needs of the records, then the records go before it is built (a
         // rank's peak memory is its engine's).
         let keys: Vec<Vec<(u64, u64)>> = (to.iter())
-            .map(|ix| ix.iter().map(|&i| owned[i].key()).collect())
+            .map(|ix| ix.iter().map(|&i| local_recs[i].key()).collect())
             .collect();
-        drop((to, owned));
+        drop(to);
         let mut local = state_of(&local_recs, &self.template);
         drop(local_recs);
         let layer = if self.layer_given {
@@ -530,7 +531,9 @@ impl RankStepper {
         }
         let mut eng = built.map_err(|x| x.to_string())?;
         let sync = RankGhosts::new(world.dup(), keys, self.fail.clone())?;
-        if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys) {
+        // Built from the records (no layer computed), its ghosts hold their owners' values.
+        let fresh = matches!(layer, InitialLayer::FromState);
+        if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys, fresh) {
             abort_job(world, step, &x);
         }
         // The engine's host copy, in its order beside its ghost flags.
@@ -650,8 +653,10 @@ impl RankStepper {
             unreachable!("the deep halo serves a rank without gas");
         };
         let LocalLayer {
-            local_recs, mine, ..
+            local_recs, owned, ..
         } = &lay;
+        // The rank's own particles: the first `owned` records.
+        let mine: KeySet = local_recs[..*owned].iter().map(|r| r.key()).collect();
         let mut local = state_of(local_recs, &self.template);
         local.t = t;
         local.step = step;
@@ -795,20 +800,20 @@ impl RankStepper {
             .map(|ix| ix.iter().map(|&i| owned[i]).collect())
             .collect();
         let halo = world.exchange(&sends)?;
-        let mine: KeySet = owned.iter().map(|r| r.key()).collect();
-        let mut local_recs = owned.clone();
         let kept = shell(&owned, &halo, inner, reach, &domain);
+        drop(halo);
         let ghost_keys: KeySet = kept.iter().map(|r| r.key()).collect();
+        let n_owned = owned.len();
+        let mut local_recs = owned;
         local_recs.extend(kept);
         if thin && world.any(!local_recs.iter().any(|r| r.phase == 0)) {
             return Ok(None);
         }
         Ok(Some(LocalLayer {
-            owned,
+            owned: n_owned,
             to,
             local_recs,
             ghost_keys,
-            mine,
             support,
             near,
             reach,

@@ -398,8 +398,9 @@ impl Backend {
         &mut self,
         sync: Box<dyn GhostSync>,
         keys: crate::particles::KeySet,
+        fresh: bool,
     ) -> Result<(), StepError> {
-        each!(self, e => e.set_ghosts(sync, keys))
+        each!(self, e => e.set_ghosts(sync, keys, fresh))
     }
 
     /// See [`Engine::ghost_flags`].

@@ -81,7 +81,51 @@ impl<L: Launcher> Device<L> {
     }
     /// Download a buffer of the step's precision as f64 (exact; for f64 the same vector).
     pub(super) fn get_f64<R: Float>(&self, b: &Buf<L, R>, n: usize) -> Result<Vec<f64>, GpuError> {
-        Ok(self.get(b, n)?.into_iter().map(R::to_f64).collect())
+        let mut v = Vec::new();
+        self.get_f64_into(b, n, &mut v)?;
+        Ok(v)
+    }
+    /// [`Device::get_f64`] into `out`, its allocation reused (the host copy synced after every
+    /// step over ranks: no fresh pages each time).
+    pub(super) fn get_f64_into<R: Float>(
+        &self,
+        b: &Buf<L, R>,
+        n: usize,
+        out: &mut Vec<f64>,
+    ) -> Result<(), GpuError> {
+        if std::any::TypeId::of::<R>() == std::any::TypeId::of::<f64>() {
+            // The same bytes: straight into `out`.
+            assert!(n <= b.len, "download larger than the buffer");
+            out.clear();
+            out.resize(n, 0.0);
+            return self
+                .launcher
+                .download(&b.mem, bytemuck::cast_slice_mut(out));
+        }
+        let v = self.get(b, n)?;
+        out.clear();
+        out.extend(v.into_iter().map(R::to_f64));
+        Ok(())
+    }
+    /// [`Device::get_f64_into`] of 3-vectors.
+    pub(super) fn get_v3_into<R: Float>(
+        &self,
+        b: &Buf<L, [R; 3]>,
+        n: usize,
+        out: &mut Vec<V3>,
+    ) -> Result<(), GpuError> {
+        if std::any::TypeId::of::<R>() == std::any::TypeId::of::<f64>() {
+            assert!(n <= b.len, "download larger than the buffer");
+            out.clear();
+            out.resize(n, [0.0; 3]);
+            return self
+                .launcher
+                .download(&b.mem, bytemuck::cast_slice_mut(out));
+        }
+        let v = self.get(b, n)?;
+        out.clear();
+        out.extend(v.into_iter().map(|v| v.map(R::to_f64)));
+        Ok(())
     }
     pub(super) fn get_v3<R: Float>(
         &self,
@@ -95,11 +139,23 @@ impl<L: Launcher> Device<L> {
             .collect())
     }
     pub(super) fn get<T: Pod>(&self, b: &Buf<L, T>, n: usize) -> Result<Vec<T>, GpuError> {
-        assert!(n <= b.len, "download larger than the buffer");
-        let mut v = vec![T::zeroed(); n];
-        self.launcher
-            .download(&b.mem, bytemuck::cast_slice_mut(&mut v))?;
+        let mut v = Vec::new();
+        self.get_into(b, n, &mut v)?;
         Ok(v)
+    }
+    /// [`Device::get`] into `out`, its allocation reused (a refresh's rows: no fresh pages
+    /// each time).
+    pub(super) fn get_into<T: Pod>(
+        &self,
+        b: &Buf<L, T>,
+        n: usize,
+        out: &mut Vec<T>,
+    ) -> Result<(), GpuError> {
+        assert!(n <= b.len, "download larger than the buffer");
+        out.clear();
+        out.resize(n, T::zeroed());
+        self.launcher
+            .download(&b.mem, bytemuck::cast_slice_mut(out))
     }
     pub(super) fn ptr<T>(&self, b: &Buf<L, T>) -> *mut T {
         self.launcher.addr(&b.mem) as *mut T
@@ -383,6 +439,19 @@ impl<L: Launcher, R: Float> PhaseBuffers<L, R> {
         d: &Device<L>,
         phases: &mut [&mut Phase],
     ) -> Result<(), GpuError> {
+        if let [ph] = phases {
+            // One group (the gas, or one dust fraction): straight into the phase's vectors,
+            // their allocations reused.
+            d.get_into(&self.x, self.n, &mut ph.x)?;
+            d.get_v3_into(&self.v, self.n, &mut ph.v)?;
+            d.get_f64_into(&self.m, self.n, &mut ph.m)?;
+            d.get_f64_into(&self.rho, self.n, &mut ph.rho)?;
+            d.get_into(&self.id, self.n, &mut ph.id)?;
+            if let (Some(f), Some(_)) = (&self.fixed, &ph.fixed) {
+                ph.fixed = Some(d.get(f, self.n)?.iter().map(|&b| b != 0).collect());
+            }
+            return Ok(());
+        }
         let x = d.get(&self.x, self.n)?;
         let v = d.get_v3(&self.v, self.n)?;
         let m = d.get_f64(&self.m, self.n)?;

@@ -180,9 +180,14 @@ pub trait GhostSync: Send {
     /// The slots of table k that the rows each refresh returns overwrite, in their order.
     fn recv_slots(&self, table: usize) -> &[u32];
     /// Send `out[k]`, the rows of table k (`row[k]` bytes each, in [`GhostSync::send_slots`]
-    /// order), to the ranks holding them as ghosts; per table, the owners' rows of this rank's
-    /// ghosts, in [`GhostSync::recv_slots`] order (collective).
-    fn refresh(&mut self, row: [usize; 2], out: [Vec<u8>; 2]) -> Result<[Vec<u8>; 2], String>;
+    /// order), to the ranks holding them as ghosts; into `back[k]`, the owners' rows of this
+    /// rank's ghosts of table k, in [`GhostSync::recv_slots`] order (collective).
+    fn refresh(
+        &mut self,
+        row: [usize; 2],
+        out: [&[u8]; 2],
+        back: &mut [Vec<u8>; 2],
+    ) -> Result<(), String>;
 }
 
 /// The ghosts of an engine: the refresh, the ghosts' keys, and per phase a mask (fixed or ghost)
@@ -208,6 +213,8 @@ pub(super) struct Ghosts<L: Launcher> {
     pub(super) send_on: [Option<Buf<L, u32>>; 2],
     pub(super) recv_on: [Option<Buf<L, u32>>; 2],
     pub(super) rows: std::cell::RefCell<Option<Buf<L, u8>>>,
+    /// The refresh's rows on the host, per table: those sent, and those come back.
+    pub(super) host_rows: [[Vec<u8>; 2]; 2],
 }
 
 /// Bytes per element of a buffer.
@@ -244,11 +251,13 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     }
 
     /// Make particles ghosts (`keys`: phase 0 gas, 1 + k dust fraction k; id) refreshed by
-    /// `sync` between the step's neighbour passes, and refresh them now.
+    /// `sync` between the step's neighbour passes, and refresh them now unless `fresh` (the
+    /// engine was built from their owners' values and computed none of its own).
     pub fn set_ghosts(
         &mut self,
         sync: Box<dyn GhostSync>,
         keys: crate::particles::KeySet,
+        fresh: bool,
     ) -> Result<(), StepError> {
         if self.phys.damp_dispersion {
             return Err(StepError::Unsupported(
@@ -269,6 +278,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             send_on: [None, None],
             recv_on: [None, None],
             rows: Default::default(),
+            host_rows: Default::default(),
         });
         self.ghost_masks()?;
         let anchor = [
@@ -277,6 +287,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         ];
         if let Some(g) = &mut self.ghosts {
             g.anchor = anchor;
+        }
+        if fresh {
+            return Ok(());
         }
         self.ghost_sync(&Refresh::EVERYTHING)
     }
@@ -530,7 +543,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 .then(|| self.d.from(&(0..n as u32).collect::<Vec<_>>()))
                 .transpose()?;
             for &f in fields {
-                out.push((gas, f, self.pack_rows(gas, &[f], every.as_ref(), n)?.1));
+                let mut rows = Vec::new();
+                self.pack_rows(gas, &[f], (every.as_ref(), n), &mut rows)?;
+                out.push((gas, f, rows));
             }
         }
         Ok(out)
@@ -539,44 +554,53 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     /// Send the owners' values of `fields` and write them into the ghosts' rows (collective):
     /// only the rows that go out are packed, and only the ghosts' rows written, on the launcher.
     fn exchange_rows(&mut self, fields: &[Field]) -> Result<(), StepError> {
+        // The host's rows, out and back, are kept across refreshes.
+        let [mut out, mut back] = std::mem::take(&mut self.ghosts_mut().host_rows);
         let g = self.ghosts.as_ref().expect("ghosts are set");
         let sent = |k: usize| g.sync.send_slots(k).len();
-        let (gas_rows, dust_rows) = (
-            self.pack_rows(true, fields, g.send_on[0].as_ref(), sent(0))?,
-            self.pack_rows(false, fields, g.send_on[1].as_ref(), sent(1))?,
-        );
+        let [gas_out, dust_out] = &mut out;
         // The row's width from the pipeline, not from the data: the same on a rank without
         // particles of this phase as on its senders.
-        let row = [gas_rows.0, dust_rows.0];
-        let sync = &mut self.ghosts.as_mut().expect("ghosts are set").sync;
-        let got = (sync.refresh(row, [gas_rows.1, dust_rows.1]))
+        let row = [
+            self.pack_rows(true, fields, (g.send_on[0].as_ref(), sent(0)), gas_out)?,
+            self.pack_rows(false, fields, (g.send_on[1].as_ref(), sent(1)), dust_out)?,
+        ];
+        let sync = &mut self.ghosts_mut().sync;
+        (sync.refresh(row, [&out[0], &out[1]], &mut back))
             .map_err(|e| StepError::Blowup(format!("halo exchange: {e}")))?;
         let g = self.ghosts.as_ref().expect("ghosts are set");
         for (k, gas) in [true, false].into_iter().enumerate() {
             let n = g.sync.recv_slots(k).len();
-            self.unpack_rows(gas, fields, (g.recv_on[k].as_ref(), n), row[k], &got[k])?;
+            self.unpack_rows(gas, fields, (g.recv_on[k].as_ref(), n), row[k], &back[k])?;
         }
+        self.ghosts_mut().host_rows = [out, back];
         Ok(())
     }
 
+    fn ghosts_mut(&mut self) -> &mut Ghosts<L> {
+        self.ghosts.as_mut().expect("ghosts are set")
+    }
+
     /// The rows (`fields` of one phase, each row its particle's values in field order) of
-    /// the `n` slots in `idx`, packed on the launcher: the row's bytes and the rows.
+    /// the `n` slots in `idx`, packed on the launcher into `out`: the row's bytes.
     fn pack_rows(
         &self,
         gas: bool,
         fields: &[Field],
-        idx: Option<&Buf<L, u32>>,
-        n: usize,
-    ) -> Result<(usize, Vec<u8>), GpuError> {
+        (idx, n): (Option<&Buf<L, u32>>, usize),
+        out: &mut Vec<u8>,
+    ) -> Result<usize, GpuError> {
         let cols = self.ghost_fields(gas, fields);
         let row: usize = cols.iter().map(|c| c.1).sum();
+        out.clear();
         let Some(idx) = idx.filter(|_| n > 0 && row > 0) else {
-            return Ok((row, Vec::new()));
+            return Ok(row);
         };
         let rows = self.rows_scratch(n * row)?;
         let rows = rows.as_ref().expect("grown above");
         self.run_rows(kt::PACK_ROWS, &cols, idx, rows, n, row)?;
-        Ok((row, self.d.get(rows, n * row)?))
+        self.d.get_into(rows, n * row, out)?;
+        Ok(row)
     }
 
     /// Write the rows `data` (as [`Engine::pack_rows`] packs them, `row` bytes each) into

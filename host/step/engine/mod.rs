@@ -398,14 +398,15 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let d = &self.d;
         self.gas.download(d, &mut [&mut state.gas.ph])?;
         let ng = self.gas.n;
-        state.gas.p = d.get_f64(&self.pres, ng)?;
-        state.gas.c = d.get_f64(&self.cs, ng)?;
+        // Into the state's vectors, their allocations reused.
+        d.get_f64_into(&self.pres, ng, &mut state.gas.p)?;
+        d.get_f64_into(&self.cs, ng, &mut state.gas.c)?;
         if let Some(e) = &self.e {
-            state.gas.e = Some(d.get_f64(e, ng)?);
+            d.get_f64_into(e, ng, state.gas.e.get_or_insert_with(Vec::new))?;
         }
         if let (Some(h), Some(o)) = (&self.sm.gas_h, &self.sm.gas_omega) {
-            state.gas.h = Some(d.get_f64(h, ng)?);
-            state.gas.omega = Some(d.get_f64(o, ng)?);
+            d.get_f64_into(h, ng, state.gas.h.get_or_insert_with(Vec::new))?;
+            d.get_f64_into(o, ng, state.gas.omega.get_or_insert_with(Vec::new))?;
         }
         if let (Some(_), Some(vsig)) = (self.kdk.closing, &self.kdk.vsig) {
             let acc = d.get_v3(&self.acc, ng)?;
