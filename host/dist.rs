@@ -236,19 +236,28 @@ pub mod comm {
         /// All-to-all of plain records: `sends[q]` goes to rank q; returns what every rank sent
         /// here, in rank order. Per rank pair at most 2 GiB (MPI's int counts).
         pub fn exchange<T: bytemuck::Pod>(&self, sends: &[Vec<T>]) -> Result<Vec<T>, String> {
-            let mut send: Vec<u8> = Vec::new();
-            for s in sends {
-                send.extend_from_slice(bytemuck::cast_slice::<T, u8>(s));
-            }
-            let counts: Vec<usize> = (sends.iter())
-                .map(|s| std::mem::size_of_val(s.as_slice()))
-                .collect();
-            let mut recv = Vec::new();
-            self.exchange_bytes(&send, &counts, &mut recv)?;
-            drop(send);
-            // Records are copied out whole (the byte buffer has no alignment for T).
-            let mut out = vec![T::zeroed(); recv.len() / std::mem::size_of::<T>()];
-            bytemuck::cast_slice_mut::<T, u8>(&mut out).copy_from_slice(&recv);
+            let counts: Vec<usize> = sends.iter().map(Vec::len).collect();
+            self.exchange_flat(&sends.concat(), &counts)
+        }
+
+        /// [`World::exchange`] of records laid out rank by rank in `send` (`counts[q]` of them
+        /// to rank q), received straight into the records returned (no byte buffer between:
+        /// a halo's records are tens of MB, and each fresh buffer's pages cost time to fault in).
+        pub fn exchange_flat<T: bytemuck::Pod>(
+            &self,
+            send: &[T],
+            counts: &[usize],
+        ) -> Result<Vec<T>, String> {
+            let item = std::mem::size_of::<T>();
+            let bytes: Vec<usize> = counts.iter().map(|&c| c * item).collect();
+            let mut out: Vec<T> = Vec::new();
+            let o = &mut out;
+            let into = move |total: usize| {
+                let o = o;
+                o.resize(total.div_ceil(item), T::zeroed());
+                &mut bytemuck::cast_slice_mut::<T, u8>(o.as_mut_slice())[..total]
+            };
+            self.exchange_into(bytemuck::cast_slice(send), &bytes, into)?;
             Ok(out)
         }
 
@@ -262,6 +271,26 @@ pub mod comm {
             send: &[u8],
             counts: &[usize],
             recv: &mut Vec<u8>,
+        ) -> Result<Vec<usize>, String> {
+            // Resized, not cleared: only bytes beyond its last length are zeroed first.
+            let r = &mut *recv;
+            let into = move |total: usize| {
+                let r = r;
+                r.resize(total, 0);
+                &mut r[..]
+            };
+            let got = self.exchange_into(send, counts, into)?;
+            recv.truncate(got.iter().sum());
+            Ok(got)
+        }
+
+        /// The all-to-all of [`World::exchange_bytes`], received into the `total` bytes that
+        /// `into(total)` provides.
+        fn exchange_into<'a>(
+            &self,
+            send: &[u8],
+            counts: &[usize],
+            into: impl FnOnce(usize) -> &'a mut [u8],
         ) -> Result<Vec<usize>, String> {
             let start = std::time::Instant::now();
             let me = self.rank() as usize;
@@ -288,13 +317,17 @@ pub mod comm {
             // Never an empty buffer: an empty slice's dangling address is 0x1, which OpenMPI
             // reads as MPI_IN_PLACE (MPI_ERR_ARG here) even with no data.
             let held = real(send);
-            recv.resize(total.max(1), 0);
+            let mut none = Vec::with_capacity(1);
+            let recv: &mut [u8] = if total == 0 {
+                &mut none[..]
+            } else {
+                into(total)
+            };
             {
                 let sp = Partition::new(&held[..], &send_counts[..], &sd[..]);
-                let mut rp = PartitionMut::new(&mut recv[..total], &recv_counts[..], &rd[..]);
+                let mut rp = PartitionMut::new(recv, &recv_counts[..], &rd[..]);
                 self.world.all_to_all_varcount_into(&sp, &mut rp);
             }
-            recv.truncate(total);
             let sent = send.len() - counts[me];
             count(|t| {
                 t.exchanges += 1;

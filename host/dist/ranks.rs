@@ -796,10 +796,12 @@ impl RankStepper {
         let part = cut(world, &xs, &domain, reach);
         let (owned, _) = migrate(world, &part, &self.owned, full_pos)?;
         let to = halo_sends(world.size(), &part, &owned, full_pos);
-        let sends: Vec<Vec<ParticleRecord>> = (to.iter())
-            .map(|ix| ix.iter().map(|&i| owned[i]).collect())
-            .collect();
-        let halo = world.exchange(&sends)?;
+        // Rank by rank in one buffer: one copy of each record sent, received straight into
+        // records.
+        let sends: Vec<ParticleRecord> = to.iter().flatten().map(|&i| owned[i]).collect();
+        let counts: Vec<usize> = to.iter().map(Vec::len).collect();
+        let halo = world.exchange_flat(&sends, &counts)?;
+        drop(sends);
         let kept = shell(&owned, &halo, inner, reach, &domain);
         drop(halo);
         let ghost_keys: KeySet = kept.iter().map(|r| r.key()).collect();
