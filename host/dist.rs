@@ -191,10 +191,17 @@ pub mod comm {
             Some(split(&buf, &counts, &displs))
         }
 
-        /// Every rank's bytes, concatenated in rank order, on rank 0 only (`None` elsewhere):
-        /// [`World::gather_bytes`] without a copy per rank.
-        pub fn gather_concat(&self, mine: &[u8]) -> Option<Vec<u8>> {
-            Some(self.gather_counted(mine)?.0)
+        /// Every rank's bytes, concatenated in rank order, on rank 0 only (`None` elsewhere),
+        /// with where each rank's end: [`World::gather_bytes`] without a copy per rank.
+        pub fn gather_runs(&self, mine: &[u8]) -> Option<(Vec<u8>, Vec<usize>)> {
+            let (buf, counts, _) = self.gather_counted(mine)?;
+            let ends = (counts.iter())
+                .scan(0, |acc, &c| {
+                    *acc += c as usize;
+                    Some(*acc)
+                })
+                .collect();
+            Some((buf, ends))
         }
 
         /// The gather, its bytes and time counted: on rank 0 the buffer, every rank's count

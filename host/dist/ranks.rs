@@ -888,67 +888,102 @@ impl RankStepper {
             .unwrap_or_else(|x| abort_job(world, step, &x));
         let mut owned = Vec::new();
         own_records(&res.eng, &res.local, &mut owned);
+        // The own dust particles' stopping times, in the order of their records (the same
+        // filter over the same order: the gas first, then the fractions in turn).
         let ghost = ghost_flags(&res.eng);
-        let mut stops: Vec<[u64; 3]> = Vec::new();
-        let mut n = res.local.gas.ph.len();
-        for (k, (d, ts)) in res.local.dust.iter().zip(&ts).enumerate() {
-            for (&id, t_s) in d.id.iter().zip(ts) {
-                let key = (k as u64 + 1, id);
-                if !ghost[n] {
-                    stops.push([key.0, key.1, t_s.to_bits()]);
-                }
-                n += 1;
-            }
-        }
+        let gas = res.local.gas.ph.len();
+        let t_own: Vec<f64> = (ts.iter().flatten().zip(&ghost[gas..]))
+            .filter(|(_, &g)| !g)
+            .map(|(&t_s, _)| t_s)
+            .collect();
         // The engine's host copy keeps the rank's own particles (the output's dust densities
         // too, which the next steps start from, as one process's engine does): their records
         // only pass through the gather.
-        let state = self.gather_of(&owned, t, step)?;
+        let gathered = self.gather_of(&mut owned, Some(&t_own), t, step)?;
         drop(owned);
-        let parts = world.gather_bytes(bytemuck::cast_slice(&stops));
         self.timers.add(STAGE_OUTPUT, t0.elapsed().as_secs_f64());
-        let (Some(state), Some(parts)) = (state, parts) else {
-            return Ok(None);
-        };
-        let mut all: Vec<[u64; 3]> = (parts.iter())
-            .flat_map(|b| b.chunks_exact(24))
-            .map(bytemuck::pod_read_unaligned::<[u64; 3]>)
-            .collect();
-        all.sort_unstable_by_key(|s| (s[0], s[1]));
-        let mut t_stop: Vec<Vec<f64>> = vec![Vec::new(); state.dust.len()];
-        for s in all {
-            t_stop[s[0] as usize - 1].push(f64::from_bits(s[2]));
-        }
-        Ok(Some((state, Some(t_stop))))
+        Ok(gathered)
     }
 
     /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),
     /// at time `t`, step `step`; `None` on the other ranks. Collective.
-    fn gather(&self, t: f64, step: u64) -> Result<Option<State>, String> {
-        self.gather_of(&self.owned, t, step)
+    fn gather(&mut self, t: f64, step: u64) -> Result<Option<State>, String> {
+        let mut owned = std::mem::take(&mut self.owned);
+        let st = self.gather_of(&mut owned, None, t, step);
+        self.owned = owned;
+        Ok(st?.map(|(st, _)| st))
     }
 
-    /// [`RankStepper::gather`] of the records `owned`.
+    /// [`RankStepper::gather`] of the records `owned`, with, where given, a value per dust
+    /// record (`dust`, in the order of the dust records in `owned`) gathered per fraction in
+    /// the state's order. Each rank sorts its records by key (in place) and rank 0 merges the
+    /// ranks' sorted runs, reading each record once, in order.
+    #[allow(clippy::type_complexity)]
     fn gather_of(
         &self,
-        owned: &[ParticleRecord],
+        owned: &mut [ParticleRecord],
+        dust: Option<&[f64]>,
         t: f64,
         step: u64,
-    ) -> Result<Option<State>, String> {
-        let Some(buf) = self.world.gather_concat(bytemuck::cast_slice(owned)) else {
+    ) -> Result<Option<(State, Option<Vec<Vec<f64>>>)>, String> {
+        // Sort the records, and the dust values with their records.
+        let mut order: Vec<usize> = (0..owned.len()).collect();
+        order.sort_unstable_by_key(|&i| owned[i].key());
+        let vals: Option<Vec<f64>> = dust.map(|d| {
+            let mut next = d.iter();
+            let of: Vec<Option<f64>> = (owned.iter())
+                .map(|r| {
+                    if r.phase > 0 {
+                        next.next().copied()
+                    } else {
+                        None
+                    }
+                })
+                .collect();
+            order.iter().filter_map(|&i| of[i]).collect()
+        });
+        let sorted: Vec<ParticleRecord> = order.iter().map(|&i| owned[i]).collect();
+        owned.copy_from_slice(&sorted);
+        drop((sorted, order));
+        let recs = self.world.gather_runs(bytemuck::cast_slice(owned));
+        let vals = vals.map(|v| self.world.gather_runs(bytemuck::cast_slice(&v)));
+        let Some((buf, ends)) = recs else {
             return Ok(None);
         };
-        // Read in key order from the one receive buffer: no second copy of the records.
+        let vals = vals.map(|v| v.expect("rank 0 gathers both"));
         const REC: usize = std::mem::size_of::<ParticleRecord>();
         let read =
             |i: usize| bytemuck::pod_read_unaligned::<ParticleRecord>(&buf[i * REC..][..REC]);
-        let mut order: Vec<((u64, u64), usize)> =
-            (0..buf.len() / REC).map(|i| (read(i).key(), i)).collect();
-        order.sort_unstable();
-        let mut st = state_from(order.into_iter().map(|(_, i)| read(i)), &self.template);
+        let value = |b: &[u8], i: usize| bytemuck::pod_read_unaligned::<f64>(&b[i * 8..][..8]);
+        // Each rank's run: its next record and end, and its next dust value.
+        let runs = ends.len();
+        let mut at: Vec<usize> = (0..runs)
+            .map(|r| if r == 0 { 0 } else { ends[r - 1] / REC })
+            .collect();
+        let end: Vec<usize> = ends.iter().map(|e| e / REC).collect();
+        let mut vat: Vec<usize> = match &vals {
+            Some((_, ve)) => (0..runs)
+                .map(|r| if r == 0 { 0 } else { ve[r - 1] / 8 })
+                .collect(),
+            None => Vec::new(),
+        };
+        let mut per_fraction: Vec<Vec<f64>> = vec![Vec::new(); self.template.dust.len()];
+        let merged = std::iter::from_fn(|| {
+            let r = (0..runs)
+                .filter(|&r| at[r] < end[r])
+                .min_by_key(|&r| read(at[r]).key())?;
+            let rec = read(at[r]);
+            at[r] += 1;
+            if let (Some((vb, _)), true) = (&vals, rec.phase > 0) {
+                per_fraction[rec.phase as usize - 1].push(value(vb, vat[r]));
+                vat[r] += 1;
+            }
+            Some(rec)
+        });
+        let mut st = state_from(merged, &self.template);
         st.t = t;
         st.step = step;
-        Ok(Some(st))
+        Ok(Some((st, vals.map(|_| per_fraction))))
     }
 }
 
