@@ -78,9 +78,10 @@ const MAX_MARGIN: f64 = 4.0;
 
 /// A ghost's cost per step relative to an owned particle's, for the choice of the margin
 /// ([`RankStepper::margin_for`]): it takes no h, density or force pass, only the cell sums,
-/// the kick, the drift, the sort and its refreshes. Measured from the passes' time on 2 ranks
-/// against one process on as many threads (docs/scaling.md, "Measured costs"): 0.1–0.2.
-const GHOST_COST: f64 = 0.2;
+/// the kick, the drift, the sort and its refreshes. (0.2 built fewer, larger halos: the ball
+/// 5 in 40 steps instead of 7, the box's halo 0.93–0.99 of a rank's own instead of 0.44–0.83,
+/// 50 MB more per rank, and no faster within the runs' spread, docs/scaling.md.)
+const GHOST_COST: f64 = 0.5;
 
 /// The stages of a run over ranks beside the engine's (summary.json `stage_seconds`).
 const STAGE_BUILD: &str = "ranks: halo built (cut, migration, halo, engine on the rank's share)";
