@@ -4,7 +4,7 @@
 use super::comm::World;
 use super::records::{full_pos, ParticleRecord};
 use crate::decomp::{CellBox, Cells, Partition};
-use crate::particles::{IntHasher, KeyMap};
+use crate::particles::{IntHasher, KeyMap, KeySet};
 use crate::step::engine::GhostSync;
 
 /// Decomposition cells per halo reach: cells half the reach wide (the halo then spans the
@@ -125,14 +125,14 @@ pub fn halo_sends<T>(
 /// ([`RankGhosts::new`]), and which slot it is in after each sort ([`GhostSync::reorder`]).
 pub(super) struct RankGhosts {
     comm: World,
-    /// Per rank, the keys (phase, id) of the owned particles it received as halo, in the
-    /// order their rows go (a rank that left one out, being beyond its reach, skips its row).
+    /// Per rank, the keys (phase, id) of the owned particles it holds as ghosts, in the order
+    /// their rows go.
     sends: Vec<Vec<(u64, u64)>>,
     /// The keys of the rows that arrive, in their order (rank by rank, each in its send order).
     arriving: Vec<(u64, u64)>,
     /// Per rank, the (table, slot) of each row sent, after the last sort.
     send_slots: Vec<Vec<(usize, usize)>>,
-    /// Per arriving row, its table and its slot here (`None`: not held as a ghost).
+    /// Per arriving row, its table and its slot here (every arriving row is held).
     recv_slots: Vec<(usize, Option<usize>)>,
     /// Per table, the slots of the rows sent (rank by rank) and of the rows written (in the
     /// order they arrive, those not held left out): [`GhostSync::send_slots`], `recv_slots`.
@@ -153,17 +153,50 @@ fn table(key: (u64, u64)) -> usize {
 
 impl RankGhosts {
     /// The refresh of a halo: `sends[q]`, the keys of the owned particles rank q received as
-    /// halo. Tells every rank which rows it will receive, in which order (collective).
+    /// halo candidates, and `held`, the keys this rank keeps as ghosts of those it received.
+    /// Tells every rank which rows it will receive, in which order: each rank tells every
+    /// sender which of its candidates it holds, and the refreshes carry only those rows (the
+    /// shell test leaves out some of what the cut's boxes send). Collective.
     pub(super) fn new(
         comm: World,
         sends: Vec<Vec<(u64, u64)>>,
+        held: &KeySet,
         fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
     ) -> Result<RankGhosts, String> {
+        // How many keys each rank sends here, to split what arrives by its sender.
+        let lens: Vec<Vec<u64>> = sends.iter().map(|s| vec![s.len() as u64]).collect();
+        let from = comm.exchange(&lens)?;
         let lists: Vec<Vec<[u64; 2]>> = (sends.iter())
             .map(|s| s.iter().map(|&(p, id)| [p, id]).collect())
             .collect();
-        let arriving = (comm.exchange(&lists)?.into_iter())
-            .map(|[p, id]| (p, id))
+        let got = comm.exchange(&lists)?;
+        let mut arriving = Vec::new();
+        let mut replies = Vec::with_capacity(from.len());
+        let mut at = 0;
+        for &n in &from {
+            let part = &got[at..at + n as usize];
+            at += n as usize;
+            let mask = part.iter().map(|&[p, id]| {
+                let kept = held.contains(&(p, id));
+                if kept {
+                    arriving.push((p, id));
+                }
+                kept as u8
+            });
+            replies.push(mask.collect::<Vec<u8>>());
+        }
+        // Each rank's answer about the keys sent to it, in rank order.
+        let kept = comm.exchange(&replies)?;
+        let mut at = 0;
+        let sends: Vec<Vec<(u64, u64)>> = (sends.into_iter())
+            .map(|s| {
+                let mask = &kept[at..at + s.len()];
+                at += s.len();
+                (s.into_iter().zip(mask))
+                    .filter(|(_, &k)| k != 0)
+                    .map(|(key, _)| key)
+                    .collect()
+            })
             .collect();
         Ok(RankGhosts {
             send_slots: vec![Vec::new(); sends.len()],
@@ -218,8 +251,11 @@ impl GhostSync for RankGhosts {
             }
         }
         self.recv_slots = (self.arriving.iter())
-            .map(|&key| (table(key), at[table(key)].get(&key).copied()))
-            .collect();
+            .map(|&key| match at[table(key)].get(&key) {
+                Some(&i) => Ok((table(key), Some(i))),
+                None => Err(format!("ghost {key:?} is not held here")),
+            })
+            .collect::<Result<_, String>>()?;
         self.relist();
         Ok(())
     }

@@ -531,7 +531,7 @@ impl RankStepper {
             return Err(failure(world, step, me, &err.unwrap_or_default()));
         }
         let mut eng = built.map_err(|x| x.to_string())?;
-        let sync = RankGhosts::new(world.dup(), keys, self.fail.clone())?;
+        let sync = RankGhosts::new(world.dup(), keys, &ghost_keys, self.fail.clone())?;
         // Built from the records (no layer computed), its ghosts hold their owners' values.
         let fresh = matches!(layer, InitialLayer::FromState);
         if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys, fresh) {
