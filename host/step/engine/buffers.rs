@@ -93,19 +93,7 @@ impl<L: Launcher> Device<L> {
         n: usize,
         out: &mut Vec<f64>,
     ) -> Result<(), GpuError> {
-        if std::any::TypeId::of::<R>() == std::any::TypeId::of::<f64>() {
-            // The same bytes: straight into `out`.
-            assert!(n <= b.len, "download larger than the buffer");
-            out.clear();
-            out.resize(n, 0.0);
-            return self
-                .launcher
-                .download(&b.mem, bytemuck::cast_slice_mut(out));
-        }
-        let v = self.get(b, n)?;
-        out.clear();
-        out.extend(v.into_iter().map(R::to_f64));
-        Ok(())
+        self.get_widened_into(b, n, out, R::to_f64)
     }
     /// [`Device::get_f64_into`] of 3-vectors.
     pub(super) fn get_v3_into<R: Float>(
@@ -114,18 +102,28 @@ impl<L: Launcher> Device<L> {
         n: usize,
         out: &mut Vec<V3>,
     ) -> Result<(), GpuError> {
-        if std::any::TypeId::of::<R>() == std::any::TypeId::of::<f64>() {
-            assert!(n <= b.len, "download larger than the buffer");
+        self.get_widened_into(b, n, out, |v| v.map(R::to_f64))
+    }
+    /// Download `b` into `out` (its allocation reused), each element widened by `widen`: where
+    /// the two types are one (the step in f64) the bytes go straight in.
+    fn get_widened_into<S: Pod, D: Pod>(
+        &self,
+        b: &Buf<L, S>,
+        n: usize,
+        out: &mut Vec<D>,
+        widen: impl Fn(S) -> D,
+    ) -> Result<(), GpuError> {
+        if std::any::TypeId::of::<S>() != std::any::TypeId::of::<D>() {
+            let v = self.get(b, n)?;
             out.clear();
-            out.resize(n, [0.0; 3]);
-            return self
-                .launcher
-                .download(&b.mem, bytemuck::cast_slice_mut(out));
+            out.extend(v.into_iter().map(widen));
+            return Ok(());
         }
-        let v = self.get(b, n)?;
+        assert!(n <= b.len, "download larger than the buffer");
         out.clear();
-        out.extend(v.into_iter().map(|v| v.map(R::to_f64)));
-        Ok(())
+        out.resize(n, D::zeroed());
+        self.launcher
+            .download(&b.mem, bytemuck::cast_slice_mut(out))
     }
     pub(super) fn get_v3<R: Float>(
         &self,
