@@ -133,9 +133,9 @@ pub(super) struct RankGhosts {
     /// Per rank, the (table, slot) of each row sent, after the last sort.
     send_slots: Vec<Vec<(usize, usize)>>,
     /// Per arriving row, its table and its slot here (every arriving row is held).
-    recv_slots: Vec<(usize, Option<usize>)>,
+    recv_slots: Vec<(usize, usize)>,
     /// Per table, the slots of the rows sent (rank by rank) and of the rows written (in the
-    /// order they arrive, those not held left out): [`GhostSync::send_slots`], `recv_slots`.
+    /// order they arrive): [`GhostSync::send_slots`], `recv_slots`.
     send_list: [Vec<u32>; 2],
     recv_list: [Vec<u32>; 2],
     /// Refreshes before one fails (`DUSTSPH_FAIL_IN_STEP`, set per step by the rank's
@@ -222,10 +222,8 @@ impl RankGhosts {
                 self.send_list[k].push(i as u32);
             }
         }
-        for &(k, slot) in &self.recv_slots {
-            if let Some(i) = slot {
-                self.recv_list[k].push(i as u32);
-            }
+        for &(k, i) in &self.recv_slots {
+            self.recv_list[k].push(i as u32);
         }
     }
 }
@@ -252,7 +250,7 @@ impl GhostSync for RankGhosts {
         }
         self.recv_slots = (self.arriving.iter())
             .map(|&key| match at[table(key)].get(&key) {
-                Some(&i) => Ok((table(key), Some(i))),
+                Some(&i) => Ok((table(key), i)),
                 None => Err(format!("ghost {key:?} is not held here")),
             })
             .collect::<Result<_, String>>()?;
@@ -270,10 +268,8 @@ impl GhostSync for RankGhosts {
                 *i = moved(*k, *i)?;
             }
         }
-        for (k, slot) in self.recv_slots.iter_mut() {
-            if let Some(i) = slot {
-                *i = moved(*k, *i)?;
-            }
+        for (k, i) in self.recv_slots.iter_mut() {
+            *i = moved(*k, *i)?;
         }
         self.relist();
         Ok(())
@@ -324,11 +320,9 @@ impl GhostSync for RankGhosts {
             b.clear();
         }
         let mut at = 0;
-        for &(k, slot) in &self.recv_slots {
+        for &(k, _) in &self.recv_slots {
             let r = row[k];
-            if slot.is_some() {
-                back[k].extend_from_slice(&got[at..at + r]);
-            }
+            back[k].extend_from_slice(&got[at..at + r]);
             at += r;
         }
         Ok(())
