@@ -191,10 +191,13 @@ pub mod comm {
             Some(split(&buf, &counts, &displs))
         }
 
-        /// Every rank's bytes, concatenated in rank order, on rank 0 only (`None` elsewhere),
-        /// with where each rank's end: [`World::gather_bytes`] without a copy per rank.
+        /// The other ranks' bytes, concatenated in rank order, on rank 0 only (`None`
+        /// elsewhere), with where each rank's ends (rank 0's run is empty there: it keeps
+        /// `mine`, which is neither copied nor sent). [`World::gather_bytes`] without a copy per
+        /// rank, nor of rank 0's own.
         pub fn gather_runs(&self, mine: &[u8]) -> Option<(Vec<u8>, Vec<usize>)> {
-            let (buf, counts, _) = self.gather_counted(mine)?;
+            let sent = if self.rank() == 0 { &[][..] } else { mine };
+            let (buf, counts, _) = self.gather_counted(sent)?;
             let ends = (counts.iter())
                 .scan(0, |acc, &c| {
                     *acc += c as usize;

@@ -339,7 +339,9 @@ const SHELL_CELL: f64 = 0.5;
 /// (their passes recomputed here); those up to `outer` (one support further) are held fixed at
 /// their owners' values (their density and pressure are exact at the start of the step, so the
 /// stepped halo's forces are too, and no particle with an incomplete neighbourhood enters the
-/// step's maxima); the rest, which no stepped particle reaches, are left out.
+/// step's maxima); the rest, which no stepped particle reaches, are left out. `owned` need
+/// only hold the owned particles that can lie within `outer` of a halo particle (those sent as
+/// halo to its owner).
 pub(super) fn shell(
     owned: &[ParticleRecord],
     halo: &[ParticleRecord],

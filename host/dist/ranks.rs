@@ -802,9 +802,10 @@ impl RankStepper {
         let sends: Vec<ParticleRecord> = to.iter().flatten().map(|&i| owned[i]).collect();
         let counts: Vec<usize> = to.iter().map(Vec::len).collect();
         let halo = world.exchange_flat(&sends, &counts)?;
-        drop(sends);
-        let kept = shell(&owned, &halo, inner, reach, &domain);
-        drop(halo);
+        // Only the owned particles sent as halo can lie within `reach` of one received: an
+        // owned particle within reach of a particle of rank q has a cell of q within its ring.
+        let kept = shell(&sends, &halo, inner, reach, &domain);
+        drop((sends, halo));
         let ghost_keys: KeySet = kept.iter().map(|r| r.key()).collect();
         let n_owned = owned.len();
         let mut local_recs = owned;
@@ -917,8 +918,9 @@ impl RankStepper {
 
     /// [`RankStepper::gather`] of the records `owned`, with, where given, a value per dust
     /// record (`dust`, in the order of the dust records in `owned`) gathered per fraction in
-    /// the state's order. Each rank sorts its records by key (in place) and rank 0 merges the
-    /// ranks' sorted runs, reading each record once, in order.
+    /// the state's order. Each rank sorts its records by key (in place: a copy would add a
+    /// rank's whole share to its peak) and rank 0 merges the ranks' sorted runs, its own read
+    /// where it lies, reading each record once, in order.
     #[allow(clippy::type_complexity)]
     fn gather_of(
         &self,
@@ -927,56 +929,58 @@ impl RankStepper {
         t: f64,
         step: u64,
     ) -> Result<Option<(State, Option<Vec<Vec<f64>>>)>, String> {
-        // Sort the records, and the dust values with their records.
         let mut order: Vec<usize> = (0..owned.len()).collect();
         order.sort_unstable_by_key(|&i| owned[i].key());
+        // The dust values in their records' sorted order.
         let vals: Option<Vec<f64>> = dust.map(|d| {
-            let mut next = d.iter();
-            let of: Vec<Option<f64>> = (owned.iter())
-                .map(|r| {
-                    if r.phase > 0 {
-                        next.next().copied()
-                    } else {
-                        None
-                    }
-                })
-                .collect();
-            order.iter().filter_map(|&i| of[i]).collect()
+            let mut of = vec![0.0; owned.len()];
+            let dust_at = (owned.iter().enumerate()).filter(|(_, r)| r.phase > 0);
+            for ((i, _), &v) in dust_at.zip(d) {
+                of[i] = v;
+            }
+            (order.iter().filter(|&&i| owned[i].phase > 0))
+                .map(|&i| of[i])
+                .collect()
         });
-        let sorted: Vec<ParticleRecord> = order.iter().map(|&i| owned[i]).collect();
-        owned.copy_from_slice(&sorted);
-        drop((sorted, order));
+        permute_in_place(owned, &mut order);
+        drop(order);
         let recs = self.world.gather_runs(bytemuck::cast_slice(owned));
-        let vals = vals.map(|v| self.world.gather_runs(bytemuck::cast_slice(&v)));
+        let vals = vals.map(|v| (self.world.gather_runs(bytemuck::cast_slice(&v)), v));
         let Some((buf, ends)) = recs else {
             return Ok(None);
         };
-        let vals = vals.map(|v| v.expect("rank 0 gathers both"));
         const REC: usize = std::mem::size_of::<ParticleRecord>();
-        let read =
-            |i: usize| bytemuck::pod_read_unaligned::<ParticleRecord>(&buf[i * REC..][..REC]);
-        let value = |b: &[u8], i: usize| bytemuck::pod_read_unaligned::<f64>(&b[i * 8..][..8]);
-        // Each rank's run: its next record and end, and its next dust value.
-        let runs = ends.len();
-        let mut at: Vec<usize> = (0..runs)
-            .map(|r| if r == 0 { 0 } else { ends[r - 1] / REC })
-            .collect();
-        let end: Vec<usize> = ends.iter().map(|e| e / REC).collect();
-        let mut vat: Vec<usize> = match &vals {
-            Some((_, ve)) => (0..runs)
-                .map(|r| if r == 0 { 0 } else { ve[r - 1] / 8 })
-                .collect(),
-            None => Vec::new(),
+        // Each rank's run of records and of dust values: rank 0's own, the others' in the
+        // gathered buffers.
+        let rec_runs = runs_in(bytemuck::cast_slice(owned), &buf, &ends);
+        let val_runs: Option<Vec<&[u8]>> = vals.as_ref().map(|(g, own)| {
+            let (vb, ve) = g.as_ref().expect("rank 0 gathers both");
+            runs_in(bytemuck::cast_slice(own), vb, ve)
+        });
+        let read = |run: &[u8], i: usize| {
+            bytemuck::pod_read_unaligned::<ParticleRecord>(&run[i * REC..][..REC])
         };
+        let value = |run: &[u8], i: usize| bytemuck::pod_read_unaligned::<f64>(&run[i * 8..][..8]);
+        let runs = rec_runs.len();
+        let end: Vec<usize> = rec_runs.iter().map(|b| b.len() / REC).collect();
+        // Each run's next record (read once), its place, and its next dust value.
+        let mut at = vec![0usize; runs];
+        let mut vat = vec![0usize; runs];
+        let mut head: Vec<Option<ParticleRecord>> = (0..runs)
+            .map(|r| (end[r] > 0).then(|| read(rec_runs[r], 0)))
+            .collect();
         let mut per_fraction: Vec<Vec<f64>> = vec![Vec::new(); self.template.dust.len()];
         let merged = std::iter::from_fn(|| {
             let r = (0..runs)
-                .filter(|&r| at[r] < end[r])
-                .min_by_key(|&r| read(at[r]).key())?;
-            let rec = read(at[r]);
+                .filter(|&r| head[r].is_some())
+                .min_by_key(|&r| head[r].map(|h| h.key()))?;
+            let rec = head[r].take().expect("a run's head");
             at[r] += 1;
-            if let (Some((vb, _)), true) = (&vals, rec.phase > 0) {
-                per_fraction[rec.phase as usize - 1].push(value(vb, vat[r]));
+            if at[r] < end[r] {
+                head[r] = Some(read(rec_runs[r], at[r]));
+            }
+            if let (Some(vr), true) = (&val_runs, rec.phase > 0) {
+                per_fraction[rec.phase as usize - 1].push(value(vr[r], vat[r]));
                 vat[r] += 1;
             }
             Some(rec)
@@ -984,7 +988,40 @@ impl RankStepper {
         let mut st = state_from(merged, &self.template);
         st.t = t;
         st.step = step;
-        Ok(Some((st, vals.map(|_| per_fraction))))
+        Ok(Some((st, val_runs.map(|_| per_fraction))))
+    }
+}
+
+/// Each rank's run of a gather: rank 0's `own`, the others' in `buf` (rank r's up to
+/// `ends[r]`, [`World::gather_runs`]).
+fn runs_in<'b>(own: &'b [u8], buf: &'b [u8], ends: &[usize]) -> Vec<&'b [u8]> {
+    (0..ends.len())
+        .map(|r| match r {
+            0 => own,
+            r => &buf[ends[r - 1]..ends[r]],
+        })
+        .collect()
+}
+
+/// `items` rearranged in place so that item k is the one that was at `order[k]` (a
+/// permutation; left undefined). Follows each cycle of the permutation once, one item held.
+fn permute_in_place<T: Copy>(items: &mut [T], order: &mut [usize]) {
+    const DONE: usize = usize::MAX;
+    for start in 0..items.len() {
+        if order[start] == DONE {
+            continue;
+        }
+        let first = items[start];
+        let mut k = start;
+        loop {
+            let from = std::mem::replace(&mut order[k], DONE);
+            if from == start {
+                items[k] = first;
+                break;
+            }
+            items[k] = items[from];
+            k = from;
+        }
     }
 }
 
@@ -1056,7 +1093,28 @@ fn failure(_world: &World, step: u64, me: u32, err: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::relative_motion;
+    use super::{permute_in_place, relative_motion};
+
+    /// The in-place gather sort: item k ends where `order[k]` pointed, for permutations of
+    /// one cycle, many cycles and fixed points.
+    #[test]
+    fn permuting_in_place_puts_each_item_where_the_order_says() {
+        let mut seed = 7u64;
+        for n in [0usize, 1, 2, 5, 64, 1000] {
+            let mut order: Vec<usize> = (0..n).collect();
+            for i in (1..n).rev() {
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                order.swap(i, (seed >> 33) as usize % (i + 1));
+            }
+            let items: Vec<u64> = (0..n as u64).map(|i| i * 10 + 3).collect();
+            let want: Vec<u64> = order.iter().map(|&i| items[i]).collect();
+            let mut got = items.clone();
+            permute_in_place(&mut got, &mut order.clone());
+            assert_eq!(got, want, "n = {n}");
+        }
+    }
 
     /// The bound the halo's rebuild rests on: for displacements d of every particle,
     /// |dᵢ − dⱼ| ≤ 2 · relative_motion for every pair, and under a common drift the bound is
