@@ -72,6 +72,9 @@ pub mod comm {
     use mpi::Count;
     use std::sync::Mutex;
 
+    /// The tag of the messages streamed to rank 0 (the only point-to-point messages).
+    const STREAM_TAG: mpi::Tag = 17;
+
     /// This process's traffic (every communicator of it, duplicates included).
     static TRAFFIC: Mutex<Traffic> = Mutex::new(Traffic {
         exchanges: 0,
@@ -191,20 +194,25 @@ pub mod comm {
             Some(split(&buf, &counts, &displs))
         }
 
-        /// The other ranks' bytes, concatenated in rank order, on rank 0 only (`None`
-        /// elsewhere), with where each rank's ends (rank 0's run is empty there: it keeps
-        /// `mine`, which is neither copied nor sent). [`World::gather_bytes`] without a copy per
-        /// rank, nor of rank 0's own.
-        pub fn gather_runs(&self, mine: &[u8]) -> Option<(Vec<u8>, Vec<usize>)> {
-            let sent = if self.rank() == 0 { &[][..] } else { mine };
-            let (buf, counts, _) = self.gather_counted(sent)?;
-            let ends = (counts.iter())
-                .scan(0, |acc, &c| {
-                    *acc += c as usize;
-                    Some(*acc)
-                })
-                .collect();
-            Some((buf, ends))
+        /// `bytes` to rank 0, one message of an output's stream ([`World::receive_from`]),
+        /// counted as gathered; returns when the buffer may be reused.
+        pub fn send_to_root(&self, bytes: &[u8]) {
+            let start = std::time::Instant::now();
+            let held = real(bytes);
+            (self.world.process_at_rank(0)).send_with_tag(&held[..], STREAM_TAG);
+            count(|t| {
+                t.gather_bytes += bytes.len() as u64;
+                t.gather_seconds += start.elapsed().as_secs_f64();
+            });
+        }
+
+        /// The next message of rank `from`'s stream to rank 0 ([`World::send_to_root`]).
+        pub fn receive_from(&self, from: u32) -> Vec<u8> {
+            let start = std::time::Instant::now();
+            let (got, _) =
+                (self.world.process_at_rank(from as i32)).receive_vec_with_tag::<u8>(STREAM_TAG);
+            count(|t| t.gather_seconds += start.elapsed().as_secs_f64());
+            got
         }
 
         /// The gather, its bytes and time counted: on rank 0 the buffer, every rank's count

@@ -14,7 +14,7 @@
 use super::comm::World;
 use super::halo::{cut, fail_requested, halo_sends, migrate, shell, RankGhosts};
 use super::records::{
-    full_pos, records, records_into, records_where, state_from, state_of, ParticleRecord,
+    full_pos, record_at, records, records_into, records_where, state_from, state_of, ParticleRecord,
 };
 use crate::particles::{KeySet, State};
 use crate::step::backend::{Backend, DeviceChoice};
@@ -343,12 +343,14 @@ impl RankStepper {
     /// stages' times and its own particles (as records).
     fn drop_resident(&mut self) {
         if let Some(r) = self.resident.take() {
+            for &(name, s) in r.eng.timers().entries() {
+                self.timers.add(name, s);
+            }
+            // The engine goes before the records are made: both at once were a rank's peak.
+            drop(r.eng);
             if self.owned_stale {
                 records_into(&r.local, |n, _| !r.flags[n], &mut self.owned);
                 self.owned_stale = false;
-            }
-            for &(name, s) in r.eng.timers().entries() {
-                self.timers.add(name, s);
             }
         }
     }
@@ -888,21 +890,30 @@ impl RankStepper {
         let world = &self.world;
         let ts = (res.eng.dust_stopping_times(&mut res.local))
             .unwrap_or_else(|x| abort_job(world, step, &x));
-        let mut owned = Vec::new();
-        own_records(&res.eng, &res.local, &mut owned);
-        // The own dust particles' stopping times, in the order of their records (the same
-        // filter over the same order: the gas first, then the fractions in turn).
+        // The own particles in key order (phase, index), read where they lie: the engine's
+        // host copy keeps them (the output's dust densities too, which the next steps start
+        // from, as one process's engine does), and their records only pass through the
+        // stream to rank 0, a message at a time.
         let ghost = ghost_flags(&res.eng);
-        let gas = res.local.gas.ph.len();
-        let t_own: Vec<f64> = (ts.iter().flatten().zip(&ghost[gas..]))
-            .filter(|(_, &g)| !g)
-            .map(|(&t_s, _)| t_s)
-            .collect();
-        // The engine's host copy keeps the rank's own particles (the output's dust densities
-        // too, which the next steps start from, as one process's engine does): their records
-        // only pass through the gather.
-        let gathered = self.gather_of(&mut owned, Some(&t_own), t, step)?;
-        drop(owned);
+        let local = &res.local;
+        let mut own: Vec<((u64, u64), u32, u32)> = Vec::with_capacity(ghost.len());
+        let phases = std::iter::once(&local.gas.ph).chain(local.dust.iter());
+        let mut n = 0;
+        for (k, ph) in phases.enumerate() {
+            for i in 0..ph.len() {
+                if !ghost[n] {
+                    own.push(((k as u64, ph.id[i]), k as u32, i as u32));
+                }
+                n += 1;
+            }
+        }
+        drop(ghost);
+        own.sort_unstable_by_key(|o| o.0);
+        let at = |j: usize| {
+            let (k, i) = (own[j].1 as usize, own[j].2 as usize);
+            (record_at(local, k, i), (k > 0).then(|| ts[k - 1][i]))
+        };
+        let gathered = gather_sorted(world, &self.template, own.len(), at, true, (t, step))?;
         self.timers.add(STAGE_OUTPUT, t0.elapsed().as_secs_f64());
         Ok(gathered)
     }
@@ -910,119 +921,134 @@ impl RankStepper {
     /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),
     /// at time `t`, step `step`; `None` on the other ranks. Collective.
     fn gather(&mut self, t: f64, step: u64) -> Result<Option<State>, String> {
-        let mut owned = std::mem::take(&mut self.owned);
-        let st = self.gather_of(&mut owned, None, t, step);
-        self.owned = owned;
-        Ok(st?.map(|(st, _)| st))
-    }
-
-    /// [`RankStepper::gather`] of the records `owned`, with, where given, a value per dust
-    /// record (`dust`, in the order of the dust records in `owned`) gathered per fraction in
-    /// the state's order. Each rank sorts its records by key (in place: a copy would add a
-    /// rank's whole share to its peak) and rank 0 merges the ranks' sorted runs, its own read
-    /// where it lies, reading each record once, in order.
-    #[allow(clippy::type_complexity)]
-    fn gather_of(
-        &self,
-        owned: &mut [ParticleRecord],
-        dust: Option<&[f64]>,
-        t: f64,
-        step: u64,
-    ) -> Result<Option<(State, Option<Vec<Vec<f64>>>)>, String> {
+        let owned = &self.owned;
         let mut order: Vec<usize> = (0..owned.len()).collect();
         order.sort_unstable_by_key(|&i| owned[i].key());
-        // The dust values in their records' sorted order.
-        let vals: Option<Vec<f64>> = dust.map(|d| {
-            let mut of = vec![0.0; owned.len()];
-            let dust_at = (owned.iter().enumerate()).filter(|(_, r)| r.phase > 0);
-            for ((i, _), &v) in dust_at.zip(d) {
-                of[i] = v;
+        let at = |j: usize| (owned[order[j]], None);
+        let st = gather_sorted(
+            &self.world,
+            &self.template,
+            order.len(),
+            at,
+            false,
+            (t, step),
+        );
+        Ok(st?.map(|(st, _)| st))
+    }
+}
+
+/// Records per message of a rank's stream to rank 0 at an output (5.8 MB): no rank holds its
+/// whole share as records for the gather, nor rank 0 every rank's.
+const STREAM_RECORDS: usize = 32 * 1024;
+
+/// [`STREAM_RECORDS`], or `DUSTSPH_STREAM_RECORDS` where set (tests/mpi.rs streams a small
+/// run in many short messages).
+fn stream_records() -> usize {
+    static AT: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *AT.get_or_init(|| {
+        (std::env::var("DUSTSPH_STREAM_RECORDS").ok())
+            .and_then(|v| v.parse().ok())
+            .filter(|&n| n > 0)
+            .unwrap_or(STREAM_RECORDS)
+    })
+}
+
+/// Every rank's particles as one state on rank 0 (phases in order, each by particle id), at
+/// time `t`, step `step`; `None` on the other ranks. Collective. This rank has `n`, `at(j)` the
+/// j-th in key order: its record and, with `values`, a value per dust record (gathered per
+/// fraction in the state's order). Each rank streams its records in key order to rank 0 a
+/// message at a time ([`stream_records`]: records, then the values of the dust among them),
+/// and rank 0 merges the streams with its own, reading each record once, in order.
+#[allow(clippy::type_complexity)]
+fn gather_sorted(
+    world: &World,
+    template: &State,
+    n: usize,
+    at: impl Fn(usize) -> (ParticleRecord, Option<f64>),
+    values: bool,
+    (t, step): (f64, u64),
+) -> Result<Option<(State, Option<Vec<Vec<f64>>>)>, String> {
+    const REC: usize = std::mem::size_of::<ParticleRecord>();
+    let per_msg = stream_records();
+    let Some(counts) = world.gather_bytes(&(n as u64).to_le_bytes()) else {
+        let mut msg = Vec::with_capacity(per_msg.min(n) * (REC + 8));
+        let mut vals = Vec::new();
+        for lo in (0..n).step_by(per_msg) {
+            msg.clear();
+            vals.clear();
+            for j in lo..(lo + per_msg).min(n) {
+                let (rec, v) = at(j);
+                msg.extend_from_slice(bytemuck::bytes_of(&rec));
+                vals.extend(v);
             }
-            (order.iter().filter(|&&i| owned[i].phase > 0))
-                .map(|&i| of[i])
-                .collect()
-        });
-        permute_in_place(owned, &mut order);
-        drop(order);
-        let recs = self.world.gather_runs(bytemuck::cast_slice(owned));
-        let vals = vals.map(|v| (self.world.gather_runs(bytemuck::cast_slice(&v)), v));
-        let Some((buf, ends)) = recs else {
-            return Ok(None);
-        };
-        const REC: usize = std::mem::size_of::<ParticleRecord>();
-        // Each rank's run of records and of dust values: rank 0's own, the others' in the
-        // gathered buffers.
-        let rec_runs = runs_in(bytemuck::cast_slice(owned), &buf, &ends);
-        let val_runs: Option<Vec<&[u8]>> = vals.as_ref().map(|(g, own)| {
-            let (vb, ve) = g.as_ref().expect("rank 0 gathers both");
-            runs_in(bytemuck::cast_slice(own), vb, ve)
-        });
-        let read = |run: &[u8], i: usize| {
-            bytemuck::pod_read_unaligned::<ParticleRecord>(&run[i * REC..][..REC])
-        };
-        let value = |run: &[u8], i: usize| bytemuck::pod_read_unaligned::<f64>(&run[i * 8..][..8]);
-        let runs = rec_runs.len();
-        let end: Vec<usize> = rec_runs.iter().map(|b| b.len() / REC).collect();
-        // Each run's next record (read once), its place, and its next dust value.
-        let mut at = vec![0usize; runs];
-        let mut vat = vec![0usize; runs];
-        let mut head: Vec<Option<ParticleRecord>> = (0..runs)
-            .map(|r| (end[r] > 0).then(|| read(rec_runs[r], 0)))
+            msg.extend_from_slice(bytemuck::cast_slice(&vals));
+            world.send_to_root(&msg);
+        }
+        return Ok(None);
+    };
+    let runs = counts.len();
+    let mut left: Vec<usize> = (counts.iter())
+        .map(|b| u64::from_le_bytes(b[..8].try_into().expect("a count")) as usize)
+        .collect();
+    left[0] = 0;
+    let mut own_at = 0;
+    let mut pending: Vec<std::vec::IntoIter<(ParticleRecord, Option<f64>)>> =
+        (0..runs).map(|_| Vec::new().into_iter()).collect();
+    // A run's next record: rank 0's own read where it lies, the others' from their streams
+    // (a malformed message stops the job: the other ranks have gone on to the next step).
+    let mut pull = |r: usize| -> Option<(ParticleRecord, Option<f64>)> {
+        if r == 0 {
+            own_at += 1;
+            return (own_at <= n).then(|| at(own_at - 1));
+        }
+        if let Some(x) = pending[r].next() {
+            return Some(x);
+        }
+        if left[r] == 0 {
+            return None;
+        }
+        let k = left[r].min(per_msg);
+        left[r] -= k;
+        let msg = world.receive_from(r as u32);
+        let recs: Vec<ParticleRecord> = (0..k)
+            .map(|i| bytemuck::pod_read_unaligned(&msg[i * REC..][..REC]))
             .collect();
-        let mut per_fraction: Vec<Vec<f64>> = vec![Vec::new(); self.template.dust.len()];
-        let merged = std::iter::from_fn(|| {
-            let r = (0..runs)
-                .filter(|&r| head[r].is_some())
-                .min_by_key(|&r| head[r].map(|h| h.key()))?;
-            let rec = head[r].take().expect("a run's head");
-            at[r] += 1;
-            if at[r] < end[r] {
-                head[r] = Some(read(rec_runs[r], at[r]));
-            }
-            if let (Some(vr), true) = (&val_runs, rec.phase > 0) {
-                per_fraction[rec.phase as usize - 1].push(value(vr[r], vat[r]));
-                vat[r] += 1;
-            }
-            Some(rec)
-        });
-        let mut st = state_from(merged, &self.template);
-        st.t = t;
-        st.step = step;
-        Ok(Some((st, val_runs.map(|_| per_fraction))))
-    }
-}
-
-/// Each rank's run of a gather: rank 0's `own`, the others' in `buf` (rank r's up to
-/// `ends[r]`, [`World::gather_runs`]).
-fn runs_in<'b>(own: &'b [u8], buf: &'b [u8], ends: &[usize]) -> Vec<&'b [u8]> {
-    (0..ends.len())
-        .map(|r| match r {
-            0 => own,
-            r => &buf[ends[r - 1]..ends[r]],
-        })
-        .collect()
-}
-
-/// `items` rearranged in place so that item k is the one that was at `order[k]` (a
-/// permutation; left undefined). Follows each cycle of the permutation once, one item held.
-fn permute_in_place<T: Copy>(items: &mut [T], order: &mut [usize]) {
-    const DONE: usize = usize::MAX;
-    for start in 0..items.len() {
-        if order[start] == DONE {
-            continue;
+        let dust = recs.iter().filter(|x| x.phase > 0).count();
+        let want = k * REC + if values { 8 * dust } else { 0 };
+        if msg.len() != want {
+            let why = format!(
+                "rank {r}'s output stream sent {} bytes where {k} records need {want}",
+                msg.len()
+            );
+            abort_job(world, step, &why);
         }
-        let first = items[start];
-        let mut k = start;
-        loop {
-            let from = std::mem::replace(&mut order[k], DONE);
-            if from == start {
-                items[k] = first;
-                break;
-            }
-            items[k] = items[from];
-            k = from;
-        }
+        let mut v = (msg[k * REC..].chunks_exact(8)).map(bytemuck::pod_read_unaligned);
+        let items: Vec<_> = (recs.into_iter())
+            .map(|x| (x, (values && x.phase > 0).then(|| v.next()).flatten()))
+            .collect();
+        pending[r] = items.into_iter();
+        pending[r].next()
+    };
+    let mut head = Vec::with_capacity(runs);
+    for r in 0..runs {
+        head.push(pull(r));
     }
+    let mut per_fraction: Vec<Vec<f64>> = vec![Vec::new(); template.dust.len()];
+    let merged = std::iter::from_fn(|| {
+        let r = (0..runs)
+            .filter(|&r| head[r].is_some())
+            .min_by_key(|&r| head[r].map(|h| h.0.key()))?;
+        let (rec, v) = head[r].take().expect("a run's head");
+        head[r] = pull(r);
+        if let Some(v) = v {
+            per_fraction[rec.phase as usize - 1].push(v);
+        }
+        Some(rec)
+    });
+    let mut st = state_from(merged, template);
+    st.t = t;
+    st.step = step;
+    Ok(Some((st, values.then_some(per_fraction))))
 }
 
 /// The step the planner's rule gives from the maxima over all ranks (`limits`: the forces',
@@ -1045,13 +1071,6 @@ fn take_planned(
     };
     e.take(local, &p)?;
     Ok(p)
-}
-
-/// The rank's own particles of its engine's synced `local` state, as records: those its
-/// engine does not flag as ghosts.
-fn own_records(eng: &Backend, local: &State, out: &mut Vec<ParticleRecord>) {
-    let ghost = ghost_flags(eng);
-    records_into(local, |n, _| !ghost[n], out);
 }
 
 /// The largest displacement that two particles' relative position can have taken, from every
@@ -1093,28 +1112,7 @@ fn failure(_world: &World, step: u64, me: u32, err: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{permute_in_place, relative_motion};
-
-    /// The in-place gather sort: item k ends where `order[k]` pointed, for permutations of
-    /// one cycle, many cycles and fixed points.
-    #[test]
-    fn permuting_in_place_puts_each_item_where_the_order_says() {
-        let mut seed = 7u64;
-        for n in [0usize, 1, 2, 5, 64, 1000] {
-            let mut order: Vec<usize> = (0..n).collect();
-            for i in (1..n).rev() {
-                seed = seed
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                order.swap(i, (seed >> 33) as usize % (i + 1));
-            }
-            let items: Vec<u64> = (0..n as u64).map(|i| i * 10 + 3).collect();
-            let want: Vec<u64> = order.iter().map(|&i| items[i]).collect();
-            let mut got = items.clone();
-            permute_in_place(&mut got, &mut order.clone());
-            assert_eq!(got, want, "n = {n}");
-        }
-    }
+    use super::relative_motion;
 
     /// The bound the halo's rebuild rests on: for displacements d of every particle,
     /// |dᵢ − dⱼ| ≤ 2 · relative_motion for every pair, and under a common drift the bound is

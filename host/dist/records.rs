@@ -105,32 +105,37 @@ pub fn records_into(
     {
         for i in 0..ph.len() {
             n += 1;
-            if !keep(n - 1, (k as u64, ph.id[i])) {
-                continue;
+            if keep(n - 1, (k as u64, ph.id[i])) {
+                out.push(record_at(st, k, i));
             }
-            let mut r = ParticleRecord::of(k, ph, i);
-            if k == 0 {
-                let g = &st.gas;
-                if let Some(e) = &g.e {
-                    r.e = e[i];
-                }
-                if let (Some(h), Some(o)) = (&g.h, &g.omega) {
-                    r.flags |= ParticleRecord::HAS_H;
-                    r.h = h[i];
-                    r.omega = o[i];
-                }
-                if g.p.len() == ph.len() && g.c.len() == ph.len() {
-                    r.p = g.p[i];
-                    r.c = g.c[i];
-                }
-                if let Some(f) = &g.next_forces {
-                    r.flags |= ParticleRecord::HAS_CLOSING_FORCES;
-                    r.closing_forces = f[i];
-                }
-            }
-            out.push(r);
         }
     }
+}
+
+/// The record of particle i of phase k (0 the gas, then each dust fraction) of a state.
+pub fn record_at(st: &State, k: usize, i: usize) -> ParticleRecord {
+    let ph = if k == 0 { &st.gas.ph } else { &st.dust[k - 1] };
+    let mut r = ParticleRecord::of(k, ph, i);
+    if k == 0 {
+        let g = &st.gas;
+        if let Some(e) = &g.e {
+            r.e = e[i];
+        }
+        if let (Some(h), Some(o)) = (&g.h, &g.omega) {
+            r.flags |= ParticleRecord::HAS_H;
+            r.h = h[i];
+            r.omega = o[i];
+        }
+        if g.p.len() == ph.len() && g.c.len() == ph.len() {
+            r.p = g.p[i];
+            r.c = g.c[i];
+        }
+        if let Some(f) = &g.next_forces {
+            r.flags |= ParticleRecord::HAS_CLOSING_FORCES;
+            r.closing_forces = f[i];
+        }
+    }
+    r
 }
 
 /// A state from records (phases in order; `template` gives the phase count and whether the
