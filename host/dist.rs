@@ -187,8 +187,9 @@ pub mod comm {
             split(&buf[..total], &counts, &displs)
         }
 
-        /// Every rank's bytes, in rank order, on rank 0 only (`None` elsewhere): the output's
-        /// gather (MPI_Gatherv; the other ranks receive nothing).
+        /// Every rank's bytes, in rank order, on rank 0 only (`None` elsewhere): small gathers
+        /// (an output stream's counts, `mpi-check`'s states; MPI_Gatherv, the other ranks
+        /// receive nothing).
         pub fn gather_bytes(&self, mine: &[u8]) -> Option<Vec<Vec<u8>>> {
             let (buf, counts, displs) = self.gather_counted(mine)?;
             Some(split(&buf, &counts, &displs))
