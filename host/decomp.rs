@@ -344,19 +344,7 @@ mod tests {
 
     /// 16³ cells of 8 particles each.
     fn cube(periodic: bool) -> Cells {
-        let n = 16u32;
-        let pts = (0..n).flat_map(move |x| {
-            (0..n).flat_map(move |y| {
-                (0..n).flat_map(move |z| {
-                    (0..8u32).map(move |k| {
-                        let o = [k & 1, (k >> 1) & 1, k >> 2].map(|b| 0.25 + 0.5 * b as f64);
-                        [x as f64 + o[0], y as f64 + o[1], z as f64 + o[2]]
-                    })
-                })
-            })
-        });
-        let hi = if periodic { 16.0 } else { 15.999 };
-        Cells::bin(pts, CellBox::new([0.0; 3], [hi; 3], 1.0, [periodic; 3]))
+        cube_of(16, periodic)
     }
 
     /// A uniform cube cut in two along the curve: the halves are the two z halves (the top
@@ -388,13 +376,14 @@ mod tests {
     /// `cells` per axis of 8 particles each, on [0, cells)³, with `extra` more particles in
     /// the first cell.
     fn uniform(cells: u32, extra: u32) -> Cells {
-        let mut c = cube_of(cells);
+        let mut c = cube_of(cells, false);
         c.count[0] += extra;
         c.total += extra as u64;
         c
     }
 
-    fn cube_of(n: u32) -> Cells {
+    /// n³ cells of 8 particles each, on [0, n)³.
+    fn cube_of(n: u32, periodic: bool) -> Cells {
         let pts = (0..n).flat_map(move |x| {
             (0..n).flat_map(move |y| {
                 (0..n).flat_map(move |z| {
@@ -405,8 +394,8 @@ mod tests {
                 })
             })
         });
-        let hi = n as f64 - 0.001;
-        Cells::bin(pts, CellBox::new([0.0; 3], [hi; 3], 1.0, [false; 3]))
+        let hi = if periodic { n as f64 } else { n as f64 - 0.001 };
+        Cells::bin(pts, CellBox::new([0.0; 3], [hi; 3], 1.0, [periodic; 3]))
     }
 
     /// A cube of 12 cells a side (no power of two) is cut in two through its middle: the
@@ -415,7 +404,7 @@ mod tests {
     /// would hold z < 8, two thirds of the cube, and the cut would run jagged inside it).
     #[test]
     fn a_cube_of_any_cell_count_is_cut_through_its_middle() {
-        let p = Partition::of(&cube_of(12), 2);
+        let p = Partition::of(&cube_of(12, false), 2);
         assert_eq!(p.owned, vec![8 * 864, 8 * 864]);
         assert_eq!(p.halo, vec![8 * 144, 8 * 144], "{:?}", p.halo);
     }
