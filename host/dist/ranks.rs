@@ -1010,17 +1010,23 @@ fn gather_sorted(
         let k = left[r].min(per_msg);
         left[r] -= k;
         let msg = world.receive_from(r as u32);
+        let malformed = |want: usize| -> ! {
+            let why = format!(
+                "rank {r}'s output stream sent {} bytes where {k} records need {want}",
+                msg.len()
+            );
+            abort_job(world, step, &why)
+        };
+        if msg.len() < k * REC {
+            malformed(k * REC);
+        }
         let recs: Vec<ParticleRecord> = (0..k)
             .map(|i| bytemuck::pod_read_unaligned(&msg[i * REC..][..REC]))
             .collect();
         let dust = recs.iter().filter(|x| x.phase > 0).count();
         let want = k * REC + if values { 8 * dust } else { 0 };
         if msg.len() != want {
-            let why = format!(
-                "rank {r}'s output stream sent {} bytes where {k} records need {want}",
-                msg.len()
-            );
-            abort_job(world, step, &why);
+            malformed(want);
         }
         let mut v = (msg[k * REC..].chunks_exact(8)).map(bytemuck::pod_read_unaligned);
         let items: Vec<_> = (recs.into_iter())
