@@ -913,7 +913,7 @@ impl RankStepper {
             let (k, i) = (own[j].1 as usize, own[j].2 as usize);
             (record_at(local, k, i), (k > 0).then(|| ts[k - 1][i]))
         };
-        let gathered = gather_sorted(world, &self.template, own.len(), at, true, (t, step))?;
+        let gathered = gather_sorted(world, &self.template, own.len(), at, true, (t, step));
         self.timers.add(STAGE_OUTPUT, t0.elapsed().as_secs_f64());
         Ok(gathered)
     }
@@ -933,7 +933,7 @@ impl RankStepper {
             false,
             (t, step),
         );
-        Ok(st?.map(|(st, _)| st))
+        Ok(st.map(|(st, _)| st))
     }
 }
 
@@ -967,7 +967,7 @@ fn gather_sorted(
     at: impl Fn(usize) -> (ParticleRecord, Option<f64>),
     values: bool,
     (t, step): (f64, u64),
-) -> Result<Option<(State, Option<Vec<Vec<f64>>>)>, String> {
+) -> Option<(State, Option<Vec<Vec<f64>>>)> {
     const REC: usize = std::mem::size_of::<ParticleRecord>();
     let per_msg = stream_records();
     let Some(counts) = world.gather_bytes(&(n as u64).to_le_bytes()) else {
@@ -984,7 +984,7 @@ fn gather_sorted(
             msg.extend_from_slice(bytemuck::cast_slice(&vals));
             world.send_to_root(&msg);
         }
-        return Ok(None);
+        return None;
     };
     let runs = counts.len();
     let mut left: Vec<usize> = (counts.iter())
@@ -1054,7 +1054,7 @@ fn gather_sorted(
     let mut st = state_from(merged, template);
     st.t = t;
     st.step = step;
-    Ok(Some((st, values.then_some(per_fraction))))
+    Some((st, values.then_some(per_fraction)))
 }
 
 /// The step the planner's rule gives from the maxima over all ranks (`limits`: the forces',
