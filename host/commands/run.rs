@@ -301,15 +301,14 @@ impl Run {
     pub fn finish(mut self) -> Result<(Summary, State), RunError> {
         let wall = self.checkpoints.wall_before + self.checkpoints.started.elapsed().as_secs_f64();
         let ball = self.ball.take().map(|b| b.record);
-        let s = summary::finish(
-            &mut self.sim,
+        summary::finish(
+            self.sim,
             &self.loaded,
             &self.outputs.dir,
             std::mem::take(&mut self.outputs.record),
             ball,
             wall,
-        )?;
-        Ok((s, self.sim.state))
+        )
     }
 }
 

@@ -283,6 +283,11 @@ impl GhostSync for RankGhosts {
         &self.recv_list[table]
     }
 
+    fn trim(&mut self) {
+        self.send_buf = Vec::new();
+        self.recv_buf = Vec::new();
+    }
+
     fn refresh(
         &mut self,
         row: [usize; 2],

@@ -913,7 +913,11 @@ impl RankStepper {
             let (k, i) = (own[j].1 as usize, own[j].2 as usize);
             (record_at(local, k, i), (k > 0).then(|| ts[k - 1][i]))
         };
-        let gathered = gather_sorted(world, &self.template, own.len(), at, true, (t, step));
+        let mut counts = vec![0u64; 1 + local.dust.len()];
+        for o in &own {
+            counts[o.1 as usize] += 1;
+        }
+        let gathered = gather_sorted(world, &self.template, &counts, at, true, (t, step));
         self.timers.add(STAGE_OUTPUT, t0.elapsed().as_secs_f64());
         Ok(gathered)
     }
@@ -925,14 +929,11 @@ impl RankStepper {
         let mut order: Vec<usize> = (0..owned.len()).collect();
         order.sort_unstable_by_key(|&i| owned[i].key());
         let at = |j: usize| (owned[order[j]], None);
-        let st = gather_sorted(
-            &self.world,
-            &self.template,
-            order.len(),
-            at,
-            false,
-            (t, step),
-        );
+        let mut counts = vec![0u64; 1 + self.template.dust.len()];
+        for r in owned {
+            counts[r.phase as usize] += 1;
+        }
+        let st = gather_sorted(&self.world, &self.template, &counts, at, false, (t, step));
         Ok(st.map(|(st, _)| st))
     }
 }
@@ -963,14 +964,15 @@ fn stream_records() -> usize {
 fn gather_sorted(
     world: &World,
     template: &State,
-    n: usize,
+    phase_counts: &[u64],
     at: impl Fn(usize) -> (ParticleRecord, Option<f64>),
     values: bool,
     (t, step): (f64, u64),
 ) -> Option<(State, Option<Vec<Vec<f64>>>)> {
     const REC: usize = std::mem::size_of::<ParticleRecord>();
     let per_msg = stream_records();
-    let Some(counts) = world.gather_bytes(&(n as u64).to_le_bytes()) else {
+    let n = phase_counts.iter().sum::<u64>() as usize;
+    let Some(counts) = world.gather_bytes(bytemuck::cast_slice(phase_counts)) else {
         let mut msg = Vec::with_capacity(per_msg.min(n) * (REC + 8));
         let mut vals = Vec::new();
         for lo in (0..n).step_by(per_msg) {
@@ -987,9 +989,21 @@ fn gather_sorted(
         return None;
     };
     let runs = counts.len();
-    let mut left: Vec<usize> = (counts.iter())
-        .map(|b| u64::from_le_bytes(b[..8].try_into().expect("a count")) as usize)
-        .collect();
+    // Each rank's count per phase: the whole state's columns are allocated at their size.
+    let per_phase = |b: &Vec<u8>| -> Vec<usize> {
+        (b.chunks_exact(8))
+            .map(|c| u64::from_le_bytes(c.try_into().expect("a count")) as usize)
+            .collect()
+    };
+    let mut totals = vec![0usize; phase_counts.len()];
+    let mut left: Vec<usize> = Vec::with_capacity(runs);
+    for b in &counts {
+        let c = per_phase(b);
+        for (t, x) in totals.iter_mut().zip(&c) {
+            *t += x;
+        }
+        left.push(c.iter().sum());
+    }
     left[0] = 0;
     let mut own_at = 0;
     let mut pending: Vec<std::vec::IntoIter<(ParticleRecord, Option<f64>)>> =
@@ -1039,7 +1053,9 @@ fn gather_sorted(
     for r in 0..runs {
         head.push(pull(r));
     }
-    let mut per_fraction: Vec<Vec<f64>> = vec![Vec::new(); template.dust.len()];
+    let mut per_fraction: Vec<Vec<f64>> = (1..totals.len())
+        .map(|k| Vec::with_capacity(if values { totals[k] } else { 0 }))
+        .collect();
     let merged = std::iter::from_fn(|| {
         let r = (0..runs)
             .filter(|&r| head[r].is_some())
@@ -1051,7 +1067,7 @@ fn gather_sorted(
         }
         Some(rec)
     });
-    let mut st = state_from(merged, template);
+    let mut st = state_from(merged, template, &totals);
     st.t = t;
     st.step = step;
     Some((st, values.then_some(per_fraction)))

@@ -141,17 +141,45 @@ pub fn record_at(st: &State, k: usize, i: usize) -> ParticleRecord {
 /// A state from records (phases in order; `template` gives the phase count and whether the
 /// gas has an energy or fixed particles).
 pub fn state_of(recs: &[ParticleRecord], template: &State) -> State {
-    state_from(recs.iter().copied(), template)
+    let mut counts = vec![0; 1 + template.dust.len()];
+    for r in recs {
+        counts[r.phase as usize] += 1;
+    }
+    state_from(recs.iter().copied(), template, &counts)
 }
 
-/// [`state_of`] from records read one by one.
-pub fn state_from(recs: impl Iterator<Item = ParticleRecord>, template: &State) -> State {
+/// [`state_of`] from records read one by one, `counts[k]` of phase k: each column allocated
+/// once at its size (grown by doubling, a state built at an output took up to twice its
+/// size).
+pub fn state_from(
+    recs: impl Iterator<Item = ParticleRecord>,
+    template: &State,
+    counts: &[usize],
+) -> State {
     let nph = 1 + template.dust.len();
-    let mut phases: Vec<Phase> = (0..nph).map(|_| Phase::default()).collect();
-    let mut fixed: Vec<Vec<bool>> = vec![Vec::new(); nph];
-    let mut e = Vec::new();
-    let (mut h, mut omega, mut nf) = (Vec::new(), Vec::new(), Vec::new());
-    let (mut pres, mut cs) = (Vec::new(), Vec::new());
+    let mut phases: Vec<Phase> = (0..nph)
+        .map(|k| {
+            let n = counts.get(k).copied().unwrap_or(0);
+            Phase {
+                id: Vec::with_capacity(n),
+                x: Vec::with_capacity(n),
+                v: Vec::with_capacity(n),
+                m: Vec::with_capacity(n),
+                rho: Vec::with_capacity(n),
+                ..Phase::default()
+            }
+        })
+        .collect();
+    let mut fixed: Vec<Vec<bool>> = (0..nph)
+        .map(|k| Vec::with_capacity(counts.get(k).copied().unwrap_or(0)))
+        .collect();
+    let gas = || Vec::with_capacity(counts.first().copied().unwrap_or(0));
+    let has_e = template.gas.e.is_some();
+    let mut e = if has_e { gas() } else { Vec::new() };
+    let (mut pres, mut cs) = (gas(), gas());
+    // The solved h and Ω and the closing forces only while every gas record has them.
+    let (mut h, mut omega) = (gas(), gas());
+    let mut nf: Vec<[f64; 5]> = Vec::with_capacity(counts.first().copied().unwrap_or(0));
     let (mut all_h, mut all_nf) = (true, true);
     let mut some_gas = false;
     for r in recs {
@@ -165,19 +193,30 @@ pub fn state_from(recs: impl Iterator<Item = ParticleRecord>, template: &State) 
         ph.rho.push(r.rho);
         fixed[k].push(r.fixed != 0);
         if k == 0 {
-            e.push(r.e);
-            all_h &= r.flags & ParticleRecord::HAS_H != 0;
-            all_nf &= r.flags & ParticleRecord::HAS_CLOSING_FORCES != 0;
-            h.push(r.h);
-            omega.push(r.omega);
-            nf.push(r.closing_forces);
+            if has_e {
+                e.push(r.e);
+            }
             pres.push(r.p);
             cs.push(r.c);
+            if all_h && r.flags & ParticleRecord::HAS_H != 0 {
+                h.push(r.h);
+                omega.push(r.omega);
+            } else if all_h {
+                all_h = false;
+                (h, omega) = (Vec::new(), Vec::new());
+            }
+            if all_nf && r.flags & ParticleRecord::HAS_CLOSING_FORCES != 0 {
+                nf.push(r.closing_forces);
+            } else if all_nf {
+                all_nf = false;
+                nf = Vec::new();
+            }
         }
     }
     // Fixed particles: the scene's walls, and the halo's outer shell.
-    let with_fixed = |k: usize, t: &Phase| {
-        (t.fixed.is_some() || fixed[k].iter().any(|&f| f)).then(|| fixed[k].clone())
+    let mut with_fixed = |k: usize, t: &Phase| {
+        let f = std::mem::take(&mut fixed[k]);
+        (t.fixed.is_some() || f.iter().any(|&f| f)).then_some(f)
     };
     let mut gas_ph = std::mem::take(&mut phases[0]);
     gas_ph.fixed = with_fixed(0, &template.gas.ph);
@@ -205,5 +244,61 @@ pub fn state_from(recs: impl Iterator<Item = ParticleRecord>, template: &State) 
             c: cs,
         },
         dust,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{records, state_of};
+    use crate::particles::{Gas, Phase, State};
+
+    fn phase(n: usize, x0: f64) -> Phase {
+        Phase {
+            x: (0..n).map(|i| [x0 + i as f64, 0.5, -0.25]).collect(),
+            v: (0..n).map(|i| [0.1 * i as f64, -1.0, 2.0]).collect(),
+            m: vec![0.01; n],
+            rho: (0..n).map(|i| 1.0 + i as f64).collect(),
+            id: (0..n as u64).collect(),
+            fixed: None,
+        }
+    }
+
+    /// A state made into records and back is the same state, and each of its columns is
+    /// allocated once at its size (a state gathered at an output is built this way: grown by
+    /// doubling it held up to twice its size).
+    #[test]
+    fn records_round_trip_into_columns_allocated_at_their_size() {
+        let n = 1000;
+        let st = State {
+            t: 0.5,
+            step: 7,
+            gas: Gas {
+                ph: phase(n, 0.0),
+                p: vec![2.0; n],
+                c: vec![1.5; n],
+                e: Some(vec![3.0; n]),
+                h: Some(vec![0.02; n]),
+                omega: Some(vec![1.01; n]),
+                next_forces: None,
+            },
+            dust: vec![phase(300, -5.0), phase(77, 9.0)],
+        };
+        let back = state_of(&records(&st), &st.shape());
+        assert_eq!(back.gas, st.gas);
+        assert_eq!(back.dust, st.dust);
+        let exact = |len: usize, cap: usize| assert_eq!(len, cap, "a column's capacity");
+        for ph in std::iter::once(&back.gas.ph).chain(&back.dust) {
+            exact(ph.x.len(), ph.x.capacity());
+            exact(ph.v.len(), ph.v.capacity());
+            exact(ph.m.len(), ph.m.capacity());
+            exact(ph.rho.len(), ph.rho.capacity());
+            exact(ph.id.len(), ph.id.capacity());
+        }
+        let g = &back.gas;
+        exact(g.p.len(), g.p.capacity());
+        exact(g.c.len(), g.c.capacity());
+        for col in [&g.e, &g.h, &g.omega].into_iter().flatten() {
+            exact(col.len(), col.capacity());
+        }
     }
 }

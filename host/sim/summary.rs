@@ -193,21 +193,33 @@ fn radius_estimate(phs: &[&crate::particles::Phase]) -> f64 {
     }
 }
 
-/// The run's summary from the simulation (synced), its outputs and its ball checks; for the
-/// ball the profiles and figures of the last snapshot are made here. Written to
-/// `DIR/summary.json` by rank 0.
+/// The run's summary from the simulation, its outputs and its ball checks, with the final
+/// state (over ranks, gathered on rank 0); for the ball the profiles and figures of the last
+/// snapshot are made here, after the engines are dropped (the post-processing reads the whole
+/// snapshot: with an engine alive beside it, the end of a run would be its peak of memory).
+/// Written to `DIR/summary.json` by rank 0.
 pub fn finish(
-    sim: &mut Simulation,
+    mut sim: Simulation,
     loaded: &LoadedScene,
     dir: &Path,
     outputs: OutputRecord,
     ball: Option<BallRecord>,
     wall: f64,
-) -> Result<Summary, RunError> {
+) -> Result<(Summary, crate::particles::State), RunError> {
     sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
     let scene = &loaded.scene;
-    let state = &sim.state;
     let root = sim.is_root();
+    let phys = sim.stepper.phys().clone();
+    let timers = sim.stepper.timers();
+    let backend = sim.stepper.describe();
+    let rank_traffic = sim.stepper.traffic();
+    let Simulation {
+        state,
+        stepper,
+        diagnostics: d,
+        ..
+    } = sim;
+    drop(stepper);
     let post = match (scene.ball(), outputs.snapshots.last()) {
         (Some(_), Some(last)) if root => Some(
             crate::commands::profile::post_process(&dir.join(last), 100)
@@ -228,9 +240,6 @@ pub fn finish(
         radius_estimate_gas: radius_estimate(&[&state.gas.ph]),
         radius_estimate_dust: radius_estimate(&state.dust.iter().collect::<Vec<_>>()),
     });
-    let d = &sim.diagnostics;
-    let phys = sim.stepper.phys();
-    let timers = sim.stepper.timers();
     let summary = Summary {
         code: "dustsph",
         version: env!("CARGO_PKG_VERSION"),
@@ -250,7 +259,7 @@ pub fn finish(
             density_g_per_cm3: u.mass_g / u.length_cm.powi(3),
         }),
         dimension: scene.dim(),
-        backend: sim.stepper.describe(),
+        backend,
         precision: phys.precision.name(),
         particles: d.counts.clone(),
         h: phys.h,
@@ -276,16 +285,16 @@ pub fn finish(
         cfl_max: d.cfl_max,
         wall_seconds: wall,
         particle_steps_per_second: d.counts.total() as f64 * state.step as f64 / wall.max(1e-12),
-        conservation: conservation(d, state, phys),
+        conservation: conservation(&d, &state, &phys),
         errors: outputs.errors,
         snapshots: outputs.snapshots,
         stage_seconds: timers.entries().to_vec(),
-        rank_traffic: sim.stepper.traffic(),
+        rank_traffic,
         ball,
     };
     if root {
         io::write_json_atomic(&dir.join("summary.json"), &summary)
             .map_err(|e| RunError::Io(e.to_string()))?;
     }
-    Ok(summary)
+    Ok((summary, state))
 }

@@ -188,6 +188,9 @@ pub trait GhostSync: Send {
         out: [&[u8]; 2],
         back: &mut [Vec<u8>; 2],
     ) -> Result<(), String>;
+    /// Free the buffers kept across refreshes (after a refresh of every field, which the
+    /// named ones never reach).
+    fn trim(&mut self) {}
 }
 
 /// The ghosts of an engine: the refresh, the ghosts' keys, and per phase a mask (fixed or ghost)
@@ -291,7 +294,14 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         if fresh {
             return Ok(());
         }
-        self.ghost_sync(&Refresh::EVERYTHING)
+        self.ghost_sync(&Refresh::EVERYTHING)?;
+        // Every field's rows are several times a named refresh's: kept, they would hold the
+        // largest buffers of the run for as long as this engine lives.
+        let g = self.ghosts_mut();
+        g.rows = Default::default();
+        g.host_rows = Default::default();
+        g.sync.trim();
+        Ok(())
     }
 
     /// The ghost flags and the sync's slots after a sort of the same particles: moved by the
