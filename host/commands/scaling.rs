@@ -6,10 +6,10 @@ use crate::decomp::{CellBox, Cells, Partition};
 
 /// Bytes a ghost receives per step, and the exchanges a step takes (the named refreshes, and
 /// the builds' share), as measured over 2 ranks on the Phantom slab `sph.n=128` (leapfrog,
-/// variable h, IAD, f64: `summary.json` `rank_traffic`, 1.41 MB per step from rank 0 to
-/// rank 1's ≈3 100 ghosts, 131 exchanges in 20 steps; docs/scaling.md "Measured"): the
-/// defaults of `--halo-bytes` and `--exchanges`.
-pub const HALO_BYTES_F64: f64 = 450.0;
+/// variable h, IAD, f64: `summary.json` `rank_traffic`, 0.62 MB per step from each rank to
+/// the other's ≈1 840 ghosts, a halo of 0.10 × 18 432, 133 exchanges in 20 steps;
+/// docs/scaling.md "Measured costs"): the defaults of `--halo-bytes` and `--exchanges`.
+pub const HALO_BYTES_F64: f64 = 340.0;
 pub const EXCHANGES: f64 = 6.5;
 /// The message latency assumed per peer and exchange.
 pub const LATENCY_S: f64 = 2e-6;
