@@ -247,6 +247,26 @@ impl<'a> Columns<'a> {
     /// Concatenates the dust fractions. A fraction without stopping times gets NaN ("not
     /// available") when another fraction has them, so the column stays aligned.
     fn dust(fractions: &[PhaseView<'a>], path: &Path) -> Result<Self, IoError> {
+        if let [f] = fractions {
+            // One fraction: its columns as they are (a copy of each beside the state was part
+            // of the peak memory of a run's output).
+            let h = match f.h_each {
+                Some(he) => he.iter().map(|h| SMOOTHING_LENGTH_PER_H * h).collect(),
+                None => vec![SMOOTHING_LENGTH_PER_H * f.h; f.len()],
+            };
+            return Ok(Columns {
+                x: Cow::Borrowed(f.x),
+                v: Cow::Borrowed(f.v),
+                m: Cow::Borrowed(f.m),
+                rho: Cow::Borrowed(f.rho),
+                h,
+                id: Cow::Borrowed(f.id),
+                e: None,
+                p: None,
+                t_stop: f.t_stop.map(Cow::Borrowed),
+                fraction: Some(vec![0; f.len()]),
+            });
+        }
         let n: usize = fractions.iter().map(PhaseView::len).sum();
         let any_t_stop = fractions.iter().any(|f| f.t_stop.is_some());
         let (mut x, mut v) = (Vec::with_capacity(n), Vec::with_capacity(n));
@@ -299,12 +319,10 @@ impl<'a> Columns<'a> {
     /// Positions in the file's frame.
     fn shift(mut self, f: &Frame) -> Self {
         let o = f.offset;
-        self.x = Cow::Owned(
-            self.x
-                .iter()
-                .map(|x| [x[0] - o[0], x[1] - o[1], x[2] - o[2]])
-                .collect(),
-        );
+        // In place where the columns own their positions (copied once where they borrow).
+        for x in self.x.to_mut() {
+            *x = [x[0] - o[0], x[1] - o[1], x[2] - o[2]];
+        }
         self
     }
 }
