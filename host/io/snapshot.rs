@@ -70,6 +70,16 @@ impl PhaseView<'_> {
         self.x.is_empty()
     }
 
+    /// Each particle's `SmoothingLength` (2h: its own h where h varies, else the global one).
+    fn smoothing_lengths(&self) -> impl Iterator<Item = f64> + '_ {
+        let each = self.h_each.map(|he| he.iter().copied());
+        let global = std::iter::repeat_n(self.h, if each.is_some() { 0 } else { self.len() });
+        each.into_iter()
+            .flatten()
+            .chain(global)
+            .map(|h| SMOOTHING_LENGTH_PER_H * h)
+    }
+
     /// Every per-particle array must have as many entries as `x`.
     fn check(&self, label: &str, path: &Path) -> Result<(), IoError> {
         let n = self.len();
@@ -232,10 +242,7 @@ impl<'a> Columns<'a> {
             v: Cow::Borrowed(g.v),
             m: Cow::Borrowed(g.m),
             rho: Cow::Borrowed(g.rho),
-            h: match g.h_each {
-                Some(h) => h.iter().map(|h| SMOOTHING_LENGTH_PER_H * h).collect(),
-                None => vec![SMOOTHING_LENGTH_PER_H * g.h; g.len()],
-            },
+            h: g.smoothing_lengths().collect(),
             id: Cow::Borrowed(g.id),
             e: g.e.map(Cow::Borrowed),
             p: g.p.map(Cow::Borrowed),
@@ -250,16 +257,12 @@ impl<'a> Columns<'a> {
         if let [f] = fractions {
             // One fraction: its columns as they are (a copy of each beside the state was part
             // of the peak memory of a run's output).
-            let h = match f.h_each {
-                Some(he) => he.iter().map(|h| SMOOTHING_LENGTH_PER_H * h).collect(),
-                None => vec![SMOOTHING_LENGTH_PER_H * f.h; f.len()],
-            };
             return Ok(Columns {
                 x: Cow::Borrowed(f.x),
                 v: Cow::Borrowed(f.v),
                 m: Cow::Borrowed(f.m),
                 rho: Cow::Borrowed(f.rho),
-                h,
+                h: f.smoothing_lengths().collect(),
                 id: Cow::Borrowed(f.id),
                 e: None,
                 p: None,
@@ -285,10 +288,7 @@ impl<'a> Columns<'a> {
             v.extend_from_slice(f.v);
             m.extend_from_slice(f.m);
             rho.extend_from_slice(f.rho);
-            match f.h_each {
-                Some(he) => h.extend(he.iter().map(|h| SMOOTHING_LENGTH_PER_H * h)),
-                None => h.resize(h.len() + f.len(), SMOOTHING_LENGTH_PER_H * f.h),
-            }
+            h.extend(f.smoothing_lengths());
             id.extend_from_slice(f.id);
             fraction.resize(fraction.len() + f.len(), k);
             if let Some(t) = t_stop.as_mut() {
