@@ -44,6 +44,20 @@ impl Phase {
         }
     }
 
+    /// Keep the particles `keep` marks (`keep[i]` for particle i), in their order, in place:
+    /// no column is reallocated (a rank's own particles dropping its ghosts, or those that left
+    /// it).
+    pub fn retain_rows(&mut self, keep: &[bool]) {
+        retain_by(&mut self.x, keep);
+        retain_by(&mut self.v, keep);
+        retain_by(&mut self.m, keep);
+        retain_by(&mut self.rho, keep);
+        retain_by(&mut self.id, keep);
+        if let Some(f) = &mut self.fixed {
+            retain_by(f, keep);
+        }
+    }
+
     pub fn total_mass(&self) -> f64 {
         self.m.iter().sum()
     }
@@ -103,6 +117,24 @@ impl Gas {
         }
     }
 
+    /// [`Phase::retain_rows`] over every gas column (one left empty stays so).
+    pub fn retain_rows(&mut self, keep: &[bool]) {
+        let n = self.ph.len();
+        self.ph.retain_rows(keep);
+        for f in [&mut self.p, &mut self.c].into_iter().chain(
+            [&mut self.e, &mut self.h, &mut self.omega]
+                .into_iter()
+                .flatten(),
+        ) {
+            if f.len() == n {
+                retain_by(f, keep);
+            }
+        }
+        if let Some(f) = self.next_forces.as_mut().filter(|f| f.len() == n) {
+            retain_by(f, keep);
+        }
+    }
+
     pub fn thermal_energy(&self) -> f64 {
         match &self.e {
             Some(e) => self.ph.m.iter().zip(e).map(|(m, e)| m * e).sum(),
@@ -141,6 +173,28 @@ impl State {
         }
     }
 
+    /// Keep the particles `keep` marks, `keep[n]` for the n-th counting the gas first, then
+    /// each dust fraction; in their order, in place ([`Phase::retain_rows`]).
+    pub fn retain_rows(&mut self, keep: &[bool]) {
+        let n = self.gas.ph.len();
+        self.gas.retain_rows(&keep[..n]);
+        let mut at = n;
+        for ph in &mut self.dust {
+            let n = ph.len();
+            ph.retain_rows(&keep[at..at + n]);
+            at += n;
+        }
+    }
+
+    /// Particles of every phase.
+    pub fn len(&self) -> usize {
+        self.gas.ph.len() + self.dust.iter().map(Phase::len).sum::<usize>()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     pub fn total_momentum(&self) -> [f64; 3] {
         let mut p = self.gas.ph.momentum();
         for d in &self.dust {
@@ -168,6 +222,19 @@ impl State {
             + self.gas.thermal_energy()
             + self.dust.iter().map(|d| d.kinetic_energy()).sum::<f64>()
     }
+}
+
+/// Keep `v[i]` where `keep[i]`, in order, in place.
+fn retain_by<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+    debug_assert_eq!(v.len(), keep.len());
+    let mut w = 0;
+    for r in 0..v.len() {
+        if keep[r] {
+            v[w] = v[r];
+            w += 1;
+        }
+    }
+    v.truncate(w);
 }
 
 /// A cheap hasher for integer keys (FxHash's multiply-rotate): particle keys and cell indices

@@ -12,9 +12,9 @@
 //! The step size comes from the maxima over all ranks; each rank keeps its owned particles'
 //! results.
 use super::comm::World;
-use super::halo::{cut, fail_requested, halo_sends, migrate, shell, RankGhosts};
+use super::halo::{cut, fail_requested, halo_sends, shell, RankGhosts};
 use super::records::{
-    full_pos, record_at, records, records_into, records_where, state_from, state_of, ParticleRecord,
+    append_records, record_at, records_where, state_from, state_of, ParticleRecord,
 };
 use crate::particles::{KeySet, State};
 use crate::step::backend::{Backend, DeviceChoice};
@@ -53,15 +53,13 @@ enum Tried {
     },
 }
 
-/// A rank's particles for one step ([`RankStepper::local_layer`]).
+/// A rank's halo for one step ([`RankStepper::local_layer`]), beside its own particles (the
+/// stepper's, migrated by the step's cut).
 struct LocalLayer {
-    /// How many records this rank owns after the step's migration (the first of
-    /// `local_recs`).
-    owned: usize,
-    /// Per rank, the indices of the owned records it holds as halo.
-    to: Vec<Vec<usize>>,
-    /// Owned records, then the halo's.
-    local_recs: Vec<ParticleRecord>,
+    /// Per rank, the keys of the own particles it holds as halo.
+    to: Vec<Vec<(u64, u64)>>,
+    /// The halo's particles.
+    halo: Vec<ParticleRecord>,
     ghost_keys: KeySet,
     support: f64,
     /// The reach of one neighbour pass: the support or an IDIC cell's diagonal.
@@ -118,9 +116,9 @@ pub struct RankStepper {
     pub world: World,
     phys: Physics,
     template: State,
-    /// The rank's own particles as records (at the last build, output or retake; after a
-    /// step on the resident engine they are its `local` state's, [`RankStepper::owned_stale`]).
-    owned: Vec<ParticleRecord>,
+    /// The rank's own particles (at the last build, output or retake; after a step on the
+    /// resident engine they are its `local` state's, [`RankStepper::owned_stale`]).
+    own: State,
     /// `owned` is behind the resident engine's `local` state: read the own particles there
     /// (they become records only where a build, an output or a retake needs them).
     owned_stale: bool,
@@ -190,7 +188,7 @@ fn rank_device(
     asked: DeviceChoice,
     me: u32,
     phys: &Physics,
-    share: &mut State,
+    share: &State,
 ) -> Result<(RankDevice, Option<String>), String> {
     use crate::launch::Cuda;
     let (device, note) = crate::step::backend::select(asked)?;
@@ -207,7 +205,9 @@ fn rank_device(
             if share.gas.ph.x.is_empty() && share.dust.iter().all(|p| p.x.is_empty()) {
                 return Ok(d);
             }
-            Backend::on_cuda(d.clone(), phys.clone(), share)
+            // Tried on a copy: the share stays as set up (an engine sorts and lays out its
+            // state).
+            Backend::on_cuda(d.clone(), phys.clone(), &mut share.clone())
                 .map(|_| d)
                 .map_err(|e| e.to_string())
         });
@@ -238,13 +238,14 @@ impl RankStepper {
         let (me, ranks) = (world.rank(), world.size());
         // By particle key, not position: rank 0's copy of the scene is sorted by its engine,
         // the others' are not.
-        let owned = records_where(full, |_, (phase, id)| {
+        let mine = records_where(full, |_, (phase, id)| {
             (id.wrapping_add(phase) % ranks as u64) as u32 == me
         });
         // The shape of the state (phases, energy, fixed particles), without its particles.
         let template = full.shape();
-        let mut share = state_of(&owned, &template);
-        let chosen = rank_device(device, me, &phys, &mut share);
+        let share = state_of(&mine, &template);
+        drop(mine);
+        let chosen = rank_device(device, me, &phys, &share);
         if world.any(chosen.is_err()) {
             return Err(chosen.err().unwrap_or_else(|| {
                 "another rank cannot use the device asked for (its message above)".into()
@@ -276,7 +277,7 @@ impl RankStepper {
             world,
             phys,
             template,
-            owned,
+            own: share,
             owned_stale: false,
             depth,
             dev,
@@ -346,10 +347,13 @@ impl RankStepper {
             for &(name, s) in r.eng.timers().entries() {
                 self.timers.add(name, s);
             }
-            // The engine goes before the records are made: both at once were a rank's peak.
+            // The host copy less its ghosts, in place, is the rank's own particles.
             drop(r.eng);
             if self.owned_stale {
-                records_into(&r.local, |n, _| !r.flags[n], &mut self.owned);
+                let mut own = r.local;
+                let keep: Vec<bool> = r.flags.iter().map(|&g| !g).collect();
+                own.retain_rows(&keep);
+                self.own = own;
                 self.owned_stale = false;
             }
         }
@@ -376,16 +380,11 @@ impl RankStepper {
         use crate::analysis::ball::lagrange_jacobi_terms_where as terms;
         let (i, rhs) = match (&self.resident, self.owned_stale) {
             (Some(r), true) => terms(&r.local, dim, |n| !r.flags[n]),
-            _ => terms(&state_of(&self.owned, &self.template), dim, |_| true),
+            _ => terms(&self.own, dim, |_| true),
         };
         let mut s = [i, rhs];
         self.world.sum_f64(&mut s);
         (s[0], s[1])
-    }
-
-    /// Particles this rank owns.
-    pub fn owned(&self) -> usize {
-        self.owned.len()
     }
 
     /// Rank 0 writes the output.
@@ -498,30 +497,24 @@ impl RankStepper {
         let Some(lay) = self.local_layer(true)? else {
             return Ok(None);
         };
-        // The rank's own particles are the layer's now, and then the engine's host copy's
-        // (below): their records go until a build, an output or a retake.
-        self.owned = Vec::new();
         let world = &self.world;
         let me = world.rank();
         let (support, near, reach) = (lay.support, lay.near, lay.reach);
         let LocalLayer {
-            owned,
-            to,
-            local_recs,
+            to: keys,
+            halo,
             ghost_keys,
             ..
         } = lay;
-        let mut ratio = [(local_recs.len() - owned) as f64 / owned.max(1) as f64];
+        let owned = self.own.len();
+        let mut ratio = [halo.len() as f64 / owned.max(1) as f64];
         world.max_f64(&mut ratio);
         self.halo_ratio = self.halo_ratio.max(ratio[0]);
-        // What the engine needs of the records, then the records go before it is built (a
-        // rank's peak memory is its engine's).
-        let keys: Vec<Vec<(u64, u64)>> = (to.iter())
-            .map(|ix| ix.iter().map(|&i| local_recs[i].key()).collect())
-            .collect();
-        drop(to);
-        let mut local = state_of(&local_recs, &self.template);
-        drop(local_recs);
+        // The rank's own particles and the halo after them, then the engine's host copy
+        // (below): the own particles are read there until a build, an output or a retake.
+        let mut local = std::mem::take(&mut self.own);
+        let counts = phase_counts(&halo, 1 + local.dust.len());
+        append_records(&mut local, halo.into_iter(), &counts);
         let layer = if self.layer_given {
             InitialLayer::FromState
         } else {
@@ -650,23 +643,22 @@ impl RankStepper {
         t_target: f64,
     ) -> Result<Tried, String> {
         self.drop_resident();
-        let world = &self.world;
-        let me = world.rank();
         let Some(lay) = self.local_layer(false)? else {
             unreachable!("the deep halo serves a rank without gas");
         };
-        let LocalLayer {
-            local_recs, owned, ..
-        } = &lay;
-        // The rank's own particles: the first `owned` records.
-        let mine: KeySet = local_recs[..*owned].iter().map(|r| r.key()).collect();
-        let mut local = state_of(local_recs, &self.template);
+        let world = &self.world;
+        let me = world.rank();
+        // The rank's own particles, and the halo after them.
+        let mine: KeySet = keys_of(&self.own).collect();
+        let mut local = std::mem::take(&mut self.own);
+        let counts = phase_counts(&lay.halo, 1 + local.dust.len());
+        append_records(&mut local, lay.halo.into_iter(), &counts);
         local.t = t;
         local.step = step;
         // Forces on every rank, the step size from the maxima over all ranks, the advance.
         let mut err = String::new();
         let mut eng = None;
-        if !local_recs.is_empty() {
+        if !local.is_empty() {
             let layer = if self.layer_given {
                 InitialLayer::FromState
             } else {
@@ -683,18 +675,18 @@ impl RankStepper {
         let (forces, global, drag) =
             Self::global_limits(world, &self.phys, eng.as_mut(), false, step)?;
         let mut plan = None;
-        let mut next = Vec::new();
         if let (Some(e), Some(_)) = (&mut eng, forces) {
             let r = take_planned(e, &mut local, drv, (&global, drag), (t, step, t_target));
             match r.and_then(|p| e.sync(&mut local).map(|_| p)) {
                 Ok(p) => plan = Some(p),
                 Err(x) => err = x.to_string(),
             }
-            next = records(&local)
-                .into_iter()
-                .filter(|r| mine.contains(&r.key()))
-                .collect();
         }
+        drop(eng);
+        // The own particles stepped, in place (the halo's, and its shell's flags, dropped).
+        let keep: Vec<bool> = keys_of(&local).map(|k| mine.contains(&k)).collect();
+        local.retain_rows(&keep);
+        drop_unused_fixed(&mut local, &self.template);
         if world.any(!err.is_empty()) {
             return Err(failure(world, step, me, &err));
         }
@@ -713,7 +705,7 @@ impl RankStepper {
             landing: tt[0] == t_target,
             t_target,
         });
-        self.owned = next;
+        self.own = local;
         self.layer_given = true;
         Ok(Tried::Done((plan, tt[0], global.vsig_max)))
     }
@@ -775,17 +767,19 @@ impl RankStepper {
         Ok((forces, global, drag[0]))
     }
 
-    /// This rank's particles for a step: the owned ones migrated by this step's cut, and the
-    /// halo (thin: every neighbour and IDIC cell-mate of an owned particle, now and after the
-    /// step's drift, the margin; deep: the step's chain of passes, and a fixed shell). `None`
-    /// when the thin halo cannot serve (a rank holds no gas: the ghosts' refresh is collective
-    /// inside the step, and every rank must step an engine).
-    fn local_layer(&self, thin: bool) -> Result<Option<LocalLayer>, String> {
+    /// This rank's particles for a step: its own migrated by this step's cut, in place (only
+    /// those that leave travel, as records), and the halo (thin: every neighbour and IDIC
+    /// cell-mate of an owned particle, now and after the step's drift, the margin; deep: the
+    /// step's chain of passes, and a fixed shell). `None` when the thin halo cannot serve (a
+    /// rank holds no gas: the ghosts' refresh is collective inside the step, and every rank
+    /// must step an engine). Collective.
+    fn local_layer(&mut self, thin: bool) -> Result<Option<LocalLayer>, String> {
         let world = &self.world;
         let domain = self.phys.domain;
         // The support: of the largest h over all ranks where h varies (the reference h at
         // least), so that the halo holds every neighbour of its stepped particles.
-        let mut h_max = [(self.owned.iter()).fold(self.phys.h, |a, r| a.max(r.solved_h()))];
+        let solved = self.own.gas.h.iter().flatten();
+        let mut h_max = [solved.fold(self.phys.h, |a, &h| a.max(h))];
         world.max_f64(&mut h_max);
         let support = crate::step::SUPPORT * h_max[0];
         let cell = self.phys.cell_size * (self.phys.dim as f64).sqrt();
@@ -795,30 +789,41 @@ impl RankStepper {
         } else {
             (self.depth * support, (self.depth + 1.0) * support)
         };
-        let xs: Vec<[f64; 3]> = self.owned.iter().map(full_pos).collect();
+        let xs: Vec<[f64; 3]> = positions(&self.own).collect();
         let part = cut(world, &xs, &domain, reach);
-        let (owned, _) = migrate(world, &part, &self.owned, full_pos)?;
-        let to = halo_sends(world.size(), &part, &owned, full_pos);
+        drop(xs);
+        migrate_own(world, &part, &mut self.own)?;
+        let own = &self.own;
+        let xs: Vec<[f64; 3]> = positions(own).collect();
+        let to = halo_sends(world.size(), &part, &xs, |x| *x);
+        drop(xs);
         // Rank by rank in one buffer: one copy of each record sent, received straight into
         // records.
-        let sends: Vec<ParticleRecord> = to.iter().flatten().map(|&i| owned[i]).collect();
+        let at = row_of(own);
+        let sends: Vec<ParticleRecord> = (to.iter().flatten())
+            .map(|&n| {
+                let (k, i) = at(n);
+                record_at(own, k, i)
+            })
+            .collect();
         let counts: Vec<usize> = to.iter().map(Vec::len).collect();
         let halo = world.exchange_flat(&sends, &counts)?;
         // Only the owned particles sent as halo can lie within `reach` of one received: an
         // owned particle within reach of a particle of rank q has a cell of q within its ring.
         let kept = shell(&sends, &halo, inner, reach, &domain);
+        let mut sent = sends.iter().map(ParticleRecord::key);
+        let to = (counts.iter())
+            .map(|&c| sent.by_ref().take(c).collect())
+            .collect();
         drop((sends, halo));
         let ghost_keys: KeySet = kept.iter().map(|r| r.key()).collect();
-        let n_owned = owned.len();
-        let mut local_recs = owned;
-        local_recs.extend(kept);
-        if thin && world.any(!local_recs.iter().any(|r| r.phase == 0)) {
+        let gas_here = !own.gas.ph.is_empty() || kept.iter().any(|r| r.phase == 0);
+        if thin && world.any(!gas_here) {
             return Ok(None);
         }
         Ok(Some(LocalLayer {
-            owned: n_owned,
             to,
-            local_recs,
+            halo: kept,
             ghost_keys,
             support,
             near,
@@ -842,18 +847,15 @@ impl RankStepper {
                 *sk += m * lk;
             }
         };
-        match (&self.resident, self.owned_stale) {
-            (Some(r), true) => {
-                let phases = std::iter::once(&r.local.gas.ph).chain(&r.local.dust);
-                let each = phases.flat_map(|ph| (0..ph.len()).map(move |i| (ph, i)));
-                for ((ph, i), _) in each.zip(&r.flags).filter(|(_, &g)| !g) {
-                    add(ph.m[i], ph.x[i], ph.v[i]);
-                }
-            }
-            _ => {
-                for r in &self.owned {
-                    add(r.m, full_pos(r), r.v);
-                }
+        let (st, flags) = match (&self.resident, self.owned_stale) {
+            (Some(r), true) => (&r.local, Some(&r.flags)),
+            _ => (&self.own, None),
+        };
+        let phases = std::iter::once(&st.gas.ph).chain(&st.dust);
+        let each = phases.flat_map(|ph| (0..ph.len()).map(move |i| (ph, i)));
+        for (n, (ph, i)) in each.enumerate() {
+            if !flags.is_some_and(|f| f[n]) {
+                add(ph.m[i], ph.x[i], ph.v[i]);
             }
         }
         self.world.sum_f64(&mut s);
@@ -925,14 +927,24 @@ impl RankStepper {
     /// Every rank's particles as one state on rank 0 (phases in order, each by particle id),
     /// at time `t`, step `step`; `None` on the other ranks. Collective.
     fn gather(&mut self, t: f64, step: u64) -> Result<Option<State>, String> {
-        let owned = &self.owned;
-        let mut order: Vec<usize> = (0..owned.len()).collect();
-        order.sort_unstable_by_key(|&i| owned[i].key());
-        let at = |j: usize| (owned[order[j]], None);
-        let mut counts = vec![0u64; 1 + self.template.dust.len()];
-        for r in owned {
-            counts[r.phase as usize] += 1;
-        }
+        let own = &self.own;
+        let row = row_of(own);
+        let mut order: Vec<((u64, u64), u32, u32)> = (keys_of(own).enumerate())
+            .map(|(n, key)| {
+                let (k, i) = row(n);
+                (key, k as u32, i as u32)
+            })
+            .collect();
+        order.sort_unstable_by_key(|o| o.0);
+        let at = |j: usize| {
+            (
+                record_at(own, order[j].1 as usize, order[j].2 as usize),
+                None,
+            )
+        };
+        let counts: Vec<u64> = (std::iter::once(&own.gas.ph).chain(&own.dust))
+            .map(|ph| ph.len() as u64)
+            .collect();
         let st = gather_sorted(&self.world, &self.template, &counts, at, false, (t, step));
         Ok(st.map(|(st, _)| st))
     }
@@ -1071,6 +1083,84 @@ fn gather_sorted(
     st.t = t;
     st.step = step;
     Some((st, values.then_some(per_fraction)))
+}
+
+/// Every particle's position in a state, gas first, then each dust fraction (the order of
+/// [`State::retain_rows`]).
+fn positions(st: &State) -> impl Iterator<Item = [f64; 3]> + '_ {
+    std::iter::once(&st.gas.ph)
+        .chain(&st.dust)
+        .flat_map(|ph| ph.x.iter().copied())
+}
+
+/// Every particle's key (phase, id), in the order of [`positions`].
+fn keys_of(st: &State) -> impl Iterator<Item = (u64, u64)> + '_ {
+    (std::iter::once(&st.gas.ph).chain(&st.dust))
+        .enumerate()
+        .flat_map(|(k, ph)| ph.id.iter().map(move |&id| (k as u64, id)))
+}
+
+/// The phase and index of a state's n-th particle (the order of [`positions`]).
+fn row_of(st: &State) -> impl Fn(usize) -> (usize, usize) {
+    let mut starts = vec![0usize];
+    for ph in std::iter::once(&st.gas.ph).chain(&st.dust) {
+        starts.push(starts.last().copied().unwrap_or(0) + ph.len());
+    }
+    move |n| {
+        let k = starts.partition_point(|&s| s <= n) - 1;
+        (k, n - starts[k])
+    }
+}
+
+/// Records per phase (phase 0 the gas, then each of `nph - 1` dust fractions).
+fn phase_counts(recs: &[ParticleRecord], nph: usize) -> Vec<usize> {
+    let mut c = vec![0; nph];
+    for r in recs {
+        c[r.phase as usize] += 1;
+    }
+    c
+}
+
+/// A rank's own particles to the ranks owning their cells under `part` (collective): those
+/// that leave go as records and are dropped here, those that arrive are appended; the rest
+/// stay where they lie.
+fn migrate_own(
+    world: &World,
+    part: &crate::decomp::Partition,
+    own: &mut State,
+) -> Result<(), String> {
+    let me = world.rank();
+    let mut sends: Vec<Vec<ParticleRecord>> = vec![Vec::new(); world.size() as usize];
+    let at = row_of(own);
+    let stays: Vec<bool> = (positions(own).enumerate())
+        .map(|(n, x)| {
+            let q = part.owner_at(x);
+            if q != me {
+                let (k, i) = at(n);
+                sends[q as usize].push(record_at(own, k, i));
+            }
+            q == me
+        })
+        .collect();
+    own.retain_rows(&stays);
+    drop(stays);
+    let arrived = world.exchange(&sends)?;
+    drop(sends);
+    let counts = phase_counts(&arrived, 1 + own.dust.len());
+    append_records(own, arrived.into_iter(), &counts);
+    Ok(())
+}
+
+/// A phase's fixed flags where the scene has none and no particle is fixed (the deep halo's
+/// shell was, and has gone).
+fn drop_unused_fixed(st: &mut State, template: &State) {
+    let phases = std::iter::once((&mut st.gas.ph, &template.gas.ph))
+        .chain(st.dust.iter_mut().zip(&template.dust));
+    for (ph, t) in phases {
+        if t.fixed.is_none() && ph.fixed.as_ref().is_some_and(|f| !f.iter().any(|&f| f)) {
+            ph.fixed = None;
+        }
+    }
 }
 
 /// The step the planner's rule gives from the maxima over all ranks (`limits`: the forces',

@@ -1,7 +1,7 @@
 //! Particles as they travel between ranks: [`ParticleRecord`] (a plain-data row per particle)
 //! and the conversions from and to a [`State`]. Plain data without MPI: the ranks (with the mpi
 //! feature) send them as bytes.
-use crate::particles::{Gas, Phase, State};
+use crate::particles::{Phase, State};
 
 /// A particle's whole state as it travels between ranks (migration, the halo, the gather for
 /// output): everything a rank's engine needs to step it, as plain data (`Pod`: sent as bytes,
@@ -156,100 +156,121 @@ pub fn state_from(
     template: &State,
     counts: &[usize],
 ) -> State {
-    let nph = 1 + template.dust.len();
-    let mut phases: Vec<Phase> = (0..nph)
-        .map(|k| {
-            let n = counts.get(k).copied().unwrap_or(0);
-            Phase {
-                id: Vec::with_capacity(n),
-                x: Vec::with_capacity(n),
-                v: Vec::with_capacity(n),
-                m: Vec::with_capacity(n),
-                rho: Vec::with_capacity(n),
-                ..Phase::default()
-            }
-        })
-        .collect();
-    let mut fixed: Vec<Vec<bool>> = (0..nph)
-        .map(|k| Vec::with_capacity(counts.get(k).copied().unwrap_or(0)))
-        .collect();
-    let gas = || Vec::with_capacity(counts.first().copied().unwrap_or(0));
-    let has_e = template.gas.e.is_some();
-    let mut e = if has_e { gas() } else { Vec::new() };
-    let (mut pres, mut cs) = (gas(), gas());
-    // The solved h and Ω and the closing forces only while every gas record has them.
-    let (mut h, mut omega) = (gas(), gas());
-    let mut nf: Vec<[f64; 5]> = Vec::with_capacity(counts.first().copied().unwrap_or(0));
-    let (mut all_h, mut all_nf) = (true, true);
-    let mut some_gas = false;
+    let mut st = template.shape();
+    append_records(&mut st, recs, counts);
+    st
+}
+
+/// Records read one by one appended to a state's phases (`counts[k]` of phase k: each column
+/// grows once): a rank's own particles taking in those that arrive, and its halo. Each column
+/// the records carry in part stays only while every particle has it: the gas's solved h and Ω
+/// and closing forces; a phase's fixed flags appear where a record is fixed.
+pub fn append_records(
+    st: &mut State,
+    recs: impl Iterator<Item = ParticleRecord>,
+    counts: &[usize],
+) {
+    let nph = 1 + st.dust.len();
+    let n_gas = st.gas.ph.len();
+    let g = &mut st.gas;
+    // Pressure and sound speed travel with every gas record (0 where the state had none).
+    g.p.resize(n_gas, 0.0);
+    g.c.resize(n_gas, 0.0);
+    let gas_more = counts.first().copied().unwrap_or(0);
+    // A column every gas particle so far has (all of none, where there was no gas yet).
+    fn whole<T>(col: Option<Vec<T>>, n: usize) -> Option<Vec<T>> {
+        match col {
+            Some(v) if v.len() == n => Some(v),
+            None if n == 0 => Some(Vec::new()),
+            _ => None,
+        }
+    }
+    let (mut h, mut omega) = (whole(g.h.take(), n_gas), whole(g.omega.take(), n_gas));
+    let mut nf = whole(g.next_forces.take(), n_gas);
+    for v in [&mut h, &mut omega].into_iter().flatten() {
+        v.reserve_exact(gas_more);
+    }
+    if let Some(v) = &mut nf {
+        v.reserve_exact(gas_more);
+    }
+    {
+        let g = &mut st.gas;
+        for v in [&mut g.p, &mut g.c].into_iter().chain(&mut g.e) {
+            v.reserve_exact(gas_more);
+        }
+    }
+    for k in 0..nph {
+        let more = counts.get(k).copied().unwrap_or(0);
+        let ph = if k == 0 {
+            &mut st.gas.ph
+        } else {
+            &mut st.dust[k - 1]
+        };
+        ph.id.reserve_exact(more);
+        ph.x.reserve_exact(more);
+        ph.v.reserve_exact(more);
+        ph.m.reserve_exact(more);
+        ph.rho.reserve_exact(more);
+        if let Some(f) = &mut ph.fixed {
+            f.reserve_exact(more);
+        }
+    }
     for r in recs {
         let k = r.phase as usize;
-        some_gas |= k == 0;
-        let ph = &mut phases[k];
+        let ph = if k == 0 {
+            &mut st.gas.ph
+        } else {
+            &mut st.dust[k - 1]
+        };
         ph.id.push(r.id);
         ph.x.push(r.x);
         ph.v.push(r.v);
         ph.m.push(r.m);
         ph.rho.push(r.rho);
-        fixed[k].push(r.fixed != 0);
+        // Fixed particles: the scene's walls, and the deep halo's outer shell.
+        if ph.fixed.is_none() && r.fixed != 0 {
+            let mut f = vec![false; ph.id.len() - 1];
+            f.reserve_exact(counts.get(k).copied().unwrap_or(0));
+            ph.fixed = Some(f);
+        }
+        if let Some(f) = &mut ph.fixed {
+            f.push(r.fixed != 0);
+        }
         if k == 0 {
-            if has_e {
+            let g = &mut st.gas;
+            if let Some(e) = &mut g.e {
                 e.push(r.e);
             }
-            pres.push(r.p);
-            cs.push(r.c);
-            if all_h && r.flags & ParticleRecord::HAS_H != 0 {
-                h.push(r.h);
-                omega.push(r.omega);
-            } else if all_h {
-                all_h = false;
-                (h, omega) = (Vec::new(), Vec::new());
+            g.p.push(r.p);
+            g.c.push(r.c);
+            // A resumed layer: the solved h and Ω and the closing forces travel with their
+            // particles (the engine then keeps them, as on resume).
+            if r.flags & ParticleRecord::HAS_H != 0 {
+                if let (Some(h), Some(o)) = (&mut h, &mut omega) {
+                    h.push(r.h);
+                    o.push(r.omega);
+                }
+            } else {
+                (h, omega) = (None, None);
             }
-            if all_nf && r.flags & ParticleRecord::HAS_CLOSING_FORCES != 0 {
-                nf.push(r.closing_forces);
-            } else if all_nf {
-                all_nf = false;
-                nf = Vec::new();
+            if r.flags & ParticleRecord::HAS_CLOSING_FORCES != 0 {
+                if let Some(f) = &mut nf {
+                    f.push(r.closing_forces);
+                }
+            } else {
+                nf = None;
             }
         }
     }
-    // Fixed particles: the scene's walls, and the halo's outer shell.
-    let mut with_fixed = |k: usize, t: &Phase| {
-        let f = std::mem::take(&mut fixed[k]);
-        (t.fixed.is_some() || f.iter().any(|&f| f)).then_some(f)
-    };
-    let mut gas_ph = std::mem::take(&mut phases[0]);
-    gas_ph.fixed = with_fixed(0, &template.gas.ph);
-    let dust = phases
-        .into_iter()
-        .enumerate()
-        .skip(1)
-        .map(|(k, mut p)| {
-            p.fixed = with_fixed(k, &template.dust[k - 1]);
-            p
-        })
-        .collect();
-    State {
-        t: template.t,
-        step: template.step,
-        gas: Gas {
-            ph: gas_ph,
-            e: template.gas.e.as_ref().map(|_| e),
-            // A resumed layer: the solved h and Ω and the closing forces travel with their
-            // particles (the engine then keeps them, as on resume).
-            h: (some_gas && all_h).then_some(h),
-            omega: (some_gas && all_h).then_some(omega),
-            next_forces: (some_gas && all_nf).then_some(nf),
-            p: pres,
-            c: cs,
-        },
-        dust,
-    }
+    let g = &mut st.gas;
+    let some_gas = !g.ph.is_empty();
+    (g.h, g.omega) = if some_gas { (h, omega) } else { (None, None) };
+    g.next_forces = nf.filter(|_| some_gas);
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{records, state_of};
+    use super::{append_records, records, records_where, state_of, ParticleRecord};
     use crate::particles::{Gas, Phase, State};
 
     fn phase(n: usize, x0: f64) -> Phase {
@@ -300,5 +321,71 @@ mod tests {
         for col in [&g.e, &g.h, &g.omega].into_iter().flatten() {
             exact(col.len(), col.capacity());
         }
+    }
+
+    /// A rank's migration in place: the particles that leave dropped from the columns and
+    /// appended again as records give back the same particles (in another order), each column
+    /// grown once; a column the appended records lack (h and Ω) is dropped, and a fixed
+    /// record gives its phase fixed flags, false for the particles already there.
+    #[test]
+    fn particles_dropped_in_place_and_appended_as_records_are_the_same_particles() {
+        let n = 500;
+        let st = State {
+            t: 0.5,
+            step: 7,
+            gas: Gas {
+                ph: phase(n, 0.0),
+                p: vec![2.0; n],
+                c: vec![1.5; n],
+                e: Some((0..n).map(|i| 3.0 + i as f64).collect()),
+                h: Some((0..n).map(|i| 0.02 + 1e-4 * i as f64).collect()),
+                omega: Some(vec![1.01; n]),
+                next_forces: None,
+            },
+            dust: vec![phase(300, -5.0), phase(77, 9.0)],
+        };
+        let keep: Vec<bool> = (0..st.len()).map(|n| n % 3 != 1).collect();
+        let leaving = records_where(&st, |n, _| !keep[n]);
+        let mut counts = vec![0; 3];
+        for r in &leaving {
+            counts[r.phase as usize] += 1;
+        }
+        let mut own = st.clone();
+        own.retain_rows(&keep);
+        assert_eq!(own.len(), keep.iter().filter(|&&k| k).count());
+        append_records(&mut own, leaving.into_iter(), &counts);
+        // Each phase by id: the particles and every column of theirs as they were.
+        let by_id = |st: &State| {
+            let mut r = records(st);
+            r.sort_by_key(|r| r.key());
+            r
+        };
+        assert_eq!(by_id(&own), by_id(&st));
+        assert!(own.gas.h.is_some() && own.gas.e.is_some());
+        let g = &own.gas;
+        for (len, cap) in [
+            (g.ph.x.len(), g.ph.x.capacity()),
+            (g.p.len(), g.p.capacity()),
+            (
+                g.h.as_ref().unwrap().len(),
+                g.h.as_ref().unwrap().capacity(),
+            ),
+        ] {
+            assert_eq!(len, cap, "a column grown more than once");
+        }
+        // A gas record without a solved h, and a fixed dust record.
+        let mut bare = ParticleRecord::of(0, &st.gas.ph, 0);
+        bare.id = 10_000;
+        let mut wall = ParticleRecord::of(1, &st.dust[0], 0);
+        (wall.id, wall.fixed) = (10_001, 1);
+        append_records(&mut own, [bare, wall].into_iter(), &[1, 1, 0]);
+        assert!(own.gas.h.is_none() && own.gas.omega.is_none());
+        let f = own.dust[0]
+            .fixed
+            .as_ref()
+            .expect("fixed flags once a particle is fixed");
+        assert_eq!(f.len(), own.dust[0].len());
+        assert_eq!(f.iter().filter(|&&f| f).count(), 1);
+        assert!(f[f.len() - 1]);
     }
 }
