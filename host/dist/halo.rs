@@ -4,7 +4,7 @@
 use super::comm::World;
 use super::records::{full_pos, ParticleRecord};
 use crate::decomp::{CellBox, Cells, Partition};
-use crate::particles::{IntHasher, KeyMap, KeySet};
+use crate::particles::{KeyMap, KeySet};
 use crate::step::engine::GhostSync;
 
 /// Decomposition cells per halo reach: cells half the reach wide (the halo then spans the
@@ -354,29 +354,82 @@ pub(super) fn shell(
     outer: f64,
     domain: &crate::grid::Domain,
 ) -> Vec<ParticleRecord> {
-    use std::collections::HashMap;
+    let xs: Vec<[f64; 3]> = owned.iter().map(full_pos).collect();
+    if xs.is_empty() {
+        return Vec::new();
+    }
     // Cells of [`SHELL_CELL`] × the test radius (on a periodic axis a whole number per period, the
     // indices wrapping): a halo particle scans only the cells across the edge of its sphere.
-    let axes: [(f64, f64, Option<i64>); 3] = [0, 1, 2].map(|k| match domain.periodic[k] {
-        Some((lo, len)) => {
-            let n = (len / (SHELL_CELL * inner)).ceil().max(1.0) as i64;
-            (lo, len / n as f64, Some(n))
-        }
-        None => (0.0, SHELL_CELL * inner, None),
-    });
-    let index = |k: usize, v: f64| -> i64 {
+    // They are held as one array over the box of the owned particles' cells (a lookup is an
+    // index, not a hash), made coarser where that box would hold many more cells than
+    // particles.
+    let axes_for = |cell: f64| -> [(f64, f64, Option<i64>); 3] {
+        [0, 1, 2].map(|k| match domain.periodic[k] {
+            Some((lo, len)) => {
+                let n = (len / cell).ceil().max(1.0) as i64;
+                (lo, len / n as f64, Some(n))
+            }
+            None => (0.0, cell, None),
+        })
+    };
+    let index_on = |axes: &[(f64, f64, Option<i64>); 3], k: usize, v: f64| -> i64 {
         let (lo, size, n) = axes[k];
         let i = ((v - lo) / size).floor() as i64;
         n.map_or(i, |n| i.clamp(0, n - 1))
     };
-    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>, std::hash::BuildHasherDefault<IntHasher>> =
-        HashMap::default();
-    for r in owned {
-        let x = full_pos(r);
-        grid.entry([0, 1, 2].map(|k| index(k, x[k])))
-            .or_default()
-            .push(x);
+    let mut cell = SHELL_CELL * inner;
+    let (axes, first, dims) = loop {
+        let axes = axes_for(cell);
+        let mut first = [i64::MAX; 3];
+        let mut last = [i64::MIN; 3];
+        for x in &xs {
+            for k in 0..3 {
+                let i = index_on(&axes, k, x[k]);
+                first[k] = first[k].min(i);
+                last[k] = last[k].max(i);
+            }
+        }
+        for k in 0..3 {
+            if let Some(n) = axes[k].2 {
+                (first[k], last[k]) = (0, n - 1);
+            }
+        }
+        let dims = [0, 1, 2].map(|k| (last[k] - first[k] + 1) as usize);
+        let cells = dims.iter().map(|&d| d as f64).product::<f64>();
+        if cells <= (8 * xs.len() + 4096) as f64 {
+            break (axes, first, dims);
+        }
+        cell *= 2.0;
+    };
+    let index = |k: usize, v: f64| index_on(&axes, k, v);
+    // A cell's place in the array, `None` outside the owned particles' box.
+    let flat = |c: [i64; 3]| -> Option<usize> {
+        let r = [0, 1, 2].map(|k| c[k] - first[k]);
+        (0..3)
+            .all(|k| r[k] >= 0 && (r[k] as usize) < dims[k])
+            .then(|| (r[2] as usize * dims[1] + r[1] as usize) * dims[0] + r[0] as usize)
+    };
+    // The owned positions by cell (a counting sort): cell c holds pts[start[c]..start[c + 1]].
+    let at: Vec<usize> = (xs.iter())
+        .map(|x| flat([0, 1, 2].map(|k| index(k, x[k]))).expect("within the owned box"))
+        .collect();
+    let mut start = vec![0u32; dims[0] * dims[1] * dims[2] + 1];
+    for &c in &at {
+        start[c + 1] += 1;
     }
+    for c in 1..start.len() {
+        start[c] += start[c - 1];
+    }
+    let mut fill = start.clone();
+    let mut pts = vec![[0.0; 3]; xs.len()];
+    for (x, &c) in xs.iter().zip(&at) {
+        pts[fill[c] as usize] = *x;
+        fill[c] += 1;
+    }
+    drop((at, fill, xs));
+    let in_cell = |c: [i64; 3]| -> &[[f64; 3]] {
+        flat(c).map_or(&[], |c| &pts[start[c] as usize..start[c + 1] as usize])
+    };
     let sep2 = |a: [f64; 3], b: [f64; 3]| domain.distance2(a, b);
     // Along axis k, the cells within `radius` of coordinate v: (index, lower bound of the
     // distance, less a rounding margin, and upper bound, plus one); every cell of a period the
@@ -422,10 +475,11 @@ pub(super) fn shell(
             cy.iter().any(|&(iy, gy, fy)| {
                 gz + gy <= r2
                     && cx.iter().any(|&(ix, gx, fx)| {
-                        gz + gy + gx <= r2
-                            && grid.get(&[ix, iy, iz]).is_some_and(|v| {
-                                fz + fy + fx <= r2 || v.iter().any(|&o| sep2(o, x) <= r2)
-                            })
+                        gz + gy + gx <= r2 && {
+                            let v = in_cell([ix, iy, iz]);
+                            !v.is_empty()
+                                && (fz + fy + fx <= r2 || v.iter().any(|&o| sep2(o, x) <= r2))
+                        }
                     })
             })
         })
@@ -443,4 +497,81 @@ pub(super) fn shell(
             })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shell;
+    use crate::dist::records::ParticleRecord;
+    use crate::grid::Domain;
+
+    fn at(x: [f64; 3], id: u64) -> ParticleRecord {
+        ParticleRecord {
+            id,
+            x,
+            ..Default::default()
+        }
+    }
+
+    /// The shell test keeps exactly the halo particles a pairwise search keeps: within `inner`
+    /// of an owned particle stepped, within `outer` held fixed, the rest left out; on open and
+    /// periodic axes (the minimum image), with owned particles clustered so that most cells are
+    /// empty and many halo particles lie just beyond either radius.
+    #[test]
+    fn the_shell_keeps_exactly_the_halo_particles_a_pairwise_search_keeps() {
+        let mut rng = fastrand::Rng::with_seed(7);
+        // One cluster: the cells at their finest; four spread out: coarser cells, the box of
+        // the owned particles' cells bounded by their count.
+        let open = [None, None, None];
+        let some = [Some((-1.0, 3.0)), None, Some((0.0, 2.0))];
+        for (periodic, clusters) in [(open, 1), (open, 4), (some, 1), (some, 4)] {
+            let domain = Domain { dim: 3, periodic };
+            // Positions as the step keeps them: within the period on a periodic axis.
+            let wrap = |x: [f64; 3]| {
+                [0, 1, 2].map(|k| match periodic[k] {
+                    Some((lo, len)) => lo + (x[k] - lo).rem_euclid(len),
+                    None => x[k],
+                })
+            };
+            let mut owned = Vec::new();
+            for c in 0..clusters {
+                let centre = [rng.f64() * 2.0 - 1.0, rng.f64(), rng.f64() * 2.0];
+                for _ in 0..150 {
+                    let x = [0, 1, 2].map(|k| centre[k] + 0.2 * (rng.f64() - 0.5));
+                    owned.push(at(wrap(x), owned.len() as u64 + 1000 * c));
+                }
+            }
+            let halo: Vec<ParticleRecord> = (0..3000)
+                .map(|i| {
+                    let x = [
+                        3.0 * rng.f64() - 1.5,
+                        2.0 * rng.f64() - 0.5,
+                        2.5 * rng.f64() - 0.25,
+                    ];
+                    at(wrap(x), i)
+                })
+                .collect();
+            let (inner, outer) = (0.07, 0.12);
+            let got = shell(&owned, &halo, inner, outer, &domain);
+            let nearest = |x: [f64; 3]| {
+                (owned.iter())
+                    .map(|o| domain.distance2(o.x, x))
+                    .fold(f64::INFINITY, f64::min)
+                    .sqrt()
+            };
+            let want: Vec<(u64, u64)> = (halo.iter())
+                .filter_map(|h| {
+                    let d = nearest(h.x);
+                    (d <= outer).then_some((h.id, (d > inner) as u64))
+                })
+                .collect();
+            let got: Vec<(u64, u64)> = got.iter().map(|r| (r.id, r.fixed)).collect();
+            assert_eq!(got, want, "periodic {periodic:?}, {clusters} clusters");
+            assert!(want.iter().any(|w| w.1 == 1) && want.iter().any(|w| w.1 == 0));
+            assert!(
+                want.len() < halo.len() / 2,
+                "most halo particles lie beyond `outer`"
+            );
+        }
+    }
 }
