@@ -267,6 +267,15 @@ pub mod comm {
             send: &[T],
             counts: &[usize],
         ) -> Result<Vec<T>, String> {
+            Ok(self.exchange_flat_from(send, counts)?.0)
+        }
+
+        /// [`World::exchange_flat`], and how many records came from each rank.
+        pub fn exchange_flat_from<T: bytemuck::Pod>(
+            &self,
+            send: &[T],
+            counts: &[usize],
+        ) -> Result<(Vec<T>, Vec<usize>), String> {
             let item = std::mem::size_of::<T>();
             let bytes: Vec<usize> = counts.iter().map(|&c| c * item).collect();
             let mut out: Vec<T> = Vec::new();
@@ -276,8 +285,8 @@ pub mod comm {
                 o.resize(total.div_ceil(item), T::zeroed());
                 &mut bytemuck::cast_slice_mut::<T, u8>(o.as_mut_slice())[..total]
             };
-            self.exchange_into(bytemuck::cast_slice(send), &bytes, into)?;
-            Ok(out)
+            let got = self.exchange_into(bytemuck::cast_slice(send), &bytes, into)?;
+            Ok((out, got.iter().map(|b| b / item).collect()))
         }
 
         /// All-to-all of bytes laid out rank by rank in `send` (`counts[q]` of them to rank

@@ -4,7 +4,7 @@
 use super::comm::World;
 use super::records::{full_pos, ParticleRecord};
 use crate::decomp::{CellBox, Cells, Partition};
-use crate::particles::{KeyMap, KeySet};
+use crate::particles::KeyMap;
 use crate::step::engine::GhostSync;
 
 /// Decomposition cells per halo reach: cells half the reach wide (the halo then spans the
@@ -152,39 +152,19 @@ fn table(key: (u64, u64)) -> usize {
 }
 
 impl RankGhosts {
-    /// The refresh of a halo: `sends[q]`, the keys of the owned particles rank q received as
-    /// halo candidates, and `held`, the keys this rank keeps as ghosts of those it received.
-    /// Tells every rank which rows it will receive, in which order: each rank tells every
-    /// sender which of its candidates it holds, and the refreshes carry only those rows (the
-    /// shell test leaves out some of what the cut's boxes send). Collective.
+    /// The refresh of a halo: `sends[q]`, the keys of the owned particles sent to rank q as
+    /// halo candidates; `kept[q]`, which of the candidates rank q sent here this rank keeps as
+    /// ghosts (in the order they came), and `arriving` the keys of those, in that order. Tells
+    /// every sender which of its candidates are held, so that the refreshes carry only those
+    /// rows (the shell test leaves out some of what the cut's boxes send). Collective.
     pub(super) fn new(
         comm: World,
         sends: Vec<Vec<(u64, u64)>>,
-        held: &KeySet,
+        kept: Vec<Vec<u8>>,
+        arriving: Vec<(u64, u64)>,
         fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
     ) -> Result<RankGhosts, String> {
-        // How many keys each rank sends here, to split what arrives by its sender.
-        let lens: Vec<Vec<u64>> = sends.iter().map(|s| vec![s.len() as u64]).collect();
-        let from = comm.exchange(&lens)?;
-        let lists: Vec<Vec<[u64; 2]>> = (sends.iter())
-            .map(|s| s.iter().map(|&(p, id)| [p, id]).collect())
-            .collect();
-        let got = comm.exchange(&lists)?;
-        let mut arriving = Vec::new();
-        let mut replies = Vec::with_capacity(from.len());
-        let mut at = 0;
-        for &n in &from {
-            let part = &got[at..at + n as usize];
-            at += n as usize;
-            let mask = part.iter().map(|&[p, id]| {
-                let kept = held.contains(&(p, id));
-                if kept {
-                    arriving.push((p, id));
-                }
-                kept as u8
-            });
-            replies.push(mask.collect::<Vec<u8>>());
-        }
+        let replies = kept;
         // Each rank's answer about the keys sent to it, in rank order.
         let kept = comm.exchange(&replies)?;
         let mut at = 0;
@@ -346,17 +326,17 @@ const SHELL_CELL: f64 = 0.5;
 /// stepped halo's forces are too, and no particle with an incomplete neighbourhood enters the
 /// step's maxima); the rest, which no stepped particle reaches, are left out. `owned` need
 /// only hold the owned particles that can lie within `outer` of a halo particle (those sent as
-/// halo to its owner).
+/// halo to its owner). Returns the halo kept, and whether each particle of `halo` is.
 pub(super) fn shell(
     owned: &[ParticleRecord],
     halo: &[ParticleRecord],
     inner: f64,
     outer: f64,
     domain: &crate::grid::Domain,
-) -> Vec<ParticleRecord> {
+) -> (Vec<ParticleRecord>, Vec<bool>) {
     let xs: Vec<[f64; 3]> = owned.iter().map(full_pos).collect();
     if xs.is_empty() {
-        return Vec::new();
+        return (Vec::new(), vec![false; halo.len()]);
     }
     // Cells of [`SHELL_CELL`] × the test radius (on a periodic axis a whole number per period, the
     // indices wrapping): a halo particle scans only the cells across the edge of its sphere.
@@ -484,19 +464,24 @@ pub(super) fn shell(
             })
         })
     };
-    halo.iter()
+    let mut flags = Vec::with_capacity(halo.len());
+    let kept = (halo.iter())
         .filter_map(|h| {
             let x = full_pos(h);
-            if within(x, inner) {
-                return Some(*h);
-            }
-            (outer > inner && within(x, outer)).then(|| {
-                let mut r = *h;
-                r.fixed = 1;
-                r
-            })
+            let k = if within(x, inner) {
+                Some(*h)
+            } else {
+                (outer > inner && within(x, outer)).then(|| {
+                    let mut r = *h;
+                    r.fixed = 1;
+                    r
+                })
+            };
+            flags.push(k.is_some());
+            k
         })
-        .collect()
+        .collect();
+    (kept, flags)
 }
 
 #[cfg(test)]
@@ -552,7 +537,12 @@ mod tests {
                 })
                 .collect();
             let (inner, outer) = (0.07, 0.12);
-            let got = shell(&owned, &halo, inner, outer, &domain);
+            let (got, flags) = shell(&owned, &halo, inner, outer, &domain);
+            let flagged: Vec<u64> = (halo.iter().zip(&flags))
+                .filter(|(_, &f)| f)
+                .map(|(h, _)| h.id)
+                .collect();
+            assert_eq!(flagged, got.iter().map(|r| r.id).collect::<Vec<_>>());
             let nearest = |x: [f64; 3]| {
                 (owned.iter())
                     .map(|o| domain.distance2(o.x, x))

@@ -56,8 +56,10 @@ enum Tried {
 /// A rank's halo for one step ([`RankStepper::local_layer`]), beside its own particles (the
 /// stepper's, migrated by the step's cut).
 struct LocalLayer {
-    /// Per rank, the keys of the own particles it holds as halo.
+    /// Per rank, the keys of the own particles sent to it as halo candidates.
     to: Vec<Vec<(u64, u64)>>,
+    /// Per rank, which of the candidates it sent here are kept ([`shell`]).
+    replies: Vec<Vec<u8>>,
     /// The halo's particles.
     halo: Vec<ParticleRecord>,
     ghost_keys: KeySet,
@@ -502,10 +504,12 @@ impl RankStepper {
         let (support, near, reach) = (lay.support, lay.near, lay.reach);
         let LocalLayer {
             to: keys,
+            replies,
             halo,
             ghost_keys,
             ..
         } = lay;
+        let arriving: Vec<(u64, u64)> = halo.iter().map(ParticleRecord::key).collect();
         let owned = self.own.len();
         let mut ratio = [halo.len() as f64 / owned.max(1) as f64];
         world.max_f64(&mut ratio);
@@ -526,7 +530,7 @@ impl RankStepper {
             return Err(failure(world, step, me, &err.unwrap_or_default()));
         }
         let mut eng = built.map_err(|x| x.to_string())?;
-        let sync = RankGhosts::new(world.dup(), keys, &ghost_keys, self.fail.clone())?;
+        let sync = RankGhosts::new(world.dup(), keys, replies, arriving, self.fail.clone())?;
         // Built from the records (no layer computed), its ghosts hold their owners' values.
         let fresh = matches!(layer, InitialLayer::FromState);
         if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys, fresh) {
@@ -807,10 +811,15 @@ impl RankStepper {
             })
             .collect();
         let counts: Vec<usize> = to.iter().map(Vec::len).collect();
-        let halo = world.exchange_flat(&sends, &counts)?;
+        let (halo, from) = world.exchange_flat_from(&sends, &counts)?;
         // Only the owned particles sent as halo can lie within `reach` of one received: an
         // owned particle within reach of a particle of rank q has a cell of q within its ring.
-        let kept = shell(&sends, &halo, inner, reach, &domain);
+        let (kept, flags) = shell(&sends, &halo, inner, reach, &domain);
+        // Which of each rank's candidates are kept, for its refreshes.
+        let mut flag = flags.iter().map(|&f| f as u8);
+        let replies = (from.iter())
+            .map(|&c| flag.by_ref().take(c).collect())
+            .collect();
         let mut sent = sends.iter().map(ParticleRecord::key);
         let to = (counts.iter())
             .map(|&c| sent.by_ref().take(c).collect())
@@ -823,6 +832,7 @@ impl RankStepper {
         }
         Ok(Some(LocalLayer {
             to,
+            replies,
             halo: kept,
             ghost_keys,
             support,
