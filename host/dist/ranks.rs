@@ -902,6 +902,8 @@ impl RankStepper {
         let world = &self.world;
         let ts = (res.eng.dust_stopping_times(&mut res.local))
             .unwrap_or_else(|x| abort_job(world, step, &x));
+        // No refresh until the next step: its buffers go before rank 0 builds the whole state.
+        res.eng.free_refresh_buffers();
         // The own particles in key order (phase, index), read where they lie: the engine's
         // host copy keeps them (the output's dust densities too, which the next steps start
         // from, as one process's engine does), and their records only pass through the

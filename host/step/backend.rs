@@ -403,6 +403,11 @@ impl Backend {
         each!(self, e => e.set_ghosts(sync, keys, fresh))
     }
 
+    /// See [`Engine::free_refresh_buffers`].
+    pub fn free_refresh_buffers(&mut self) {
+        each!(self, e => e.free_refresh_buffers())
+    }
+
     /// See [`Engine::ghost_flags`].
     pub fn ghost_flags(&self) -> Option<Vec<bool>> {
         each!(self, e => e.ghost_flags())

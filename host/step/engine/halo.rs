@@ -297,11 +297,19 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         self.ghost_sync(&Refresh::EVERYTHING)?;
         // Every field's rows are several times a named refresh's: kept, they would hold the
         // largest buffers of the run for as long as this engine lives.
-        let g = self.ghosts_mut();
-        g.rows = Default::default();
-        g.host_rows = Default::default();
-        g.sync.trim();
+        self.free_refresh_buffers();
         Ok(())
+    }
+
+    /// Free the buffers the ghost refreshes keep between them (the rows packed and received,
+    /// the exchange's bytes); the next refresh allocates them again. After a refresh of every
+    /// field, and before an output, whose gathered state would otherwise lie beside them.
+    pub fn free_refresh_buffers(&mut self) {
+        if let Some(g) = &mut self.ghosts {
+            g.rows = Default::default();
+            g.host_rows = Default::default();
+            g.sync.trim();
+        }
     }
 
     /// The ghost flags and the sync's slots after a sort of the same particles: moved by the
