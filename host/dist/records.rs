@@ -284,26 +284,30 @@ mod tests {
         }
     }
 
-    /// A state made into records and back is the same state, and each of its columns is
-    /// allocated once at its size (a state gathered at an output is built this way: grown by
-    /// doubling it held up to twice its size).
-    #[test]
-    fn records_round_trip_into_columns_allocated_at_their_size() {
-        let n = 1000;
-        let st = State {
+    /// A gas of `n` particles with an energy and a solved h, and two dust fractions.
+    fn state(n: usize) -> State {
+        State {
             t: 0.5,
             step: 7,
             gas: Gas {
                 ph: phase(n, 0.0),
                 p: vec![2.0; n],
                 c: vec![1.5; n],
-                e: Some(vec![3.0; n]),
-                h: Some(vec![0.02; n]),
+                e: Some((0..n).map(|i| 3.0 + i as f64).collect()),
+                h: Some((0..n).map(|i| 0.02 + 1e-4 * i as f64).collect()),
                 omega: Some(vec![1.01; n]),
                 next_forces: None,
             },
             dust: vec![phase(300, -5.0), phase(77, 9.0)],
-        };
+        }
+    }
+
+    /// A state made into records and back is the same state, and each of its columns is
+    /// allocated once at its size (a state gathered at an output is built this way: grown by
+    /// doubling it held up to twice its size).
+    #[test]
+    fn records_round_trip_into_columns_allocated_at_their_size() {
+        let st = state(1000);
         let back = state_of(&records(&st), &st.shape());
         assert_eq!(back.gas, st.gas);
         assert_eq!(back.dust, st.dust);
@@ -329,21 +333,7 @@ mod tests {
     /// record gives its phase fixed flags, false for the particles already there.
     #[test]
     fn particles_dropped_in_place_and_appended_as_records_are_the_same_particles() {
-        let n = 500;
-        let st = State {
-            t: 0.5,
-            step: 7,
-            gas: Gas {
-                ph: phase(n, 0.0),
-                p: vec![2.0; n],
-                c: vec![1.5; n],
-                e: Some((0..n).map(|i| 3.0 + i as f64).collect()),
-                h: Some((0..n).map(|i| 0.02 + 1e-4 * i as f64).collect()),
-                omega: Some(vec![1.01; n]),
-                next_forces: None,
-            },
-            dust: vec![phase(300, -5.0), phase(77, 9.0)],
-        };
+        let st = state(500);
         let keep: Vec<bool> = (0..st.len()).map(|n| n % 3 != 1).collect();
         let leaving = records_where(&st, |n, _| !keep[n]);
         let mut counts = vec![0; 3];
