@@ -121,8 +121,8 @@ pub struct RankStepper {
     /// The rank's own particles (at the last build, output or retake; after a step on the
     /// resident engine they are its `local` state's, [`RankStepper::owned_stale`]).
     own: State,
-    /// `owned` is behind the resident engine's `local` state: read the own particles there
-    /// (they become records only where a build, an output or a retake needs them).
+    /// `own` is behind the resident engine's `local` state: read the own particles there
+    /// (the host copy less its ghosts becomes `own` again at a build or a retake).
     owned_stale: bool,
     depth: f64,
     /// Where this rank steps: its own GPU (rank r on device r mod count), or the CPU.
