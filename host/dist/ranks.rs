@@ -76,6 +76,10 @@ const MIN_MARGIN: f64 = 0.1;
 /// The largest margin of a thin halo, in supports.
 const MAX_MARGIN: f64 = 4.0;
 
+/// How many times a run's first layer is computed again on a wider halo before the run stops
+/// ([`RankStepper::build_resident`]).
+const MAX_LAYER_TRIES: usize = 8;
+
 /// A ghost's cost per step relative to an owned particle's, for the choice of the margin
 /// ([`RankStepper::margin_for`]): it takes no h, density or force pass, only the cell sums,
 /// the kick, the drift, the sort and its refreshes. (0.2 built fewer, larger halos: the ball
@@ -492,9 +496,49 @@ impl RankStepper {
     }
 
     /// This rank's resident engine on its owned particles and a thin halo, `margin` beyond the
-    /// reach: the cut, the migration, the halo, the engine and its ghosts' refresh (collective).
-    /// `None` when a rank holds no gas.
+    /// reach (collective; `None` when a rank holds no gas). Where its engine computes the first
+    /// layer (a run's start, a resume), the layer holds only if every own particle's support
+    /// at the h it solved lies within the halo: the halo's reach comes from the h the particles
+    /// carry (the reference h at a start), and a disc's tapered edge solves h several times
+    /// that, short of the neighbours beyond the halo. Where it does not, the layer is computed
+    /// again, from the particles as they were given, on a halo that reaches the solved h.
     fn build_resident(&mut self, step: u64) -> Result<Option<Resident>, String> {
+        if self.layer_given {
+            return self.build_resident_once(step);
+        }
+        let given = self.own.clone();
+        let motion = self.margin;
+        for _ in 0..MAX_LAYER_TRIES {
+            let Some(res) = self.build_resident_once(step)? else {
+                return Ok(None);
+            };
+            let m = (res.eng.owned_motion())
+                .unwrap_or_else(|x| abort_job(&self.world, step, &x))
+                .expect("a resident engine has its ghosts");
+            let mut h_max = [m.h_max];
+            self.world.max_f64(&mut h_max);
+            let need = crate::step::SUPPORT * h_max[0];
+            if need <= res.reach {
+                // Exact: a retake of the first step starts from this layer, as one process's
+                // first step does.
+                self.layer_given = true;
+                return Ok(Some(res));
+            }
+            // A reach that covers the solved h, and beyond it the margin kept for the motion.
+            self.margin = need - res.near + motion;
+            drop(res);
+            self.own = given.clone();
+            self.owned_stale = false;
+        }
+        Err(format!(
+            "step {step}: the first layer's h grew beyond the halo {MAX_LAYER_TRIES} times \
+             over; its particles' h keeps outgrowing their neighbourhood"
+        ))
+    }
+
+    /// [`RankStepper::build_resident`] on the halo of the current margin: the cut, the
+    /// migration, the halo, the engine and its ghosts' refresh.
+    fn build_resident_once(&mut self, step: u64) -> Result<Option<Resident>, String> {
         let t0 = std::time::Instant::now();
         let Some(lay) = self.local_layer(true)? else {
             return Ok(None);
