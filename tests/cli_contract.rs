@@ -143,7 +143,38 @@ fn run_writes_snapshots_at_output_times_and_a_summary() {
     assert_eq!(s["steps"], 100);
     assert_eq!(s["t_final"], 1.0);
     assert_eq!(s["particles"]["dust"].as_array().unwrap().len(), 4);
-    assert!(s["wall_seconds"].as_f64().unwrap() > 0.0);
+    let wall = s["wall_seconds"].as_f64().unwrap();
+    assert!(wall > 0.0);
+    // Where the wall time went: the steps' stages and the outputs, apart, together within it.
+    let sum = |k: &str| -> f64 {
+        s[k].as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e[1].as_f64().unwrap())
+            .sum()
+    };
+    let named = |k: &str, name: &str| {
+        s[k].as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e[0].as_str().unwrap().starts_with(name) && e[1].as_f64().unwrap() > 0.0)
+    };
+    assert!(
+        named("stage_seconds", "gas forces"),
+        "{}",
+        s["stage_seconds"]
+    );
+    assert!(
+        named("output_seconds", "snapshots"),
+        "{}",
+        s["output_seconds"]
+    );
+    assert!(
+        sum("stage_seconds") + sum("output_seconds") <= wall,
+        "stages {} + outputs {} > wall {wall}",
+        sum("stage_seconds"),
+        sum("output_seconds")
+    );
     for k in ["mass_gas", "mass_dust", "momentum_drift_relative", "energy"] {
         assert!(!s["conservation"][k].is_null(), "conservation.{k}");
     }

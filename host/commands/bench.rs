@@ -20,6 +20,8 @@ pub struct BenchResult {
     pub device: String,
     /// Device memory the engine allocated, per particle (GPU only).
     pub bytes_per_particle: Option<f64>,
+    /// The timed steps' stages (wall seconds; on a GPU each ends when its work is done).
+    pub stages: Vec<(&'static str, f64)>,
 }
 
 impl BenchResult {
@@ -62,12 +64,27 @@ pub fn bench(
             state.dust.iter().map(|d| d.len()).sum::<usize>(),
         );
         let n = gas + dust;
+        let before = sim.stepper.timers();
         let t0 = Instant::now();
         for _ in 0..steps {
             // No output times: the bench never lands.
             sim.step(f64::INFINITY).map_err(|e| e.to_string())?;
         }
         let seconds = t0.elapsed().as_secs_f64();
+        let stages = sim
+            .stepper
+            .timers()
+            .entries()
+            .iter()
+            .map(|&(name, t)| {
+                let t0 = before
+                    .entries()
+                    .iter()
+                    .find(|e| e.0 == name)
+                    .map_or(0.0, |e| e.1);
+                (name, t - t0)
+            })
+            .collect();
         Ok(BenchResult {
             case: case.to_string(),
             threads,
@@ -81,6 +98,7 @@ pub fn bench(
                 (Some(a), Some(b)) => Some(b.saturating_sub(a) as f64 / n.max(1) as f64),
                 _ => None,
             },
+            stages,
         })
     })
 }
@@ -141,6 +159,9 @@ pub struct BenchArgs {
     /// Per-particle neighbour lists (auto: on the CPU, off on CUDA; numerics.neighbour_list)
     #[arg(long, value_enum, default_value_t = ListChoice::Auto)]
     neighbour_list: ListChoice,
+    /// Below each row, the step's stages and their share of the timed steps
+    #[arg(long)]
+    stages: bool,
 }
 
 pub fn execute(a: BenchArgs) -> u8 {
@@ -152,6 +173,7 @@ pub fn execute(a: BenchArgs) -> u8 {
         device,
         precision,
         neighbour_list,
+        stages,
     } = a;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let bad = if steps == 0 {
@@ -241,6 +263,11 @@ pub fn execute(a: BenchArgs) -> u8 {
                         r.bytes_per_particle
                             .map_or("-".into(), |b| format!("{b:.0}"))
                     );
+                    if stages {
+                        for (stage, t) in &r.stages {
+                            println!("    {:>9.4} s {:>5.1} %  {stage}", t, 100.0 * t / r.seconds);
+                        }
+                    }
                     where_ = r.device;
                 }
                 Err(e) => {

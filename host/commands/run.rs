@@ -104,7 +104,7 @@ impl Run {
         }
         // The stages of the run's summary are the steps' (not the set-up's or the check's).
         if let Some(eng) = stepper.local() {
-            *eng.timers_mut() = Default::default();
+            eng.timers_mut().clear();
         }
         let record = OutputRecord {
             start_time: state.t,
@@ -529,12 +529,13 @@ fn drive(
 
 fn report(s: &Summary, out: &std::path::Path) {
     println!(
-        "{}: {} steps to t = {} in {:.2} s ({:.3e} particle-steps/s); summary: {}",
+        "{}: {} steps to t = {} in {:.2} s ({:.3e} particle-steps/s; outputs {:.2} s); summary: {}",
         s.scene,
         s.steps,
         s.t_final,
         s.wall_seconds,
         s.particle_steps_per_second,
+        s.output_seconds.iter().map(|e| e.1).sum::<f64>(),
         out.join("summary.json").display()
     );
     if let Some(u) = &s.units {

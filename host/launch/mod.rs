@@ -52,6 +52,11 @@ pub trait Launcher {
     fn lists_by_default(&self) -> bool {
         true
     }
+    /// A wait for the work issued so far, for stage timers (none where launches return only
+    /// when done, as on the CPU).
+    fn sync_hook(&self) -> Option<crate::step::timers::SyncHook> {
+        None
+    }
 }
 
 /// "1 thread", "n threads".

@@ -16,9 +16,11 @@ pub mod summary;
 use crate::particles::State;
 use crate::scene::Time;
 use crate::step::backend::{Backend, DeviceChoice, StartError};
+use crate::step::timers::Timers;
 use crate::step::timestep::{Plan, StepPlanner, Taken};
 use crate::step::{Physics, StepError};
 pub use diagnostics::{Diagnostics, ParticleCounts};
+use std::time::Instant;
 pub use stepper::Stepper;
 
 /// Why a command stopped short, or could not start.
@@ -84,6 +86,10 @@ pub enum Stop {
 /// date then when any observer asks for it every step, and at every time an observer must
 /// land on (its `next_time`).
 pub trait Observer {
+    /// What it does, for the summary's `output_seconds`.
+    fn name(&self) -> &'static str {
+        "other observers"
+    }
     /// The next time after `t` the run must land on exactly (an output), if any.
     fn next_time(&self, _t: f64) -> Option<f64> {
         None
@@ -117,6 +123,9 @@ pub struct Simulation {
     pub state: State,
     pub stepper: Stepper,
     pub diagnostics: Diagnostics,
+    /// Wall seconds of [`Simulation::run`] outside the steps: the state brought back at output
+    /// times, each observer (snapshots, diagnostics, progress), checkpoints.
+    pub output_timers: Timers,
 }
 
 impl Simulation {
@@ -135,6 +144,7 @@ impl Simulation {
             phys,
             state,
             stepper,
+            output_timers: Timers::default(),
         })
     }
 
@@ -159,6 +169,7 @@ impl Simulation {
             state,
             stepper,
             diagnostics,
+            output_timers: Timers::default(),
         }
     }
 
@@ -311,9 +322,15 @@ impl Simulation {
         while self.state.t < t_end {
             let mut flow = Flow::Continue;
             for o in observers.iter_mut() {
+                let t0 = Instant::now();
                 flow = most(flow, o.before_step(self)?);
+                self.output_timers.add(o.name(), t0.elapsed().as_secs_f64());
             }
-            if let Some(stop) = self.obey(flow, observers, &mut checkpoints)? {
+            let t0 = Instant::now();
+            let stop = self.obey(flow, observers, &mut checkpoints)?;
+            self.output_timers
+                .add("checkpoints", t0.elapsed().as_secs_f64());
+            if let Some(stop) = stop {
                 return Ok(stop);
             }
             let target = observers
@@ -322,13 +339,22 @@ impl Simulation {
                 .fold(t_end, f64::min);
             let taken = self.step(target).map_err(step_err)?;
             if taken.plan.landing {
+                let t0 = Instant::now();
                 self.sync().map_err(step_err)?;
+                self.output_timers
+                    .add("the state brought back", t0.elapsed().as_secs_f64());
             }
             let mut flow = Flow::Continue;
             for o in observers.iter_mut() {
+                let t0 = Instant::now();
                 flow = most(flow, o.after_step(self, &taken)?);
+                self.output_timers.add(o.name(), t0.elapsed().as_secs_f64());
             }
-            if let Some(stop) = self.obey(flow, observers, &mut checkpoints)? {
+            let t0 = Instant::now();
+            let stop = self.obey(flow, observers, &mut checkpoints)?;
+            self.output_timers
+                .add("checkpoints", t0.elapsed().as_secs_f64());
+            if let Some(stop) = stop {
                 return Ok(stop);
             }
         }

@@ -131,6 +131,10 @@ impl Outputs {
 }
 
 impl Observer for Outputs {
+    fn name(&self) -> &'static str {
+        "snapshots (output fields, files, error norms)"
+    }
+
     fn next_time(&self, _t: f64) -> Option<f64> {
         self.times.get(self.record.next_output).copied()
     }
@@ -292,6 +296,10 @@ impl BallChecks {
 }
 
 impl Observer for BallChecks {
+    fn name(&self) -> &'static str {
+        "ball checks (core, Lagrange–Jacobi)"
+    }
+
     fn after_step(&mut self, sim: &mut Simulation, _: &Taken) -> Result<Flow, RunError> {
         self.record_now(sim)?;
         Ok(Flow::Continue)

@@ -134,7 +134,12 @@ pub struct Summary {
     /// Error norms at every snapshot time (scenes with an exact solution).
     pub errors: Vec<ExactErrors>,
     pub snapshots: Vec<String>,
+    /// The step's stages, in wall seconds of this session (from the start, or the resume):
+    /// on a GPU each stage ends when the device has finished its work.
     pub stage_seconds: Vec<(&'static str, f64)>,
+    /// Wall seconds of this session outside the steps: the state brought back at output
+    /// times, snapshots with their analysis, other observers, checkpoints.
+    pub output_seconds: Vec<(&'static str, f64)>,
     /// Over MPI ranks: what each rank sent and how long it spent in the exchanges, in rank
     /// order, over the whole run (set-up, steps and outputs; docs/scaling.md).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -217,6 +222,7 @@ pub fn finish(
         state,
         stepper,
         diagnostics: d,
+        output_timers,
         ..
     } = sim;
     drop(stepper);
@@ -289,6 +295,7 @@ pub fn finish(
         errors: outputs.errors,
         snapshots: outputs.snapshots,
         stage_seconds: timers.entries().to_vec(),
+        output_seconds: output_timers.entries().to_vec(),
         rank_traffic,
         ball,
     };

@@ -152,7 +152,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         d.copy(&self.dust.v, &self.kdk.u_save, self.dust.n)?;
         // Predicted velocities v*, u* (drag included: for stiff drag the undragged prediction
         // would be off by O(1)), timed apart from the two half kicks.
-        let mut pred = Timers::default();
+        let mut pred = timers.empty_like();
         self.kick(&mut pred, half, false)?;
         self.ghost_sync(&Refresh::PREDICTOR)?;
         let t_pred: f64 = pred.entries().iter().map(|e| e.1).sum();

@@ -203,7 +203,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             sm: SmoothingBuffers::new(&d, &stages, g, ng, dust.n)?,
             phys,
             stages,
-            timers: Timers::default(),
+            timers: Timers::synchronised(d.launcher.sync_hook()),
             d,
             base,
             grid,
