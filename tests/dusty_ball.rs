@@ -98,3 +98,36 @@ fn slab_and_disc_are_compared_with_their_own_geometry() {
         assert!(inner < bound, "{dim}D inner L1(ρ_g) = {inner}");
     }
 }
+
+/// The Lagrange–Jacobi terms summed on the engine's launcher (the particles stay there) are
+/// the host's sums over the synced state, to round-off (a different order of addition), after
+/// a few steps that set the ball moving; in f64 and in f32.
+#[test]
+fn the_lagrange_jacobi_terms_reduced_on_the_engine_are_the_hosts() {
+    use dustsph::sim::Simulation;
+    use dustsph::step::backend::DeviceChoice;
+    for precision in ["f64", "f32"] {
+        let sets: Vec<String> = SMALL
+            .iter()
+            .map(|s| s.to_string())
+            .chain([format!("numerics.precision=\"{precision}\"")])
+            .collect();
+        let l = dustsph::scene::load_shipped("configs/dusty_ball.toml", &sets).unwrap();
+        let (mut sim, _) = Simulation::of_scene(&l.scene, DeviceChoice::Cpu).unwrap();
+        for _ in 0..5 {
+            sim.step(f64::INFINITY).unwrap();
+        }
+        let (i, rhs) = sim.stepper.lagrange_jacobi_terms(3).unwrap();
+        sim.sync().unwrap();
+        let (hi, hrhs) = dustsph::analysis::ball::lagrange_jacobi_terms(&sim.state, 3);
+        assert!(hi > 0.0 && hrhs > 0.0);
+        assert!(
+            (i - hi).abs() <= 1e-12 * hi,
+            "{precision}: I {i} against {hi}"
+        );
+        assert!(
+            (rhs - hrhs).abs() <= 1e-12 * hrhs,
+            "{precision}: rhs {rhs} against {hrhs}"
+        );
+    }
+}

@@ -5,6 +5,7 @@
 //! the file or directory it concerns.
 
 pub mod checkpoint;
+mod chunks;
 pub mod ics;
 pub mod output_dir;
 pub mod sha256;

@@ -566,8 +566,9 @@ fn write_group(file: &File, name: &str, c: &Columns, path: &Path) -> Result<(), 
     Ok(())
 }
 
-/// Writes `data` as an N (width 1) or N×width dataset, chunked and compressed unless empty.
-pub(crate) fn put_dataset<T: H5Type>(
+/// Writes `data` as an N (width 1) or N×width dataset, chunked and compressed unless empty
+/// (the filters run on every core: [`super::chunks`]).
+pub(crate) fn put_dataset<T: H5Type + Copy + Sync>(
     g: &Group,
     name: &str,
     data: &[T],
@@ -581,20 +582,37 @@ pub(crate) fn put_dataset<T: H5Type>(
     } else {
         vec![rows, width]
     };
-    let view = ArrayViewD::from_shape(IxDyn(&shape), data)
-        .map_err(|e| IoError::invalid(path, format!("{obj}: {e}")))?;
-    let builder = g.new_dataset_builder().with_data(view);
-    let builder = if rows == 0 {
+    if rows == 0 {
         // Chunk dimensions must be positive and there is nothing to compress: plain contiguous.
-        builder.no_chunk()
-    } else {
-        let mut chunk = shape.clone();
-        chunk[0] = rows.min(CHUNK_ROWS);
-        // Shuffle first: it groups bytes of equal significance, which deflate then packs.
-        builder.chunk(chunk).shuffle().deflate(DEFLATE_LEVEL)
-    };
-    builder.create(name).map_err(h5err(path, &obj))?;
-    Ok(())
+        let view = ArrayViewD::from_shape(IxDyn(&shape), data)
+            .map_err(|e| IoError::invalid(path, format!("{obj}: {e}")))?;
+        g.new_dataset_builder()
+            .with_data(view)
+            .no_chunk()
+            .create(name)
+            .map_err(h5err(path, &obj))?;
+        return Ok(());
+    }
+    let mut chunk = shape.clone();
+    chunk[0] = rows.min(CHUNK_ROWS);
+    // Shuffle first: it groups bytes of equal significance, which deflate then packs.
+    let ds = g
+        .new_dataset::<T>()
+        .shape(shape)
+        .chunk(chunk)
+        .shuffle()
+        .deflate(DEFLATE_LEVEL)
+        .create(name)
+        .map_err(h5err(path, &obj))?;
+    super::chunks::write_shuffled_deflated(
+        &ds,
+        data,
+        width,
+        rows.min(CHUNK_ROWS),
+        DEFLATE_LEVEL,
+        path,
+        &obj,
+    )
 }
 
 /// What a snapshot's header says about the run that wrote it.

@@ -284,9 +284,9 @@ impl BallChecks {
 
     /// Record the terms of the state as it stands (collective over ranks; rank 0 keeps them).
     pub fn record_now(&mut self, sim: &mut Simulation) -> Result<(), RunError> {
-        let Simulation { stepper, state, .. } = sim;
-        let (i, rhs) = stepper
-            .lagrange_jacobi_terms(state, self.loaded.scene.dim())
+        let (i, rhs) = sim
+            .stepper
+            .lagrange_jacobi_terms(self.loaded.scene.dim())
             .map_err(|e| RunError::Step(e.to_string()))?;
         if sim.is_root() {
             self.record.lagrange_jacobi.push((sim.state.t, i, rhs));

@@ -175,16 +175,10 @@ impl Stepper {
 
     /// The ball's Lagrange–Jacobi terms (I, 2Σm|v|² + 2dΣm p/ρ) of every particle after the
     /// last step (collective over ranks: each rank's own particles, summed).
-    pub fn lagrange_jacobi_terms(
-        &mut self,
-        state: &mut State,
-        dim: u32,
-    ) -> Result<(f64, f64), StepError> {
+    pub fn lagrange_jacobi_terms(&mut self, dim: u32) -> Result<(f64, f64), StepError> {
         match self {
-            Stepper::Local(eng) => {
-                eng.sync(state)?;
-                Ok(crate::analysis::ball::lagrange_jacobi_terms(state, dim))
-            }
+            // A reduction on the engine's launcher: the particles stay on the device.
+            Stepper::Local(eng) => eng.lagrange_jacobi(dim),
             #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => Ok(ranks.lagrange_jacobi_terms(dim)),
         }

@@ -389,6 +389,11 @@ impl Backend {
         each!(self, e => Ok(e.momentum()?))
     }
 
+    /// See [`Engine::lagrange_jacobi`].
+    pub fn lagrange_jacobi(&mut self, dim: u32) -> Result<(f64, f64), StepError> {
+        each!(self, e => Ok(e.lagrange_jacobi(dim)?))
+    }
+
     pub fn sync(&mut self, state: &mut State) -> Result<(), StepError> {
         each!(self, e => Ok(e.sync(state)?))
     }

@@ -1,10 +1,10 @@
 //! Diagnostics: the momentum reduction (with the angular momentum and the particles inside the
-//! accretion radius, method.md §1.2).
+//! accretion radius, method.md §1.2, and the ball's Lagrange–Jacobi sums, method.md §6.1).
 use super::*;
 
 /// Sums per thread: Σ m v (3), Σ m |v|, Σ m (x − centre) × v (3), particles inside the
-/// accretion radius.
-pub const MOMENTUM_SUMS: usize = 8;
+/// accretion radius; then the Lagrange–Jacobi terms Σ m |x|², Σ 2 m |v|², Σ m p/ρ.
+pub const MOMENTUM_SUMS: usize = 11;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
@@ -16,6 +16,8 @@ pub struct MomentumArgs<R> {
     pub centre: Vec3<f64>,
     /// The accretion radius squared (0: none is counted).
     pub r_acc2: f64,
+    /// The gas pressure (Σ m p/ρ); null for dust.
+    pub p: *const R,
     /// Per thread: [`MOMENTUM_SUMS`] sums over its chunk, in f64.
     pub out: *mut f64,
 }
@@ -31,7 +33,7 @@ pub unsafe fn momentum<R: Real>(t: usize, a: &MomentumArgs<R>) {
         return;
     }
     let hi = (lo + a.chunk as usize).min(n);
-    let (x, v, m) = (sl(a.ph.x, n), sl(a.ph.v, n), sl(a.ph.m, n));
+    let (x, v, m, rho) = (sl(a.ph.x, n), sl(a.ph.v, n), sl(a.ph.m, n), sl(a.ph.rho, n));
     let mut s = [0.0f64; MOMENTUM_SUMS];
     for i in lo..hi {
         let mi = m[i].to_f64();
@@ -51,6 +53,11 @@ pub unsafe fn momentum<R: Real>(t: usize, a: &MomentumArgs<R>) {
         }
         if dot(r, r) < a.r_acc2 {
             s[7] += 1.0;
+        }
+        s[8] += mi * dot(x[i], x[i]);
+        s[9] += 2.0 * mi * dot(vi, vi);
+        if !a.p.is_null() {
+            s[10] += mi * (*a.p.add(i)).to_f64() / rho[i].to_f64();
         }
     }
     for (k, x) in s.iter().enumerate() {

@@ -350,21 +350,47 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         .cast()
     }
 
-    /// Copy the particle state back to the host (snapshots, checkpoints, the summary).
     /// The total momentum and its scale Σ m|v| of every particle, by a reduction on the
-    /// launcher (per chunk in particle order, the chunks added here in order: the same sums on
-    /// every launcher and thread count), without downloading the particles.
+    /// launcher, without downloading the particles.
     pub fn momentum(&mut self) -> Result<Momentum, GpuError> {
-        /// Particles per thread of the reduction.
-        const CHUNK: usize = 256;
-        const S: usize = th::MOMENTUM_SUMS;
         let mut m = Momentum {
             p: [0.0; 3],
             scale: 0.0,
             l: [0.0; 3],
             inside: 0,
         };
+        for c in self.diagnostic_sums()? {
+            for k in 0..3 {
+                m.p[k] += c[k];
+                m.l[k] += c[4 + k];
+            }
+            m.scale += c[3];
+            m.inside += c[7] as usize;
+        }
+        Ok(m)
+    }
+
+    /// The ball's Lagrange–Jacobi terms (I, 2Σm|v|² + 2dΣm p/ρ) over every particle
+    /// (method.md §6.1; `analysis::ball::lagrange_jacobi_terms` on the host), by the same
+    /// reduction, without downloading the particles.
+    pub fn lagrange_jacobi(&mut self, dim: u32) -> Result<(f64, f64), GpuError> {
+        let (mut i, mut ke2, mut pv) = (0.0, 0.0, 0.0);
+        for c in self.diagnostic_sums()? {
+            i += c[8];
+            ke2 += c[9];
+            pv += c[10];
+        }
+        Ok((i, ke2 + 2.0 * dim as f64 * pv))
+    }
+
+    /// The momentum kernel's sums per chunk of 256 particles, gas then dust, in particle
+    /// order: added in this order, the same on every launcher and thread count.
+    fn diagnostic_sums(&mut self) -> Result<Vec<[f64; th::MOMENTUM_SUMS]>, GpuError> {
+        /// Particles per thread of the reduction.
+        const CHUNK: usize = 256;
+        const S: usize = th::MOMENTUM_SUMS;
         let r_acc = self.phys.accretion_radius;
+        let mut out = Vec::new();
         for gas in [true, false] {
             let ph = if gas { &self.gas } else { &self.dust };
             if ph.n == 0 {
@@ -379,21 +405,22 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 chunk: CHUNK as u32,
                 centre: self.phys.gravity.pos,
                 r_acc2: r_acc * r_acc,
+                p: if gas {
+                    d.ptr(&self.pres).cast_const()
+                } else {
+                    std::ptr::null()
+                },
                 out: d.ptr(&self.chunk_sums),
             };
             d.run(R::MOMENTUM, threads, &a)?;
             for c in d.get(&self.chunk_sums, S * threads)?.chunks_exact(S) {
-                for k in 0..3 {
-                    m.p[k] += c[k];
-                    m.l[k] += c[4 + k];
-                }
-                m.scale += c[3];
-                m.inside += c[7] as usize;
+                out.push(c.try_into().expect("S sums"));
             }
         }
-        Ok(m)
+        Ok(out)
     }
 
+    /// Copy the particle state back to the host (snapshots, checkpoints, the summary).
     pub fn sync(&self, state: &mut State) -> Result<(), GpuError> {
         let d = &self.d;
         self.gas.download(d, &mut [&mut state.gas.ph])?;
