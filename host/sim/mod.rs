@@ -320,17 +320,9 @@ impl Simulation {
     ) -> Result<Stop, RunError> {
         let mut checkpoints = checkpoints;
         while self.state.t < t_end {
-            let mut flow = Flow::Continue;
-            for o in observers.iter_mut() {
-                let t0 = Instant::now();
-                flow = most(flow, o.before_step(self)?);
-                self.output_timers.add(o.name(), t0.elapsed().as_secs_f64());
-            }
-            let t0 = Instant::now();
-            let stop = self.obey(flow, observers, &mut checkpoints)?;
-            self.output_timers
-                .add("checkpoints", t0.elapsed().as_secs_f64());
-            if let Some(stop) = stop {
+            if let Some(stop) =
+                self.consult(observers, &mut checkpoints, |o, s| o.before_step(s))?
+            {
                 return Ok(stop);
             }
             let target = observers
@@ -344,21 +336,33 @@ impl Simulation {
                 self.output_timers
                     .add("the state brought back", t0.elapsed().as_secs_f64());
             }
-            let mut flow = Flow::Continue;
-            for o in observers.iter_mut() {
-                let t0 = Instant::now();
-                flow = most(flow, o.after_step(self, &taken)?);
-                self.output_timers.add(o.name(), t0.elapsed().as_secs_f64());
-            }
-            let t0 = Instant::now();
-            let stop = self.obey(flow, observers, &mut checkpoints)?;
-            self.output_timers
-                .add("checkpoints", t0.elapsed().as_secs_f64());
-            if let Some(stop) = stop {
+            let after = |o: &mut dyn Observer, s: &mut Simulation| o.after_step(s, &taken);
+            if let Some(stop) = self.consult(observers, &mut checkpoints, after)? {
                 return Ok(stop);
             }
         }
         Ok(Stop::Finished)
+    }
+
+    /// Ask every observer (`ask`: before or after a step), each timed, then carry out what
+    /// they asked.
+    fn consult(
+        &mut self,
+        observers: &mut [&mut dyn Observer],
+        checkpoints: &mut Option<&mut dyn Checkpointer>,
+        mut ask: impl FnMut(&mut dyn Observer, &mut Simulation) -> Result<Flow, RunError>,
+    ) -> Result<Option<Stop>, RunError> {
+        let mut flow = Flow::Continue;
+        for o in observers.iter_mut() {
+            let t0 = Instant::now();
+            flow = most(flow, ask(&mut **o, self)?);
+            self.output_timers.add(o.name(), t0.elapsed().as_secs_f64());
+        }
+        let t0 = Instant::now();
+        let stop = self.obey(flow, observers, checkpoints)?;
+        self.output_timers
+            .add("checkpoints", t0.elapsed().as_secs_f64());
+        Ok(stop)
     }
 
     /// Carry out what the observers asked: a checkpoint, a stop.
