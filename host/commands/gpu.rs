@@ -35,6 +35,14 @@ pub fn execute(a: GpuArgs) -> u8 {
         launch::PTX.len(),
         launch::PTX.matches(".entry ").count()
     );
+    let _ = match launch::register_cap() {
+        Ok(Some(n)) => writeln!(
+            out,
+            "registers: at most {n} a thread when loaded (DUSTSPH_PTX_MAXNREG=N or off changes it)"
+        ),
+        Ok(None) => writeln!(out, "registers: uncapped (DUSTSPH_PTX_MAXNREG=off)"),
+        Err(e) => writeln!(out, "registers: {e}"),
+    };
     let _ = match launch::probe() {
         Ok(name) => writeln!(out, "device: {name}"),
         Err(why) => writeln!(out, "device: none ({why})"),

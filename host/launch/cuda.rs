@@ -73,20 +73,7 @@ impl Cuda {
         probe().map_err(GpuError)?;
         let ctx = CudaContext::new(ordinal)?;
         let stream = ctx.default_stream();
-        // Every entry point's registers capped (occupancy against spills; docs/gpu.md):
-        // MAX_REGISTERS, or DUSTSPH_PTX_MAXNREG=N (16-255), or =off for none.
-        let cap = match std::env::var("DUSTSPH_PTX_MAXNREG") {
-            Err(_) => Some(MAX_REGISTERS),
-            Ok(v) if v.trim() == "off" => None,
-            Ok(v) => match v.trim().parse::<u32>() {
-                Ok(n) if (16..=255).contains(&n) => Some(n),
-                _ => {
-                    return Err(GpuError(format!(
-                        "DUSTSPH_PTX_MAXNREG={v}: a register count from 16 to 255, or off"
-                    )))
-                }
-            },
-        };
+        let cap = register_cap().map_err(GpuError)?;
         let capped = cap.map(|n| cap_registers(ptx, n));
         let ptx = capped.as_deref().unwrap_or(ptx);
         let module = ctx.load_module(cudarc::nvrtc::Ptx::from_src(ptx))?;
@@ -95,11 +82,15 @@ impl Cuda {
             funcs.insert(k, module.load_function(k)?);
         }
         let (free, total) = ctx.mem_get_info()?;
+        // The cap is part of how a run was made (summary.json's backend).
         let name = format!(
-            "{} (CUDA device {ordinal}, {:.1} of {:.1} GiB free)",
+            "{} (CUDA device {ordinal}, {:.1} of {:.1} GiB free, {})",
             ctx.name()?,
             free as f64 / (1u64 << 30) as f64,
-            total as f64 / (1u64 << 30) as f64
+            total as f64 / (1u64 << 30) as f64,
+            cap.map_or("registers uncapped".into(), |n| format!(
+                "at most {n} registers a thread"
+            ))
         );
         Ok(Cuda {
             ctx,
@@ -121,6 +112,21 @@ impl Cuda {
     pub fn memory_used(&self) -> Result<usize, GpuError> {
         let (free, total) = self.ctx.mem_get_info()?;
         Ok(total - free)
+    }
+}
+
+/// The register cap the kernels are loaded with (occupancy against spills; docs/gpu.md):
+/// [`MAX_REGISTERS`], or `DUSTSPH_PTX_MAXNREG=N` (16–255), or `=off` for none.
+pub fn register_cap() -> Result<Option<u32>, String> {
+    match std::env::var("DUSTSPH_PTX_MAXNREG") {
+        Err(_) => Ok(Some(MAX_REGISTERS)),
+        Ok(v) if v.trim() == "off" => Ok(None),
+        Ok(v) => match v.trim().parse::<u32>() {
+            Ok(n) if (16..=255).contains(&n) => Ok(Some(n)),
+            _ => Err(format!(
+                "DUSTSPH_PTX_MAXNREG={v}: a register count from 16 to 255, or off"
+            )),
+        },
     }
 }
 

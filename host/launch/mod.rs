@@ -8,7 +8,7 @@
 pub mod cuda;
 pub mod rayon;
 
-pub use self::cuda::{probe, Cuda, PTX, PTX_NOTE};
+pub use self::cuda::{probe, register_cap, Cuda, PTX, PTX_NOTE};
 pub use self::rayon::Rayon;
 use dustsph_device::kernel_table::Kernel;
 
