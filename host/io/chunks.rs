@@ -12,14 +12,16 @@ use rayon::prelude::*;
 
 use super::IoError;
 
-/// HDF5's shuffle filter (H5Zshuffle.c): byte `j` of element `i` goes to `j·n + i`, so that
-/// bytes of equal significance lie together for deflate.
-fn shuffle(raw: &[u8], elem: usize) -> Vec<u8> {
+/// HDF5's shuffle filter (H5Zshuffle.c) of a chunk of `chunk_bytes` whose first bytes are
+/// `raw` and the rest zeros: byte `j` of element `i` goes to `j·n + i`, so that bytes of
+/// equal significance lie together for deflate.
+fn shuffle(raw: &[u8], elem: usize, chunk_bytes: usize) -> Vec<u8> {
+    let mut out = vec![0u8; chunk_bytes];
     if elem <= 1 {
-        return raw.to_vec();
+        out[..raw.len()].copy_from_slice(raw);
+        return out;
     }
-    let n = raw.len() / elem;
-    let mut out = vec![0u8; raw.len()];
+    let n = chunk_bytes / elem;
     for (i, e) in raw.chunks_exact(elem).enumerate() {
         for (j, &b) in e.iter().enumerate() {
             out[j * n + i] = b;
@@ -53,13 +55,11 @@ pub(crate) fn write_shuffled_deflated<T: H5Type + Copy + Sync>(
             // An edge chunk is stored whole: the rows past the end are zeros.
             let start = c * chunk_bytes;
             let end = (start + chunk_bytes).min(bytes.len());
-            let mut raw = vec![0u8; chunk_bytes];
-            raw[..end - start].copy_from_slice(&bytes[start..end]);
             let mut z = flate2::write::ZlibEncoder::new(
-                Vec::with_capacity(chunk_bytes / 2),
+                Vec::with_capacity(chunk_bytes / 4),
                 flate2::Compression::new(level.into()),
             );
-            z.write_all(&shuffle(&raw, elem))
+            z.write_all(&shuffle(&bytes[start..end], elem, chunk_bytes))
                 .and_then(|_| z.finish())
                 .map_err(|e| IoError::io(path, e))
         })
@@ -128,7 +128,15 @@ mod tests {
     #[test]
     fn shuffle_groups_bytes_by_significance() {
         let raw = [1u8, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
-        assert_eq!(shuffle(&raw, 4), [1, 5, 9, 2, 6, 10, 3, 7, 11, 4, 8, 12]);
-        assert_eq!(shuffle(&raw, 1), raw);
+        assert_eq!(
+            shuffle(&raw, 4, 12),
+            [1, 5, 9, 2, 6, 10, 3, 7, 11, 4, 8, 12]
+        );
+        assert_eq!(shuffle(&raw, 1, 12), raw);
+        // An edge chunk: the elements past the data are zeros, shuffled with the rest.
+        assert_eq!(
+            shuffle(&raw[..8], 4, 12),
+            [1, 5, 0, 2, 6, 0, 3, 7, 0, 4, 8, 0]
+        );
     }
 }
