@@ -55,6 +55,16 @@ pub struct Traffic {
     /// Bytes this rank sent to rank 0's gathers (outputs, the final state).
     pub gather_bytes: u64,
     pub gather_seconds: f64,
+    /// Seconds in the small collectives (the step size's and the motion's reductions, the
+    /// agreement of every rank to go on): mostly the wait for the slowest rank.
+    pub collective_seconds: f64,
+}
+
+impl Traffic {
+    /// Seconds this rank spent in MPI (waiting for the other ranks, mostly).
+    pub fn blocked_seconds(&self) -> f64 {
+        self.exchange_seconds + self.gather_seconds + self.collective_seconds
+    }
 }
 
 // SAFETY: `repr(C)` of 8-byte fields only (no padding), and every bit pattern is a valid
@@ -82,6 +92,7 @@ pub mod comm {
         exchange_seconds: 0.0,
         gather_bytes: 0,
         gather_seconds: 0.0,
+        collective_seconds: 0.0,
     });
 
     /// This process's traffic so far.
@@ -91,6 +102,11 @@ pub mod comm {
 
     fn count(f: impl FnOnce(&mut Traffic)) {
         f(&mut TRAFFIC.lock().unwrap_or_else(|e| e.into_inner()));
+    }
+
+    /// A small collective that began at `start`, counted.
+    fn collective(start: std::time::Instant) {
+        count(|t| t.collective_seconds += start.elapsed().as_secs_f64());
     }
 
     pub struct World {
@@ -138,29 +154,37 @@ pub mod comm {
 
         /// Element-wise minimum over ranks.
         pub fn min_f64(&self, v: &mut [f64]) {
+            let start = std::time::Instant::now();
             let send = v.to_vec();
             self.world
                 .all_reduce_into(&send[..], v, SystemOperation::min());
+            collective(start);
         }
 
         /// Element-wise maximum over ranks.
         pub fn max_f64(&self, v: &mut [f64]) {
+            let start = std::time::Instant::now();
             let send = v.to_vec();
             self.world
                 .all_reduce_into(&send[..], v, SystemOperation::max());
+            collective(start);
         }
 
         /// Element-wise sum over ranks.
         pub fn sum_f64(&self, v: &mut [f64]) {
+            let start = std::time::Instant::now();
             let send = v.to_vec();
             self.world
                 .all_reduce_into(&send[..], v, SystemOperation::sum());
+            collective(start);
         }
 
         pub fn sum_u64(&self, v: &mut [u64]) {
+            let start = std::time::Instant::now();
             let send = v.to_vec();
             self.world
                 .all_reduce_into(&send[..], v, SystemOperation::sum());
+            collective(start);
         }
 
         /// Whether any rank says so (every rank must call it: the clean stop of all ranks).
@@ -172,6 +196,7 @@ pub mod comm {
 
         /// Every rank's bytes, in rank order, on every rank.
         pub fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
+            let start = std::time::Instant::now();
             let held = real(mine);
             let mine = &held[..];
             let mut counts = vec![0 as Count; self.size() as usize];
@@ -184,6 +209,7 @@ pub mod comm {
                 let mut part = PartitionMut::new(&mut buf[..total], &counts[..], &displs[..]);
                 self.world.all_gather_varcount_into(mine, &mut part);
             }
+            collective(start);
             split(&buf[..total], &counts, &displs)
         }
 

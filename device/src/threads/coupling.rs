@@ -82,6 +82,15 @@ pub struct CouplingBufs<R> {
     /// The gas kernels of the weights, one per gas particle (variable h: W(r, h_a)); null:
     /// one shared kernel at the reference h.
     pub kernel_at: *const KernelAt<R>,
+    /// Per gas particle, 1 where its solve and heat are left to its owner: over MPI ranks a
+    /// ghost, whose values the refresh after the pass brings (docs/scaling.md); null: none.
+    pub gas_skip: *const u8,
+}
+
+/// Whether gas particle t's solve and heat are left to its owner ([`CouplingBufs::gas_skip`]).
+#[inline(always)]
+unsafe fn gas_skipped<R>(cb: &CouplingBufs<R>, t: usize) -> bool {
+    !cb.gas_skip.is_null() && *cb.gas_skip.add(t) != 0
 }
 
 /// Calls `f` with the gas kernels of the weights: one per gas particle, or one shared
@@ -156,7 +165,7 @@ pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
     let p = &a.p;
     let nf = p.nf as usize;
     let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
-    if kernels::is_fixed(g.fixed(), t) {
+    if kernels::is_fixed(g.fixed(), t) || gas_skipped(&a.cb, t) {
         return coupling_finish(t, a, &kernels::Deposit::default(), &dust_dep);
     }
     let k = with_gas_kernels(a.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
@@ -550,7 +559,7 @@ pub unsafe fn coupling_heat<R: Real>(t: usize, a: &CouplingHeatArgs<R>) {
         return;
     }
     let p = &c.p;
-    if kernels::is_fixed(g.fixed(), t) {
+    if kernels::is_fixed(g.fixed(), t) || gas_skipped(&c.cb, t) {
         *a.heat.add(t) = R::ZERO;
         return;
     }

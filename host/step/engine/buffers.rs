@@ -527,6 +527,8 @@ impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
             } else {
                 std::ptr::null()
             },
+            // The engine sets it where it has ghosts (`Engine::coupling_bufs`).
+            gas_skip: std::ptr::null(),
         }
     }
 }

@@ -74,6 +74,18 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         d.run(R::CELL_STEP, self.cells.ukey.len, &ca)
     }
 
+    /// The kernel coupling's buffers, with the gas ghosts (over MPI ranks) marked as left to
+    /// their owners: their solve and heat are not computed here, the refresh after the pass
+    /// brings them (a ghost's own, cut off at the halo's edge, would be overwritten).
+    pub(super) fn coupling_bufs(&self) -> th::CouplingBufs<R> {
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        let mut b = c.bufs(&self.d, &self.sm.kernel_at);
+        if let Some(m) = (self.ghosts.as_ref()).and_then(|g| g.mask[0].as_ref()) {
+            b.gas_skip = self.d.ptr(m);
+        }
+        b
+    }
+
     /// The kernel coupling's normalisers at the current positions, unless this layer has them.
     pub(super) fn coupling_norms(&mut self) -> Result<(), GpuError> {
         let d = &self.d;
@@ -94,10 +106,13 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         if self.norms_fresh {
             return Ok(());
         }
-        for (ph, s) in [(&self.gas, &c.s_gas), (&self.dust, &c.s_dust)] {
+        // A ghost's normaliser comes from its owner (the refresh after them): its own sum,
+        // cut off at the halo's edge, is not computed.
+        for (gas, s) in [(true, &c.s_gas), (false, &c.s_dust)] {
+            let ph = if gas { &self.gas } else { &self.dust };
             let a = th::NormArgs {
                 gas: self.gas.bufs(d),
-                ph: ph.bufs(d),
+                ph: self.masked(gas),
                 s: d.ptr(s),
                 kernel_at: c.bufs(d, &self.sm.kernel_at).kernel_at,
                 p: self.params(0.0)?.dev,
@@ -127,7 +142,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             dust: self.dust.bufs(d),
             acc: d.ptr(&self.acc),
             pres: d.ptr(&self.pres),
-            cb: c.bufs(d, &self.sm.kernel_at),
+            cb: self.coupling_bufs(),
             p: p.dev,
         };
         match &c.sums {
@@ -158,14 +173,15 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         for (ph, gas) in [(&self.gas, true), (&self.dust, false)] {
             let ra = th::ReturnArgs {
                 gas: self.gas.bufs(d),
-                ph: ph.bufs(d),
+                // Ghosts take their owners' velocities with the next refresh.
+                ph: self.masked(gas),
                 acc: if gas {
                     d.ptr(&self.acc)
                 } else {
                     std::ptr::null_mut()
                 },
                 is_gas: gas as u32,
-                cb: c.bufs(d, &self.sm.kernel_at),
+                cb: self.coupling_bufs(),
                 out: std::ptr::null_mut(),
                 loss: if heat {
                     d.opt(&ph.loss)
@@ -347,14 +363,13 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         self.coupling_norms()?;
         self.ghost_sync(&Refresh::COUPLING_NORMS)?;
         let d = &self.d;
-        let c = self.coupling.as_ref().expect("kernel coupling");
         let p = self.params(0.0)?;
         let ca = th::CoupleArgs {
             gas: self.gas.bufs(d),
             dust: self.dust.bufs(d),
             acc: d.ptr(&self.zero_acc),
             pres: d.ptr(&self.pres),
-            cb: c.bufs(d, &self.sm.kernel_at),
+            cb: self.coupling_bufs(),
             p: p.dev,
         };
         d.run(R::COUPLING_SOLVE, self.gas.n, &ca)?;
