@@ -35,6 +35,8 @@ pub fn refuse_many_ranks(what: &str) -> Result<(), String> {
 }
 
 #[cfg(feature = "mpi")]
+pub mod farm;
+#[cfg(feature = "mpi")]
 pub mod halo;
 #[cfg(feature = "mpi")]
 pub mod ranks;
@@ -240,6 +242,20 @@ pub mod comm {
                 (self.world.process_at_rank(from as i32)).receive_vec_with_tag::<u8>(STREAM_TAG);
             count(|t| t.gather_seconds += start.elapsed().as_secs_f64());
             got
+        }
+
+        /// `bytes` from rank 0 to rank `to` (an output's chunks to deflate: `dist::farm`),
+        /// counted as gathered.
+        pub fn send_to(&self, to: u32, bytes: &[u8]) {
+            let start = std::time::Instant::now();
+            let held = real(bytes);
+            (self.world.process_at_rank(to as i32)).send_with_tag(&held[..], STREAM_TAG);
+            count(|t| t.gather_seconds += start.elapsed().as_secs_f64());
+        }
+
+        /// The next message from rank 0 ([`World::send_to`]); its wait counted as gathered.
+        pub fn receive_from_root(&self) -> Vec<u8> {
+            self.receive_from(0)
         }
 
         /// The gather, its bytes and time counted: on rank 0 the buffer, every rank's count

@@ -314,7 +314,7 @@ fn assert_same(reference: &ById, got: &ById, vscale: f64, what: &str) {
 /// scale, the dust's stopping times (which the ranks' engines compute for an output) within
 /// 1e-12 of each, and one summary. Each rank keeps its engine across steps: fewer halos built
 /// than steps taken (but on the disc). On 3 ranks each rank's output streams to rank 0 in
-/// messages of 7 records.
+/// messages of 7 records, and the snapshots' chunks of 5 rows are deflated on every rank.
 #[test]
 fn a_run_over_ranks_ends_where_one_process_ends() {
     let tmp = tempfile::tempdir().unwrap();
@@ -416,8 +416,9 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
                 .arg(&dir);
             if ranks == 3 {
                 // The outputs' streams to rank 0 in many short messages, the last of each
-                // rank's shorter.
+                // rank's shorter; the snapshots in chunks of 5 rows, deflated on every rank.
                 cmd.env("DUSTSPH_STREAM_RECORDS", "7");
+                cmd.env("DUSTSPH_CHUNK_ROWS", "5");
             }
             let o = finish(cmd, &format!("mpirun -n {ranks} run {args:?}"));
             let err = String::from_utf8_lossy(&o.stderr);

@@ -30,14 +30,66 @@ fn shuffle(raw: &[u8], elem: usize, chunk_bytes: usize) -> Vec<u8> {
     out
 }
 
+/// Filters a dataset's chunks (shuffle, then deflate at `level`): here on every core
+/// ([`OnCores`]), or over MPI ranks (`dist::farm`: rank 0 writes a snapshot while the other
+/// ranks deflate a share of its chunks). Either gives the same bytes.
+pub trait ChunkFilter {
+    /// The stored bytes of each chunk: `chunks[c]` holds its raw bytes (fewer than
+    /// `chunk_bytes` for the edge chunk, whose rows past the end are zeros), `elem` bytes an
+    /// element.
+    fn filter(
+        &self,
+        chunks: &[&[u8]],
+        elem: usize,
+        chunk_bytes: usize,
+        level: u8,
+    ) -> Result<Vec<Vec<u8>>, String>;
+}
+
+/// The chunks filtered on this process's cores (rayon).
+pub struct OnCores;
+
+impl ChunkFilter for OnCores {
+    fn filter(
+        &self,
+        chunks: &[&[u8]],
+        elem: usize,
+        chunk_bytes: usize,
+        level: u8,
+    ) -> Result<Vec<Vec<u8>>, String> {
+        (chunks.par_iter())
+            .map(|raw| filter_chunk(raw, elem, chunk_bytes, level).map_err(|e| e.to_string()))
+            .collect()
+    }
+}
+
+/// One chunk's stored bytes: shuffled, then deflated at `level` (an edge chunk is stored
+/// whole, the rows past the end zeros).
+pub fn filter_chunk(
+    raw: &[u8],
+    elem: usize,
+    chunk_bytes: usize,
+    level: u8,
+) -> std::io::Result<Vec<u8>> {
+    let mut z = flate2::write::ZlibEncoder::new(
+        Vec::with_capacity(chunk_bytes / 4),
+        flate2::Compression::new(level.into()),
+    );
+    z.write_all(&shuffle(raw, elem, chunk_bytes))?;
+    z.finish()
+}
+
 /// Writes `data` (rows of `width` values) into `ds`, created with chunks of `chunk_rows` rows
-/// (and the full width) and the filters shuffle then deflate at `level`, in that order.
+/// (and the full width) and the filters shuffle then deflate at `level`, in that order, the
+/// chunks filtered by `filter`.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn write_shuffled_deflated<T: H5Type + Copy + Sync>(
     ds: &Dataset,
     data: &[T],
     width: usize,
     chunk_rows: usize,
     level: u8,
+    filter: &dyn ChunkFilter,
     path: &Path,
     obj: &str,
 ) -> Result<(), IoError> {
@@ -48,22 +100,19 @@ pub(crate) fn write_shuffled_deflated<T: H5Type + Copy + Sync>(
         std::slice::from_raw_parts(data.as_ptr().cast::<u8>(), std::mem::size_of_val(data))
     };
     let chunk_bytes = chunk_rows * width * elem;
-    let rows = data.len() / width;
-    let filtered: Vec<Vec<u8>> = (0..rows.div_ceil(chunk_rows))
-        .into_par_iter()
-        .map(|c| {
-            // An edge chunk is stored whole: the rows past the end are zeros.
-            let start = c * chunk_bytes;
-            let end = (start + chunk_bytes).min(bytes.len());
-            let mut z = flate2::write::ZlibEncoder::new(
-                Vec::with_capacity(chunk_bytes / 4),
-                flate2::Compression::new(level.into()),
-            );
-            z.write_all(&shuffle(&bytes[start..end], elem, chunk_bytes))
-                .and_then(|_| z.finish())
-                .map_err(|e| IoError::io(path, e))
-        })
-        .collect::<Result<_, _>>()?;
+    let chunks: Vec<&[u8]> = bytes.chunks(chunk_bytes).collect();
+    let filtered = (filter.filter(&chunks, elem, chunk_bytes, level))
+        .map_err(|e| IoError::invalid(path, format!("{obj}: {e}")))?;
+    if filtered.len() != chunks.len() {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{obj}: {} chunks filtered of {}",
+                filtered.len(),
+                chunks.len()
+            ),
+        ));
+    }
     for (c, buf) in filtered.iter().enumerate() {
         let row0 = (c * chunk_rows) as hdf5_sys::h5::hsize_t;
         let offset = [row0, 0];

@@ -5,7 +5,7 @@
 //! the file or directory it concerns.
 
 pub mod checkpoint;
-mod chunks;
+pub mod chunks;
 pub mod ics;
 pub mod output_dir;
 pub mod sha256;
@@ -21,7 +21,8 @@ pub use output_dir::{
     owned_or_temporary, prepare_dir, prepare_output_dir, snapshot_name, write_json_atomic,
 };
 pub use snapshot::{
-    read_snapshot, write_snapshot, PhaseData, PhaseView, SceneSource, SnapshotData, SnapshotView,
+    read_snapshot, write_snapshot, write_snapshot_with, PhaseData, PhaseView, SceneSource,
+    SnapshotData, SnapshotView,
 };
 pub use xdmf::{write_xdmf, write_xdmf_series, write_xdmf_view};
 

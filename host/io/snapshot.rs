@@ -38,6 +38,18 @@ pub const DEFLATE_LEVEL: u8 = 4;
 /// 1 MiB chunk cache.
 const CHUNK_ROWS: usize = 1 << 15;
 
+/// [`CHUNK_ROWS`], or `DUSTSPH_CHUNK_ROWS` where set (tests/mpi.rs writes a small run's
+/// snapshots in many chunks, so that every rank deflates some).
+fn chunk_rows() -> usize {
+    static AT: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *AT.get_or_init(|| {
+        (std::env::var("DUSTSPH_CHUNK_ROWS").ok())
+            .and_then(|v| v.parse().ok())
+            .filter(|&n| n > 0)
+            .unwrap_or(CHUNK_ROWS)
+    })
+}
+
 /// A borrowed view of one particle phase for output.
 #[derive(Clone, Copy, Debug)]
 pub struct PhaseView<'a> {
@@ -382,6 +394,16 @@ struct SceneTexts {
 /// (e.g. ".snapshot_0003.h5.tmp"), flush/close, then rename. No half-written file ever carries
 /// the final name.
 pub fn write_snapshot(path: &Path, snap: &SnapshotView) -> Result<(), IoError> {
+    write_snapshot_with(path, snap, &super::chunks::OnCores)
+}
+
+/// [`write_snapshot`], the datasets' chunks filtered by `filter` (over MPI ranks, on every
+/// rank).
+pub fn write_snapshot_with(
+    path: &Path,
+    snap: &SnapshotView,
+    filter: &dyn super::chunks::ChunkFilter,
+) -> Result<(), IoError> {
     // Check everything that can be checked before touching the disk.
     let scene = validate(path, snap)?;
     let frame = Frame::of(snap);
@@ -395,13 +417,12 @@ pub fn write_snapshot(path: &Path, snap: &SnapshotView) -> Result<(), IoError> {
     let tmp = tmp_path(path)?;
     remove_stale(&tmp)?;
     let result = write_file(
-        &tmp,
-        path,
+        (&tmp, path),
         snap,
         &frame,
         &scene,
-        gas.as_ref(),
-        dust.as_ref(),
+        (gas.as_ref(), dust.as_ref()),
+        filter,
     )
     .and_then(|()| commit_tmp(&tmp, path));
     if result.is_err() {
@@ -412,13 +433,12 @@ pub fn write_snapshot(path: &Path, snap: &SnapshotView) -> Result<(), IoError> {
 }
 
 fn write_file(
-    tmp: &Path,
-    path: &Path,
+    (tmp, path): (&Path, &Path),
     snap: &SnapshotView,
     frame: &Frame,
     scene: &SceneTexts,
-    gas: Option<&Columns>,
-    dust: Option<&Columns>,
+    (gas, dust): (Option<&Columns>, Option<&Columns>),
+    filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<(), IoError> {
     // create_excl: never write through something that appeared under the temporary name.
     let file = File::create_excl(tmp).with_path(tmp)?;
@@ -427,10 +447,10 @@ fn write_file(
     num_part[DUST_TYPE] = dust.map_or(0, |d| d.len() as u64);
     write_header(&file, path, snap, frame, scene, &num_part)?;
     if let Some(g) = gas {
-        write_group(&file, GAS_GROUP, g, path)?;
+        write_group(&file, GAS_GROUP, g, path, filter)?;
     }
     if let Some(d) = dust {
-        write_group(&file, DUST_GROUP, d, path)?;
+        write_group(&file, DUST_GROUP, d, path, filter)?;
     }
     // Explicit close so a failed final flush is reported instead of lost in Drop.
     file.close().map_err(h5err(path, ""))
@@ -542,26 +562,32 @@ fn put_array<T: H5Type>(g: &Group, name: &str, values: &[T], path: &Path) -> Res
         .map_err(h5err(path, &obj))
 }
 
-fn write_group(file: &File, name: &str, c: &Columns, path: &Path) -> Result<(), IoError> {
+fn write_group(
+    file: &File,
+    name: &str,
+    c: &Columns,
+    path: &Path,
+    filter: &dyn super::chunks::ChunkFilter,
+) -> Result<(), IoError> {
     let obj = format!("/{name}");
     let g = file.create_group(name).map_err(h5err(path, &obj))?;
-    put_dataset(&g, COORDINATES, c.x.as_flattened(), 3, path)?;
-    put_dataset(&g, VELOCITIES, c.v.as_flattened(), 3, path)?;
-    put_dataset(&g, MASSES, &c.m, 1, path)?;
-    put_dataset(&g, DENSITY, &c.rho, 1, path)?;
+    put_dataset_with(&g, COORDINATES, c.x.as_flattened(), 3, path, filter)?;
+    put_dataset_with(&g, VELOCITIES, c.v.as_flattened(), 3, path, filter)?;
+    put_dataset_with(&g, MASSES, &c.m, 1, path, filter)?;
+    put_dataset_with(&g, DENSITY, &c.rho, 1, path, filter)?;
     if let Some(e) = &c.e {
-        put_dataset(&g, INTERNAL_ENERGY, e, 1, path)?;
+        put_dataset_with(&g, INTERNAL_ENERGY, e, 1, path, filter)?;
     }
     if let Some(p) = &c.p {
-        put_dataset(&g, PRESSURE, p, 1, path)?;
+        put_dataset_with(&g, PRESSURE, p, 1, path, filter)?;
     }
-    put_dataset(&g, SMOOTHING_LENGTH, &c.h, 1, path)?;
-    put_dataset(&g, PARTICLE_IDS, &c.id, 1, path)?;
+    put_dataset_with(&g, SMOOTHING_LENGTH, &c.h, 1, path, filter)?;
+    put_dataset_with(&g, PARTICLE_IDS, &c.id, 1, path, filter)?;
     if let Some(f) = &c.fraction {
-        put_dataset(&g, FRACTION_INDEX, f, 1, path)?;
+        put_dataset_with(&g, FRACTION_INDEX, f, 1, path, filter)?;
     }
     if let Some(t) = &c.t_stop {
-        put_dataset(&g, STOPPING_TIME, t, 1, path)?;
+        put_dataset_with(&g, STOPPING_TIME, t, 1, path, filter)?;
     }
     Ok(())
 }
@@ -574,6 +600,18 @@ pub(crate) fn put_dataset<T: H5Type + Copy + Sync>(
     data: &[T],
     width: usize,
     path: &Path,
+) -> Result<(), IoError> {
+    put_dataset_with(g, name, data, width, path, &super::chunks::OnCores)
+}
+
+/// [`put_dataset`], the chunks filtered by `filter`.
+fn put_dataset_with<T: H5Type + Copy + Sync>(
+    g: &Group,
+    name: &str,
+    data: &[T],
+    width: usize,
+    path: &Path,
+    filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<(), IoError> {
     let obj = format!("{}/{name}", g.name());
     let rows = data.len() / width;
@@ -594,7 +632,7 @@ pub(crate) fn put_dataset<T: H5Type + Copy + Sync>(
         return Ok(());
     }
     let mut chunk = shape.clone();
-    chunk[0] = rows.min(CHUNK_ROWS);
+    chunk[0] = rows.min(chunk_rows());
     // Shuffle first: it groups bytes of equal significance, which deflate then packs.
     let ds = g
         .new_dataset::<T>()
@@ -608,8 +646,9 @@ pub(crate) fn put_dataset<T: H5Type + Copy + Sync>(
         &ds,
         data,
         width,
-        rows.min(CHUNK_ROWS),
+        rows.min(chunk_rows()),
         DEFLATE_LEVEL,
+        filter,
         path,
         &obj,
     )

@@ -4,6 +4,7 @@
 //! after every step).
 use super::{Flow, Observer, RunError, Simulation};
 use crate::analysis::{self, ExactErrors};
+use crate::io::chunks::{ChunkFilter, OnCores};
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::scene::{LoadedScene, OutputSchedule, Problem};
 use crate::step::timestep::Taken;
@@ -76,10 +77,32 @@ impl Outputs {
     /// series. Over ranks every rank goes on, or none.
     pub fn write_next(&mut self, sim: &mut Simulation) -> Result<(), RunError> {
         let name = io::snapshot_name(self.record.snapshots.len());
-        let written = if sim.is_root() {
-            self.write_files(sim, &name)
-        } else {
-            Ok(())
+        // Over ranks the others deflate a share of rank 0's chunks while it writes.
+        #[cfg(feature = "mpi")]
+        let helpers = sim.stepper.output_world();
+        #[cfg(not(feature = "mpi"))]
+        let helpers: Option<std::convert::Infallible> = None;
+        let written = match (sim.is_root(), helpers) {
+            (true, None) => self.write_files(sim, &name, &OnCores),
+            #[cfg(feature = "mpi")]
+            (true, Some(w)) => {
+                let farm = crate::dist::farm::Farm::new(w);
+                let written = self.write_files(sim, &name, &farm);
+                farm.finish();
+                written
+            }
+            #[cfg(feature = "mpi")]
+            (false, Some(w)) => {
+                if let Err(e) = crate::dist::farm::serve(&w) {
+                    // Rank 0 waits for this rank's chunks: the job cannot go on.
+                    eprintln!("dustsph: rank {}: {e}", w.rank());
+                    w.abort(1);
+                }
+                Ok(())
+            }
+            (false, None) => Ok(()),
+            #[cfg(not(feature = "mpi"))]
+            (_, Some(never)) => match never {},
         };
         // No rank may wait on one that stopped.
         if sim.any(written.is_err()) {
@@ -93,9 +116,14 @@ impl Outputs {
         Ok(())
     }
 
-    fn write_files(&mut self, sim: &mut Simulation, name: &str) -> Result<(), RunError> {
+    fn write_files(
+        &mut self,
+        sim: &mut Simulation,
+        name: &str,
+        chunks: &dyn ChunkFilter,
+    ) -> Result<(), RunError> {
         let ics = self.record.initial_conditions.as_ref();
-        write_snapshot(&self.dir.join(name), &self.loaded, ics, sim)?;
+        write_snapshot(&self.dir.join(name), &self.loaded, ics, sim, chunks)?;
         let fixed_dt = self.loaded.scene.time.fixed_dt();
         self.record.errors.extend(analysis::exact_errors(
             &self.loaded.scene,
@@ -152,12 +180,14 @@ impl Observer for Outputs {
 }
 
 /// Write one snapshot of the simulation's (synced) state: the dust densities and stopping
-/// times computed for it, variable h's per-particle h, the effective scene and its provenance.
+/// times computed for it, variable h's per-particle h, the effective scene and its provenance;
+/// its chunks filtered by `chunks`.
 pub fn write_snapshot(
     path: &Path,
     loaded: &LoadedScene,
     ics: Option<&crate::setup::file::IcSource>,
     sim: &mut Simulation,
+    chunks: &dyn ChunkFilter,
 ) -> Result<(), RunError> {
     let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
     // The state is synced (the loop syncs every process at a landing; over ranks this runs on
@@ -243,7 +273,7 @@ pub fn write_snapshot(
             })
             .collect(),
     };
-    io::write_snapshot(path, &view).map_err(|e| RunError::Io(e.to_string()))?;
+    io::write_snapshot_with(path, &view, chunks).map_err(|e| RunError::Io(e.to_string()))?;
     // ParaView sidecar: gas and dust as two point sets.
     io::write_xdmf_view(path, &view).map_err(|e| RunError::Io(e.to_string()))
 }

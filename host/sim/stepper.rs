@@ -61,6 +61,16 @@ impl Stepper {
         }
     }
 
+    /// Over MPI ranks, a communicator of the output's own (collective): the other ranks
+    /// deflate rank 0's snapshot chunks over it (`dist::farm`). `None` on one process.
+    #[cfg(feature = "mpi")]
+    pub fn output_world(&self) -> Option<crate::dist::comm::World> {
+        match self {
+            Stepper::Ranks { ranks, .. } => Some(ranks.world.dup()),
+            Stepper::Local(_) => None,
+        }
+    }
+
     /// The momentum of every particle after the last step (collective over ranks).
     pub fn momentum(&mut self) -> Result<Momentum, StepError> {
         match self {
