@@ -156,6 +156,10 @@ pub struct RankStepper {
     steps: u64,
     /// `DUSTSPH_FAIL_IN_STEP`: refreshes of this step before one fails (negative: none).
     fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
+    /// The kernel coupling's normalisers of the layer the last step ended on, by particle key,
+    /// from the engine dropped for a rebuilt halo: the next engine, on the same layer, takes
+    /// them instead of computing them again (a disc rebuilds its halo about every step).
+    carried_norms: Option<std::collections::HashMap<(u64, u64), f64>>,
 }
 
 impl Drop for RankStepper {
@@ -299,6 +303,7 @@ impl RankStepper {
             builds: 0,
             steps: 0,
             fail: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(-1)),
+            carried_norms: None,
         })
     }
 
@@ -584,6 +589,18 @@ impl RankStepper {
         if let Err(x) = eng.sync(&mut local) {
             abort_job(world, step, &x);
         }
+        // The layer's normalisers from the engine this one replaces (the same positions).
+        if let Some(norms) = self.carried_norms.take() {
+            let mut given = [Vec::new(), Vec::new()];
+            let phases = std::iter::once(&local.gas.ph).chain(&local.dust);
+            for (k, ph) in phases.enumerate() {
+                let at = |i: usize| norms.get(&(k as u64, ph.id[i])).copied();
+                given[(k > 0) as usize].extend((0..ph.len()).map(|i| at(i).unwrap_or(f64::NAN)));
+            }
+            if let Err(x) = eng.keep_norms(given).and_then(|()| eng.norms_now()) {
+                abort_job(world, step, &x);
+            }
+        }
         let flags = ghost_flags(&eng);
         self.owned_stale = true;
         self.builds += 1;
@@ -674,6 +691,8 @@ impl RankStepper {
         self.timers.add(STAGE_MOTION, t0.elapsed().as_secs_f64());
         // Rebuild before the next step where its motion could use up the margin.
         if need + 2.0 * d > res.reach {
+            let norms = (res.eng.layer_norms()).unwrap_or_else(|x| abort_job(world, step, &x));
+            self.carried_norms = norms.map(|n| by_key(&res.local, &n));
             self.drop_resident();
             self.margin = margin;
         }
@@ -691,6 +710,7 @@ impl RankStepper {
         t_target: f64,
     ) -> Result<Tried, String> {
         self.drop_resident();
+        self.carried_norms = None;
         let Some(lay) = self.local_layer(false)? else {
             unreachable!("the deep halo serves a rank without gas");
         };
@@ -1139,6 +1159,29 @@ fn gather_sorted(
     st.t = t;
     st.step = step;
     Some((st, values.then_some(per_fraction)))
+}
+
+/// Per-particle values of an engine (gas, then every dust fraction together, in its order:
+/// its host copy `st`'s) by particle key.
+fn by_key(st: &State, values: &[Vec<f64>; 2]) -> std::collections::HashMap<(u64, u64), f64> {
+    let mut out = std::collections::HashMap::with_capacity(st.len());
+    let mut dust_at = 0;
+    for (k, ph) in std::iter::once(&st.gas.ph).chain(&st.dust).enumerate() {
+        for i in 0..ph.len() {
+            let v = if k == 0 {
+                values[0].get(i)
+            } else {
+                values[1].get(dust_at + i)
+            };
+            if let Some(&v) = v {
+                out.insert((k as u64, ph.id[i]), v);
+            }
+        }
+        if k > 0 {
+            dust_at += ph.len();
+        }
+    }
+    out
 }
 
 /// Every particle's position in a state, gas first, then each dust fraction (the order of

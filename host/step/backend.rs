@@ -408,6 +408,21 @@ impl Backend {
         each!(self, e => e.set_ghosts(sync, keys, fresh))
     }
 
+    /// See [`Engine::layer_norms`].
+    pub fn layer_norms(&self) -> Result<Option<[Vec<f64>; 2]>, StepError> {
+        each!(self, e => Ok(e.layer_norms()?))
+    }
+
+    /// See [`Engine::keep_norms`].
+    pub fn keep_norms(&mut self, given: [Vec<f64>; 2]) -> Result<(), StepError> {
+        each!(self, e => Ok(e.keep_norms(given)?))
+    }
+
+    /// See [`Engine::norms_now`].
+    pub fn norms_now(&mut self) -> Result<(), StepError> {
+        each!(self, e => e.norms_now())
+    }
+
     /// See [`Engine::free_refresh_buffers`].
     pub fn free_refresh_buffers(&mut self) {
         each!(self, e => e.free_refresh_buffers())

@@ -118,13 +118,16 @@ pub struct NormArgs<R> {
     pub s: *mut R,
     /// As [`CouplingBufs::kernel_at`].
     pub kernel_at: *const KernelAt<R>,
+    /// 1 where a particle's S of this layer is already in `s` (over MPI ranks, carried from
+    /// the engine its halo was rebuilt from); null: none.
+    pub keep: *const u8,
     pub p: Params<R>,
 }
 
 /// S_t = Σ_b W(r_tb, h) over the free gas, for particle t of `ph` (0 when fixed).
 pub unsafe fn coupling_norm<R: Real>(t: usize, a: &NormArgs<R>) {
     let ph = &a.ph;
-    if t >= ph.len() {
+    if t >= ph.len() || (!a.keep.is_null() && *a.keep.add(t) != 0) {
         return;
     }
     let s = if kernels::is_fixed(ph.fixed(), t) {

@@ -115,12 +115,69 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 ph: self.masked(gas),
                 s: d.ptr(s),
                 kernel_at: c.bufs(d, &self.sm.kernel_at).kernel_at,
+                keep: self.norms_kept[!gas as usize]
+                    .as_ref()
+                    .map_or(std::ptr::null(), |k| d.ptr(k)),
                 p: self.params(0.0)?.dev,
             };
             d.run(R::COUPLING_NORM, ph.n, &a)?;
         }
         self.norms_fresh = true;
+        self.norms_kept = [None, None];
         Ok(())
+    }
+
+    /// The kernel coupling's normalisers of this layer (gas, dust; in the engine's order), where
+    /// it has them: over MPI ranks, carried into the engine a rebuilt halo makes
+    /// ([`Engine::keep_norms`]), whose layer is the same.
+    pub fn layer_norms(&self) -> Result<Option<[Vec<f64>; 2]>, GpuError> {
+        let Some(c) = self.coupling.as_ref().filter(|_| self.norms_fresh) else {
+            return Ok(None);
+        };
+        let d = &self.d;
+        Ok(Some([
+            d.get_f64(&c.s_gas, self.gas.n)?,
+            d.get_f64(&c.s_dust, self.dust.n)?,
+        ]))
+    }
+
+    /// Take the normalisers of this layer where they are known (`given`: gas, dust, in the
+    /// engine's order; NaN where not): the next normalisers' pass computes only the others.
+    pub fn keep_norms(&mut self, given: [Vec<f64>; 2]) -> Result<(), GpuError> {
+        if self.coupling.is_none() || self.norms_fresh {
+            return Ok(());
+        }
+        let d = &self.d;
+        let c = self.coupling.as_mut().expect("kernel coupling");
+        let mut kept: [Option<Buf<L, u8>>; 2] = [None, None];
+        for (k, (vals, s)) in given.iter().zip([&mut c.s_gas, &mut c.s_dust]).enumerate() {
+            let n = if k == 0 { self.gas.n } else { self.dust.n };
+            if vals.len() != n || n == 0 {
+                continue;
+            }
+            let flags: Vec<u8> = vals.iter().map(|v| v.is_finite() as u8).collect();
+            let r: Vec<R> = vals
+                .iter()
+                .map(|&v| R::from_f64(if v.is_finite() { v } else { 0.0 }))
+                .collect();
+            d.put(s, &r)?;
+            let mut b: Buf<L, u8> = d.buf(n)?;
+            d.put(&mut b, &flags)?;
+            kept[k] = Some(b);
+        }
+        self.norms_kept = kept;
+        Ok(())
+    }
+
+    /// The kernel coupling's normalisers of this layer now (those not kept computed), and the
+    /// ghosts' refreshed: an engine given some ([`Engine::keep_norms`]) holds them whole at once,
+    /// ghosts and owners alike (collective over ranks).
+    pub fn norms_now(&mut self) -> Result<(), StepError> {
+        if self.coupling.is_none() {
+            return Ok(());
+        }
+        self.coupling_norms()?;
+        self.ghost_sync(&Refresh::COUPLING_NORMS)
     }
 
     /// The drag pass with the kernel coupling: normalisers, the solve on every gas particle,

@@ -78,6 +78,9 @@ pub struct Engine<L: Launcher, R: Float> {
     /// computed once per layer: the leapfrog's last two drag passes and the next step's first
     /// share a layer).
     norms_fresh: bool,
+    /// Per phase (gas, dust), 1 where the normaliser of this layer was given
+    /// ([`Engine::keep_norms`]): the next normalisers' pass computes only the others.
+    norms_kept: [Option<Buf<L, u8>>; 2],
     /// The momentum sums of each chunk of particles ([`Engine::momentum`]).
     chunk_sums: Buf<L, f64>,
     dust_density_fresh: bool,
@@ -191,6 +194,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             chunk_sums: d.buf(1)?,
             resorted: false,
             norms_fresh: false,
+            norms_kept: [None, None],
             step: state.step,
             t: state.t,
             force_sparse: false,

@@ -123,6 +123,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     pub(super) fn regrid(&mut self) -> Result<(), StepError> {
         // New positions and order: the kernel coupling's normalisers are recomputed.
         self.norms_fresh = false;
+        self.norms_kept = [None, None];
         let d = &self.d;
         let mut b = EMPTY_BOUNDS;
         for ph in [&self.gas, &self.dust] {
