@@ -34,6 +34,82 @@ pub fn refuse_many_ranks(what: &str) -> Result<(), String> {
     }
 }
 
+/// A count a test may set smaller through the environment variable `name` (a positive
+/// integer; otherwise `default`): tests/mpi.rs splits small runs into many pieces this way.
+pub fn count_from_env(name: &str, default: usize) -> usize {
+    (std::env::var(name).ok())
+        .and_then(|v| v.parse().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(default)
+}
+
+/// The processes a task is shared over: this process's rank among them and the collectives
+/// that sums and checks over every process's share need (docs/scaling.md, "Start"). One
+/// process is [`Alone`]; MPI ranks are [`comm::World`]. Every call is collective.
+pub trait Collective {
+    fn rank(&self) -> u32;
+    fn size(&self) -> u32;
+    /// Element-wise maximum over the processes.
+    fn max_f64(&self, v: &mut [f64]);
+    /// Element-wise sum over the processes.
+    fn sum_u64(&self, v: &mut [u64]);
+    /// Every process's bytes, in rank order, on every process.
+    fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>>;
+    /// `counts[q]` bytes of `send` (laid out rank by rank) to process q: what every process
+    /// sent here, in rank order.
+    fn exchange_bytes(&self, send: &[u8], counts: &[usize]) -> Result<Vec<u8>, String>;
+}
+
+/// One process: every collective is the identity.
+pub struct Alone;
+
+impl Collective for Alone {
+    fn rank(&self) -> u32 {
+        0
+    }
+    fn size(&self) -> u32 {
+        1
+    }
+    fn max_f64(&self, _: &mut [f64]) {}
+    fn sum_u64(&self, _: &mut [u64]) {}
+    fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
+        vec![mine.to_vec()]
+    }
+    fn exchange_bytes(&self, send: &[u8], _: &[usize]) -> Result<Vec<u8>, String> {
+        Ok(send.to_vec())
+    }
+}
+
+/// Every process's verdict on a collective task: the error of the lowest rank that failed,
+/// on every process (`text` makes the message sent), or each process's own result.
+pub fn agree<T, E>(
+    c: &dyn Collective,
+    mine: Result<T, E>,
+    text: impl Fn(&E) -> String,
+    from_other: impl Fn(String) -> E,
+) -> Result<T, E> {
+    let said = mine.as_ref().err().map(&text).unwrap_or_default();
+    // One byte ahead of the text: an error with an empty message still counts.
+    let sent = [&[mine.is_err() as u8][..], said.as_bytes()].concat();
+    let all = c.all_gather_bytes(&sent);
+    let first = all.iter().position(|b| b.first() == Some(&1));
+    match (mine, first) {
+        (Ok(_), Some(r)) => Err(from_other(
+            String::from_utf8_lossy(&all[r][1..]).into_owned(),
+        )),
+        (mine, _) => mine,
+    }
+}
+
+/// Rows `[lo, hi)` of `n` that process `rank` of `size` holds: whole blocks of `block` rows,
+/// as even as the blocks allow, in rank order (a sum over blocks is then the same sum for any
+/// process count).
+pub fn share_rows(n: usize, block: usize, rank: u32, size: u32) -> (usize, usize) {
+    let blocks = n.div_ceil(block);
+    let at = |r: u32| ((r as usize * blocks) / size as usize * block).min(n);
+    (at(rank), at(rank + 1))
+}
+
 #[cfg(feature = "mpi")]
 pub mod farm;
 #[cfg(feature = "mpi")]
@@ -405,6 +481,29 @@ pub mod comm {
                 t.exchange_seconds += start.elapsed().as_secs_f64();
             });
             Ok(recv_counts.iter().map(|&c| c as usize).collect())
+        }
+    }
+
+    impl super::Collective for World {
+        fn rank(&self) -> u32 {
+            World::rank(self)
+        }
+        fn size(&self) -> u32 {
+            World::size(self)
+        }
+        fn max_f64(&self, v: &mut [f64]) {
+            World::max_f64(self, v)
+        }
+        fn sum_u64(&self, v: &mut [u64]) {
+            World::sum_u64(self, v)
+        }
+        fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
+            World::all_gather_bytes(self, mine)
+        }
+        fn exchange_bytes(&self, send: &[u8], counts: &[usize]) -> Result<Vec<u8>, String> {
+            let mut recv = Vec::new();
+            World::exchange_bytes(self, send, counts, &mut recv)?;
+            Ok(recv)
         }
     }
 

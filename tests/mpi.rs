@@ -3,6 +3,7 @@
 //! rank when one fails. Built only with the `mpi` feature (scripts/features turns it on where
 //! OpenMPI is installed).
 #![cfg(feature = "mpi")]
+mod common;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -314,7 +315,8 @@ fn assert_same(reference: &ById, got: &ById, vscale: f64, what: &str) {
 /// scale, the dust's stopping times (which the ranks' engines compute for an output) within
 /// 1e-12 of each, and one summary. Each rank keeps its engine across steps: fewer halos built
 /// than steps taken (but on the disc). On 3 ranks each rank's output streams to rank 0 in
-/// messages of 7 records, and the snapshots' chunks of 5 rows are deflated on every rank.
+/// messages of 7 records, and the snapshots' chunks of 5 rows are deflated on every rank. The
+/// file of initial conditions is read by share, in blocks of 64 rows: every rank reads some.
 #[test]
 fn a_run_over_ranks_ends_where_one_process_ends() {
     let tmp = tempfile::tempdir().unwrap();
@@ -413,7 +415,8 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
                 .arg("run")
                 .args(*args)
                 .args(["-q", "--out"])
-                .arg(&dir);
+                .arg(&dir)
+                .env("DUSTSPH_ROW_BLOCK", "64");
             if ranks == 3 {
                 // The outputs' streams to rank 0 in many short messages, the last of each
                 // rank's shorter; the snapshots in chunks of 5 rows, deflated on every rank.
@@ -702,4 +705,89 @@ fn a_first_step_refused_on_rank_0_stops_every_rank_before_any_output() {
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("the first step cannot be taken"), "{err}");
     assert!(!dir.exists());
+}
+
+/// Initial conditions read by share over 3 ranks (`DUSTSPH_ROW_BLOCK=8`: rank 0 reads the
+/// gas's rows 0–7, rank 1 rows 8–23, rank 2 rows 24–35): a value no rank but rank 1 reads, and
+/// an ID that rank 2's dust repeats from rank 0's gas, stop every rank with exit 2, rank 0
+/// naming the row in the file once, and nothing written; the good file runs, each rank
+/// reading its own rows, to where one process ends.
+#[test]
+fn a_file_read_by_share_over_ranks_names_a_bad_row_in_the_file() {
+    use common::ics::*;
+    let bin = env!("CARGO_BIN_EXE_dustsph");
+    let l = dustsph::scene::load(
+        &common::config("dustybox"),
+        &["scene.dim=2", "sph.n=6", "sph.hfact=1.2"].map(String::from),
+    )
+    .unwrap();
+    let su = dustsph::setup::build(&l.scene).unwrap();
+    let good = || IcFile::of_state(&su.state, su.h, 2, Some([1.0, 1.0, 0.0]));
+    assert_eq!(su.state.gas.ph.len(), 36);
+    let rest = "[gas]\neos = \"isothermal\"\ncs = 1.0\n\n[dust]\nlaw = \"constant_t\"\n\
+        [[dust.fractions]]\nt_stop = 0.1\n[[dust.fractions]]\nt_stop = 0.215443\n\
+        [[dust.fractions]]\nt_stop = 0.464159\n[[dust.fractions]]\nt_stop = 1.0\n\n\
+        [sph]\nhfact = 1.2\n\n[idic]\ncell = 0.5\n\n[time]\nt_end = 0.03\ndt = 0.01\n";
+    let run = |f: &IcFile, ranks: Option<u32>| {
+        let dir = tempfile::tempdir().unwrap();
+        f.write(&dir.path().join("ics.h5"));
+        let scene = file_scene(dir.path(), 2, "ics.h5", "[true, true, false]", rest);
+        let out = dir.path().join("out");
+        let mut cmd = match ranks {
+            Some(n) => {
+                let mut c = Command::new("mpirun");
+                c.args(["--allow-run-as-root", "--oversubscribe", "-n"])
+                    .arg(n.to_string())
+                    .arg(bin);
+                c
+            }
+            None => Command::new(bin),
+        };
+        cmd.args(["run", scene.path.to_str().unwrap(), "-q", "--out"])
+            .arg(&out)
+            .env("DUSTSPH_ROW_BLOCK", "8");
+        let o = finish(cmd, "a run from a file");
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        let last = out.exists().then(|| last_snapshot(&out));
+        (o.status.code(), err, last, dir)
+    };
+    let bad = |spoil: &dyn Fn(&mut IcFile)| {
+        let mut f = good();
+        spoil(&mut f);
+        let (code, err, last, _dir) = run(&f, Some(3));
+        assert_eq!(code, Some(2), "{err}");
+        assert!(last.is_none(), "nothing written: {err}");
+        err
+    };
+    let err = bad(&|f| {
+        if let Column::F(v, w) = f.column("PartType0", "Velocities") {
+            v[20 * *w] = f64::NAN;
+        }
+    });
+    assert_eq!(
+        err.matches("/PartType0/Velocities[20] holds NaN").count(),
+        1,
+        "{err}"
+    );
+    let err = bad(&|f| {
+        let gas_id = match f.column("PartType0", "ParticleIDs") {
+            Column::I(v) => v[2],
+            _ => unreachable!(),
+        };
+        if let Column::I(v) = f.column("PartType3", "ParticleIDs") {
+            let last = v.len() - 1;
+            v[last] = gas_id;
+        }
+    });
+    let dust_rows = 4 * 36 - 1;
+    let named =
+        format!("/PartType0/ParticleIDs[2] and /PartType3/ParticleIDs[{dust_rows}] are both");
+    assert_eq!(err.matches(&named).count(), 1, "{err}");
+    let (code, err, one, _d1) = run(&good(), None);
+    assert_eq!(code, Some(0), "{err}");
+    let (code, err, three, _d3) = run(&good(), Some(3));
+    assert_eq!(code, Some(0), "{err}");
+    let ((reference, vscale, t1), (got, _, t3)) = (one.unwrap(), three.unwrap());
+    assert_eq!(t1, t3);
+    assert_same(&reference, &got, vscale, "the box from a file over 3 ranks");
 }

@@ -60,16 +60,25 @@ impl Run {
         world: crate::dist::comm::World,
     ) -> Result<Run, RunError> {
         let root = world.rank() == 0;
-        let (phys, mut state, source) = start::prepare(loaded, None, root)?;
-        let stepper = over_ranks(
-            world,
-            loaded,
-            &phys,
-            &mut state,
-            opts.device,
-            opts.verbose,
-            true,
-        )?;
+        // Every rank gets the same set-up error (bad input): rank 0 says it before any rank
+        // leaves (mpirun stops the job at the first rank that exits non-zero).
+        let (phys, mut state, source, share) = match start::prepare_on(loaded, None, root, &world) {
+            Err(e) => {
+                if root {
+                    eprintln!("error: {e}");
+                }
+                world.any(true);
+                return Err(RunError::InputReported);
+            }
+            Ok(r) => r,
+        };
+        let start = Start {
+            device: opts.device,
+            verbose: opts.verbose,
+            check_first: true,
+            share,
+        };
+        let stepper = over_ranks(world, loaded, &phys, &mut state, start)?;
         Self::begin(loaded, opts, phys, state, source, stepper)
     }
 
@@ -197,7 +206,13 @@ impl Run {
         let (state, loaded, progress) = checkpoint::read(dir)?;
         let layout = progress.layout;
         let (phys, mut state) = start::prepare_resumed(&loaded, state, layout.as_ref(), root)?;
-        let stepper = over_ranks(world, &loaded, &phys, &mut state, device, verbose, false)?;
+        let start = Start {
+            device,
+            verbose,
+            check_first: false,
+            share: false,
+        };
+        let stepper = over_ranks(world, &loaded, &phys, &mut state, start)?;
         let mut r = Self::resumed(&loaded, dir, phys, state, stepper, progress, verbose);
         r.shed_whole_state();
         Ok(r)
@@ -312,10 +327,21 @@ impl Run {
     }
 }
 
+/// How a run over ranks starts ([`over_ranks`]).
+#[cfg(feature = "mpi")]
+struct Start {
+    device: DeviceChoice,
+    verbose: bool,
+    /// Check the first step over every rank (a run's start, not a resume).
+    check_first: bool,
+    /// Each rank's state is its own share (a file read by share), not every particle.
+    share: bool,
+}
+
 /// The stepper of a run over ranks: each rank's share of the scene and its engine on it, and
 /// (`check_first`, a run's start) the first step checked over every rank. Every rank drops the
-/// whole `state` once its share is taken (before its engine is built); rank 0 gathers it again
-/// for each output. A start refused is
+/// whole `state` once its share is taken (before its engine is built), or takes it as its
+/// share (`share`); rank 0 gathers the whole again for each output. A start refused is
 /// said before any rank leaves (mpirun stops the job at the first rank that exits non-zero,
 /// which could otherwise cut the others off before they speak).
 #[cfg(feature = "mpi")]
@@ -324,10 +350,14 @@ fn over_ranks(
     loaded: &LoadedScene,
     phys: &Physics,
     state: &mut State,
-    device: DeviceChoice,
-    verbose: bool,
-    check_first: bool,
+    start: Start,
 ) -> Result<Stepper, RunError> {
+    let Start {
+        device,
+        verbose,
+        check_first,
+        share,
+    } = start;
     let root = world.rank() == 0;
     if phys.accretion_radius > 0.0 {
         // Removing particles rebuilds one process's engine; a rank's share cannot yet.
@@ -344,12 +374,12 @@ fn over_ranks(
         world,
         phys.clone(),
         state,
+        share,
         crate::dist::ranks::depth_for(phys),
         device,
         verbose,
     )
     .map_err(RunError::Input)?;
-    *state = state.shape();
     let file = loaded.path.display().to_string();
     let checked = match crate::sim::output::output_times(loaded, state.t).get(1) {
         Some(&t1) if check_first => {
@@ -382,6 +412,14 @@ fn over_ranks(
         }
         ranks.any(true);
         return Err(RunError::InputReported);
+    }
+    if share {
+        // Set up by share, no rank saw every particle: each counts its own dust in cells its
+        // ghosts complete.
+        let found = ranks.dust_without_gas_in_cell();
+        if let (true, Some(w)) = (root, start::uncoupled_warning(phys, found)) {
+            eprintln!("dustsph: warning: {w}");
+        }
     }
     Ok(Stepper::Ranks {
         ranks: Box::new(ranks),

@@ -240,21 +240,27 @@ impl RankStepper {
     pub fn new(
         world: World,
         phys: Physics,
-        full: &State,
+        full: &mut State,
+        shared: bool,
         depth: f64,
         device: DeviceChoice,
         verbose: bool,
     ) -> Result<RankStepper, String> {
         let (me, ranks) = (world.rank(), world.size());
-        // By particle key, not position: rank 0's copy of the scene is sorted by its engine,
-        // the others' are not.
-        let mine = records_where(full, |_, (phase, id)| {
-            (id.wrapping_add(phase) % ranks as u64) as u32 == me
-        });
         // The shape of the state (phases, energy, fixed particles), without its particles.
         let template = full.shape();
-        let share = state_of(&mine, &template);
-        drop(mine);
+        // `full` is left without particles: a share read from a file is this rank's as it
+        // is; of a whole scene each rank keeps the particles of its keys (by key, not
+        // position: the set-up's order is the same on every rank).
+        let share = if shared {
+            std::mem::replace(full, template.clone())
+        } else {
+            let mine = records_where(full, |_, (phase, id)| {
+                (id.wrapping_add(phase) % ranks as u64) as u32 == me
+            });
+            *full = template.clone();
+            state_of(&mine, &template)
+        };
         let chosen = rank_device(device, me, &phys, &share);
         if world.any(chosen.is_err()) {
             return Err(chosen.err().unwrap_or_else(|| {
@@ -905,6 +911,28 @@ impl RankStepper {
         }))
     }
 
+    /// Of every rank's own dust particles, how many have no gas in their IDIC cell, and how
+    /// many there are (collective): each rank counts its own among its particles and ghosts
+    /// (an IDIC cell holding an own particle is whole on its rank). A rank without a resident
+    /// engine (no gas: the deep halo) counts none.
+    pub fn dust_without_gas_in_cell(&mut self) -> (usize, usize) {
+        let mut n = [0u64; 2];
+        if let Some(res) = &self.resident {
+            let local = &res.local;
+            let mut at = local.gas.ph.len();
+            let mut first = Vec::with_capacity(local.dust.len());
+            for d in &local.dust {
+                first.push(at);
+                at += d.len();
+            }
+            let own = |k: usize, i: usize| !res.flags[first[k] + i];
+            let (alone, total) = crate::step::dust_without_gas_in_cell(&self.phys, local, own);
+            n = [alone as u64, total as u64];
+        }
+        self.world.sum_u64(&mut n);
+        (n[0] as usize, n[1] as usize)
+    }
+
     /// The momentum and its scale Σ m|v| of every rank's own particles, summed over the ranks
     /// (collective).
     pub fn momentum(&self) -> crate::step::Momentum {
@@ -1033,13 +1061,7 @@ const STREAM_RECORDS: usize = 32 * 1024;
 /// [`STREAM_RECORDS`], or `DUSTSPH_STREAM_RECORDS` where set (tests/mpi.rs streams a small
 /// run in many short messages).
 fn stream_records() -> usize {
-    static AT: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
-    *AT.get_or_init(|| {
-        (std::env::var("DUSTSPH_STREAM_RECORDS").ok())
-            .and_then(|v| v.parse().ok())
-            .filter(|&n| n > 0)
-            .unwrap_or(STREAM_RECORDS)
-    })
+    crate::dist::count_from_env("DUSTSPH_STREAM_RECORDS", STREAM_RECORDS)
 }
 
 /// Every rank's particles as one state on rank 0 (phases in order, each by particle id), at

@@ -8,6 +8,10 @@
 //! values, positive masses, densities and smoothing lengths, unique IDs); each error names
 //! the file, the dataset and the first offending row. The scene's own checks (fractions,
 //! periodic box, dimension) are the set-up's (host/setup/file.rs).
+//!
+//! Over MPI ranks each rank reads only its share of the rows ([`crate::dist::share_rows`],
+//! whole blocks of [`row_block`]), and the checks that span rows (unique IDs) run across the
+//! ranks; an error names the row in the file, found by whichever rank holds it.
 use std::path::Path;
 
 use hdf5::{File, Group};
@@ -17,6 +21,18 @@ use super::snapshot::{
     INTERNAL_ENERGY, MASSES, PARTICLE_IDS, SMOOTHING_LENGTH, VELOCITIES,
 };
 use super::IoError;
+use crate::dist::{agree, share_rows, Alone, Collective};
+
+/// Rows per block of a shared read: a rank's share is whole blocks, and sums over the rows
+/// (the mean spacing) are taken block by block, so they come out the same on any number of
+/// ranks.
+pub const ROW_BLOCK: usize = 4096;
+
+/// [`ROW_BLOCK`], or `DUSTSPH_ROW_BLOCK` where set (tests/mpi.rs shares a small file's rows
+/// between every rank).
+pub fn row_block() -> usize {
+    crate::dist::count_from_env("DUSTSPH_ROW_BLOCK", ROW_BLOCK)
+}
 
 /// One particle type of an initial-conditions file, positions in the run's frame
 /// (`Coordinates` + `CoordinateOffset`).
@@ -32,6 +48,10 @@ pub struct IcPhase {
     pub id: Option<Vec<u64>>,
     /// Dust only.
     pub fraction: Option<Vec<i64>>,
+    /// The file's row of the first row here (rows `first..first + len()` of `total`).
+    pub first: usize,
+    /// The particle type's rows in the file (over every rank).
+    pub total: usize,
 }
 
 impl IcPhase {
@@ -65,6 +85,26 @@ pub const DEFAULT_SMOOTHING_LENGTH_PER_H: f64 = 2.0;
 
 /// Reads and checks an initial-conditions file.
 pub fn read_ics(path: &Path) -> Result<Ics, IoError> {
+    read_ics_on(path, &Alone)
+}
+
+/// Reads this process's share of an initial-conditions file's rows ([`share_rows`]) and
+/// checks them, the IDs' uniqueness across every process's (collective: every process gets
+/// the same error, the lowest failing rank's).
+pub fn read_ics_on(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
+    let read = read_share(path, c);
+    let text = |e: &IoError| match e {
+        IoError::Invalid { reason, .. } => reason.clone(),
+        e => e.to_string(),
+    };
+    let ics = agree(c, read, text, |m| IoError::invalid(path, m))?;
+    let dup = unique_ids(&ics.gas, ics.dust.as_ref(), path, c);
+    agree(c, dup, text, |m| IoError::invalid(path, m))?;
+    Ok(ics)
+}
+
+/// [`read_ics_on`] without its collective checks.
+fn read_share(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
     std::fs::metadata(path).map_err(|e| IoError::io(path, e))?;
     let file = File::open(path).map_err(|e| {
         IoError::invalid(
@@ -147,9 +187,9 @@ pub fn read_ics(path: &Path) -> Result<Ics, IoError> {
             format!("has no group /{GAS_GROUP} (the gas particles)"),
         ));
     }
-    let gas = read_phase(&file, GAS_GROUP, offset, per_h, path)?;
+    let gas = read_phase(&file, GAS_GROUP, offset, per_h, path, c)?;
     let dust = if file.link_exists(DUST_GROUP) {
-        Some(read_phase(&file, DUST_GROUP, offset, per_h, path)?)
+        Some(read_phase(&file, DUST_GROUP, offset, per_h, path, c)?)
     } else {
         None
     };
@@ -160,7 +200,7 @@ pub fn read_ics(path: &Path) -> Result<Ics, IoError> {
                 .attr("NumPart_Total")
                 .and_then(|a| a.read_raw())
                 .map_err(h5err(path, &obj))?;
-            let found = [(0, gas.len()), (3, dust.as_ref().map_or(0, IcPhase::len))];
+            let found = [(0, gas.total), (3, dust.as_ref().map_or(0, |d| d.total))];
             for (k, len) in found {
                 if let Some(&c) = n.get(k) {
                     if c != len as u64 {
@@ -173,7 +213,6 @@ pub fn read_ics(path: &Path) -> Result<Ics, IoError> {
             }
         }
     }
-    unique_ids(&gas, dust.as_ref(), path)?;
     Ok(Ics {
         time,
         dim,
@@ -191,13 +230,15 @@ fn one_value(path: &Path, name: &str, n: usize) -> IoError {
     )
 }
 
-/// One particle type: required columns, then the optional ones, every one the same length.
+/// This process's rows of one particle type: required columns, then the optional ones, every
+/// one the same length.
 fn read_phase(
     file: &File,
     name: &str,
     offset: [f64; 3],
     per_h: f64,
     path: &Path,
+    c: &dyn Collective,
 ) -> Result<IcPhase, IoError> {
     let g = file.group(name).map_err(h5err(path, &format!("/{name}")))?;
     let obj = |d: &str| format!("/{name}/{d}");
@@ -207,24 +248,26 @@ fn read_phase(
             format!("{} is missing (required)", obj(COORDINATES)),
         ));
     }
-    let n = rows(&g, COORDINATES, 3, path)?;
+    let total = rows(&g, COORDINATES, 3, path)?;
+    let n = share_rows(total, row_block(), c.rank(), c.size());
+    let first = n.0;
     let vec3 = |d: &str| -> Result<Vec<[f64; 3]>, IoError> {
-        let flat: Vec<f64> = column(&g, d, n, 3, path)?;
-        finite(&flat, 3, &obj(d), path)?;
+        let flat: Vec<f64> = column(&g, d, total, n, 3, path)?;
+        finite(&flat, 3, first, &obj(d), path)?;
         Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     };
     let scalar = |d: &str, positive: bool| -> Result<Option<Vec<f64>>, IoError> {
         if !g.link_exists(d) {
             return Ok(None);
         }
-        let v: Vec<f64> = column(&g, d, n, 1, path)?;
-        finite(&v, 1, &obj(d), path)?;
+        let v: Vec<f64> = column(&g, d, total, n, 1, path)?;
+        finite(&v, 1, first, &obj(d), path)?;
         let bad = |x: f64| if positive { x <= 0.0 } else { x < 0.0 };
         if let Some(i) = v.iter().position(|&x| bad(x)) {
             let want = if positive { "> 0" } else { "≥ 0" };
             return Err(IoError::invalid(
                 path,
-                format!("{}[{i}] is {} (must be {want})", obj(d), v[i]),
+                format!("{}[{}] is {} (must be {want})", obj(d), first + i, v[i]),
             ));
         }
         Ok(Some(v))
@@ -251,11 +294,16 @@ fn read_phase(
     let h = scalar(SMOOTHING_LENGTH, true)?.map(|s| s.into_iter().map(|s| s / per_h).collect());
     let e = scalar(INTERNAL_ENERGY, false)?;
     let id = if g.link_exists(PARTICLE_IDS) {
-        let v: Vec<i64> = column(&g, PARTICLE_IDS, n, 1, path)?;
+        let v: Vec<i64> = column(&g, PARTICLE_IDS, total, n, 1, path)?;
         if let Some(i) = v.iter().position(|&x| x < 0) {
             return Err(IoError::invalid(
                 path,
-                format!("{}[{i}] is {} (must be ≥ 0)", obj(PARTICLE_IDS), v[i]),
+                format!(
+                    "{}[{}] is {} (must be ≥ 0)",
+                    obj(PARTICLE_IDS),
+                    first + i,
+                    v[i]
+                ),
             ));
         }
         Some(v.into_iter().map(|x| x as u64).collect())
@@ -263,7 +311,7 @@ fn read_phase(
         None
     };
     let fraction = if g.link_exists(FRACTION_INDEX) {
-        Some(column::<i64>(&g, FRACTION_INDEX, n, 1, path)?)
+        Some(column::<i64>(&g, FRACTION_INDEX, total, n, 1, path)?)
     } else {
         None
     };
@@ -276,6 +324,8 @@ fn read_phase(
         e,
         id,
         fraction,
+        first,
+        total,
     })
 }
 
@@ -303,12 +353,13 @@ fn rows(g: &Group, d: &str, width: usize, path: &Path) -> Result<usize, IoError>
     Ok(shape[0])
 }
 
-/// A dataset of `n` rows of `width` values, flattened (read in the type asked for: HDF5
-/// converts floats and integers of other widths).
+/// Rows `lo..hi` of a dataset of `n` rows of `width` values, flattened (read in the type
+/// asked for: HDF5 converts floats and integers of other widths).
 fn column<T: hdf5::H5Type>(
     g: &Group,
     d: &str,
     n: usize,
+    (lo, hi): (usize, usize),
     width: usize,
     path: &Path,
 ) -> Result<Vec<T>, IoError> {
@@ -324,46 +375,97 @@ fn column<T: hdf5::H5Type>(
             ),
         ));
     }
-    g.dataset(d)
-        .and_then(|ds| ds.read_raw())
-        .map_err(h5err(path, &obj))
+    if lo == hi {
+        return Ok(Vec::new());
+    }
+    let ds = g.dataset(d).map_err(h5err(path, &obj))?;
+    let read = if ds.ndim() == 1 {
+        ds.read_slice_1d::<T, _>(lo..hi)
+            .map(|a| a.into_raw_vec_and_offset().0)
+    } else {
+        (ds.read_slice_2d::<T, _>((lo..hi, ..))).map(|a| a.into_raw_vec_and_offset().0)
+    };
+    read.map_err(h5err(path, &obj))
 }
 
-/// The first non-finite value of a flattened column, as its row.
-fn finite(v: &[f64], width: usize, obj: &str, path: &Path) -> Result<(), IoError> {
+/// The first non-finite value of a flattened column, as its row in the file (the column's
+/// first row is the file's `first`).
+fn finite(v: &[f64], width: usize, first: usize, obj: &str, path: &Path) -> Result<(), IoError> {
     match v.iter().position(|x| !x.is_finite()) {
         None => Ok(()),
         Some(i) => Err(IoError::invalid(
             path,
-            format!("{obj}[{}] holds {} (must be finite)", i / width, v[i]),
+            format!(
+                "{obj}[{}] holds {} (must be finite)",
+                first + i / width,
+                v[i]
+            ),
         )),
     }
 }
 
-/// `ParticleIDs` unique over gas and dust together (where given).
-fn unique_ids(gas: &IcPhase, dust: Option<&IcPhase>, path: &Path) -> Result<(), IoError> {
-    let mut all: Vec<(u64, &str, usize)> = Vec::new();
-    for (name, ph) in [(GAS_GROUP, Some(gas)), (DUST_GROUP, dust)] {
-        if let Some(ids) = ph.and_then(|p| p.id.as_ref()) {
-            all.extend(ids.iter().enumerate().map(|(i, &id)| (id, name, i)));
+/// `ParticleIDs` unique over gas and dust together (where given), over every process's rows:
+/// each ID goes to process ID mod P with its particle type and row, which finds its least
+/// repeated ID; the least over the processes is the one named (collective).
+fn unique_ids(
+    gas: &IcPhase,
+    dust: Option<&IcPhase>,
+    path: &Path,
+    c: &dyn Collective,
+) -> Result<(), IoError> {
+    let size = c.size() as u64;
+    // (id, particle type: 0 gas, 1 dust, row in the file) by the process that checks it.
+    let mut to: Vec<Vec<[u64; 3]>> = vec![Vec::new(); size as usize];
+    for (t, ph) in [Some(gas), dust].into_iter().enumerate() {
+        if let Some((ids, ph)) = ph.and_then(|p| Some((p.id.as_ref()?, p))) {
+            for (i, &id) in ids.iter().enumerate() {
+                to[(id % size) as usize].push([id, t as u64, (ph.first + i) as u64]);
+            }
         }
     }
+    let counts: Vec<usize> = to.iter().map(|v| v.len() * 24).collect();
+    let send: Vec<u8> = to
+        .iter()
+        .flatten()
+        .flat_map(|r| bytemuck::bytes_of(r).to_vec())
+        .collect();
+    drop(to);
+    let got = c
+        .exchange_bytes(&send, &counts)
+        .map_err(|e| IoError::invalid(path, format!("the IDs' check across ranks failed: {e}")))?;
+    drop(send);
+    let mut all: Vec<[u64; 3]> = got
+        .chunks_exact(24)
+        .map(bytemuck::pod_read_unaligned)
+        .collect();
+    drop(got);
     all.sort_unstable();
-    for w in all.windows(2) {
-        if w[0].0 == w[1].0 {
-            let (a, b) = if (w[0].1, w[0].2) < (w[1].1, w[1].2) {
-                (w[0], w[1])
-            } else {
-                (w[1], w[0])
-            };
-            return Err(IoError::invalid(
+    let first_dup = all
+        .windows(2)
+        .find(|w| w[0][0] == w[1][0])
+        .map(|w| (w[0], w[1]));
+    // The least repeated ID over the processes (u64::MAX: none here).
+    let least = first_dup.map_or(u64::MAX, |(a, _)| a[0]);
+    let every = c.all_gather_bytes(&least.to_le_bytes());
+    let least_all = (every.iter())
+        .map(|b| u64::from_le_bytes(b[..8].try_into().expect("8 bytes")))
+        .min()
+        .unwrap_or(u64::MAX);
+    match first_dup {
+        Some((a, b)) if a[0] == least_all => {
+            let group = |t: u64| if t == 0 { GAS_GROUP } else { DUST_GROUP };
+            Err(IoError::invalid(
                 path,
                 format!(
                     "ParticleIDs are not unique: /{}/{PARTICLE_IDS}[{}] and /{}/{PARTICLE_IDS}[{}] are both {}",
-                    a.1, a.2, b.1, b.2, a.0
+                    group(a[1]),
+                    a[2],
+                    group(b[1]),
+                    b[2],
+                    a[0]
                 ),
-            ));
+            ))
         }
+        _ => Ok(()),
     }
-    Ok(())
 }

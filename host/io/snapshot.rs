@@ -41,13 +41,7 @@ const CHUNK_ROWS: usize = 1 << 15;
 /// [`CHUNK_ROWS`], or `DUSTSPH_CHUNK_ROWS` where set (tests/mpi.rs writes a small run's
 /// snapshots in many chunks, so that every rank deflates some).
 fn chunk_rows() -> usize {
-    static AT: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
-    *AT.get_or_init(|| {
-        (std::env::var("DUSTSPH_CHUNK_ROWS").ok())
-            .and_then(|v| v.parse().ok())
-            .filter(|&n| n > 0)
-            .unwrap_or(CHUNK_ROWS)
-    })
+    crate::dist::count_from_env("DUSTSPH_CHUNK_ROWS", CHUNK_ROWS)
 }
 
 /// A borrowed view of one particle phase for output.

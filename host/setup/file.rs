@@ -3,7 +3,8 @@
 //! fractions, equation of state and smoothing-length rule), each failure naming the file,
 //! the dataset and the first offending row.
 use super::*;
-use crate::io::ics::{read_ics, IcPhase, Ics};
+use crate::dist::{agree, Collective};
+use crate::io::ics::{read_ics_on, row_block, IcPhase, Ics};
 use crate::scene::{FileCfg, GasEos, SmoothingLength};
 
 /// Where a run's particles came from: the file and the SHA-256 of its bytes (every output
@@ -14,59 +15,32 @@ pub struct IcSource {
     pub sha256: String,
 }
 
-pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
+/// The file's particles as this process's share of a set-up over `c` (each process reads its
+/// own rows of the file, [`read_ics_on`]; one process reads them all): the sums and checks
+/// over every row are collective, and every process stops with the same error.
+pub(super) fn build(scene: &Scene, f: &FileCfg, c: &dyn Collective) -> Result<Setup, SetupError> {
     let path = &f.resolved;
     let fail = |msg: String| SetupError {
         key: "file.path".into(),
         msg,
     };
     let io = |e: crate::io::IoError| fail(e.to_string());
-    let sha256 = crate::io::sha256::file_digest(path).map_err(io)?;
-    let ics = read_ics(path).map_err(io)?;
-    let at = |msg: String| fail(format!("{}: {msg}", path.display()));
-    let dim = scene.dim();
-    if let Some(d) = ics.dim {
-        if d != dim {
-            return Err(at(format!(
-                "Header/Dimension is {d} but the scene's scene.dim is {dim}"
-            )));
-        }
-    }
-    let nf = scene.n_fractions();
-    check_axes(&ics, dim, &at)?;
-    let periodic = periodic_box(&ics, f, &at)?;
-    let dust_rows = ics.dust.as_ref().map_or(0, IcPhase::len);
-    match (nf, dust_rows) {
-        (0, n) if n > 0 => {
-            return Err(at(format!(
-                "/PartType3 holds {n} dust particles but the scene has no [dust] section \
-                 (give each fraction's law there)"
-            )))
-        }
-        (k, 0) if k > 0 => {
-            return Err(at(format!(
-                "the scene lists {k} dust fraction(s) but the file has no dust (/PartType3)"
-            )))
-        }
-        _ => {}
-    }
-    if ics.gas.is_empty() {
-        return Err(at("/PartType0 holds no gas particles".into()));
-    }
-    let e = match scene.gas.eos {
-        GasEos::Adiabatic { .. } => Some(ics.gas.e.clone().ok_or_else(|| {
-            at("/PartType0/InternalEnergy is missing; adiabatic gas (gas.eos) needs it".into())
-        })?),
-        GasEos::Isothermal { .. } | GasEos::LocallyIsothermal { .. } => None,
+    // The digest goes into the outputs, which rank 0 writes.
+    let sha256 = if c.rank() == 0 {
+        crate::io::sha256::file_digest(path).map_err(io)
+    } else {
+        Ok(String::new())
     };
-    if scene.sph.density == crate::scene::DensityMethod::Continuity && ics.gas.rho.is_none() {
-        return Err(at(
-            "/PartType0/Density is missing; sph.density = \"continuity\" starts from it".into(),
-        ));
-    }
+    let sha256 = agreed(c, sha256)?;
+    let ics = read_ics_on(path, c).map_err(io)?;
+    let at = |msg: String| fail(format!("{}: {msg}", path.display()));
+    let checked = check_rows(scene, f, &ics, &at);
+    let (periodic, e) = agreed(c, checked)?;
+    let dim = scene.dim();
+    let nf = scene.n_fractions();
     let volume = periodic_volume(&periodic, dim);
-    let spacing = mean_spacing(&ics.gas, dim, volume);
-    let h = smoothing(scene, &ics.gas, spacing, &at)?;
+    let spacing = mean_spacing(&ics.gas, dim, volume, c);
+    let h = agreed(c, smoothing(scene, &ics.gas, spacing, &at, c))?;
     for (k, p) in periodic.iter().enumerate() {
         if let Some((_, len)) = p {
             check_periodic_fits(*len, h, &format!("file.periodic.{k}"))?;
@@ -79,44 +53,57 @@ pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
             .clone()
             .unwrap_or_else(|| ph.m.iter().map(|m| m / spacing.powi(dim as i32)).collect())
     };
-    let ng = ics.gas.len();
-    // Ids the file does not give follow the largest it does (unique over every phase).
+    let ng = ics.gas.total;
+    // Ids the file does not give follow the largest it does (unique over every phase), by
+    // the row in the file.
     let next = |ph: Option<&IcPhase>| {
-        ph.and_then(|p| p.id.as_ref())
-            .and_then(|ids| ids.iter().max())
-            .map_or(0, |m| m + 1)
+        let mine = ph
+            .and_then(|p| p.id.as_ref())
+            .and_then(|ids| ids.iter().max());
+        largest(c, mine.copied()).map_or(0, |m| m + 1)
     };
     let gas_start = next(ics.dust.as_ref());
+    let first = ics.gas.first as u64;
     let gas = Phase {
         x: ics.gas.x.clone(),
         v: ics.gas.v.clone(),
         m: ics.gas.m.clone(),
         rho: guess(&ics.gas),
-        id: ics
-            .gas
-            .id
-            .clone()
-            .unwrap_or_else(|| (gas_start..gas_start + ng as u64).collect()),
+        id: ics.gas.id.clone().unwrap_or_else(|| {
+            let n = ics.gas.len() as u64;
+            (gas_start + first..gas_start + first + n).collect()
+        }),
         fixed: None,
     };
     let dust = match &ics.dust {
         Some(d) => {
-            let start = gas.id.iter().max().map_or(0, |m| m + 1);
-            fractions(d, nf, start, &guess(d), &at)?
+            let start = largest(c, gas.id.iter().max().copied()).map_or(0, |m| m + 1);
+            let split = fractions(d, nf, start, &guess(d), &at);
+            let split = agreed(c, split)?;
+            // Every fraction holds a particle on some process.
+            let mut counts: Vec<u64> = split.iter().map(|p| p.len() as u64).collect();
+            c.sum_u64(&mut counts);
+            if let Some(k) = counts.iter().position(|&n| n == 0) {
+                return Err(at(format!(
+                    "/PartType3 has no particle of fraction {k} (FractionIndex); the scene lists {nf}"
+                )));
+            }
+            split
         }
         None => Vec::new(),
     };
-    let gas_mass = gas.total_mass();
+    // The note's counts and masses over every process (summed in rank order).
+    let mut mine = vec![gas.total_mass()];
+    mine.extend(dust.iter().map(|d| d.total_mass()));
+    let masses = sum_in_rank_order(c, &mine);
+    let mut counts: Vec<u64> = dust.iter().map(|d| d.len() as u64).collect();
+    c.sum_u64(&mut counts);
+    let gas_mass = masses[0];
     let mut notes = vec![format!(
         "initial conditions: {} (SHA-256 {sha256}): {ng} gas particles{}, t = {}, h = {h:.6e}",
         path.display(),
-        dust.iter()
-            .enumerate()
-            .map(|(k, d)| format!(
-                ", fraction {k}: {} particles, ε = {:.6}",
-                d.len(),
-                d.total_mass() / gas_mass
-            ))
+        (counts.iter().zip(&masses[1..]).enumerate())
+            .map(|(k, (n, m))| format!(", fraction {k}: {n} particles, ε = {:.6}", m / gas_mass))
             .collect::<String>(),
         ics.time
     )];
@@ -137,7 +124,96 @@ pub(super) fn build(scene: &Scene, f: &FileCfg) -> Result<Setup, SetupError> {
         path: path.display().to_string(),
         sha256,
     });
+    su.share = c.size() > 1;
     Ok(su)
+}
+
+/// A set-up's result agreed over the processes: the lowest failing rank's error on all.
+fn agreed<T>(c: &dyn Collective, r: Result<T, SetupError>) -> Result<T, SetupError> {
+    let text = |e: &SetupError| format!("{}\n{}", e.key, e.msg);
+    let from = |m: String| {
+        let (key, msg) = m.split_once('\n').unwrap_or(("file.path", &m));
+        SetupError {
+            key: key.into(),
+            msg: msg.into(),
+        }
+    };
+    agree(c, r, text, from)
+}
+
+/// The largest of every process's value (`None` where no process has one).
+fn largest(c: &dyn Collective, mine: Option<u64>) -> Option<u64> {
+    let bytes = mine.map(u64::to_le_bytes);
+    let all = c.all_gather_bytes(bytes.as_ref().map_or(&[][..], |b| &b[..]));
+    (all.iter())
+        .filter(|b| b.len() == 8)
+        .map(|b| u64::from_le_bytes(b[..].try_into().expect("8 bytes")))
+        .max()
+}
+
+/// Element-wise sums of every process's values, added in rank order (the same on every
+/// process).
+fn sum_in_rank_order(c: &dyn Collective, mine: &[f64]) -> Vec<f64> {
+    let all = c.all_gather_bytes(bytemuck::cast_slice(mine));
+    let mut out = vec![0.0; mine.len()];
+    for b in &all {
+        for (o, v) in out.iter_mut().zip(b.chunks_exact(8)) {
+            *o += f64::from_le_bytes(v.try_into().expect("8 bytes"));
+        }
+    }
+    out
+}
+
+/// The checks of this process's rows against the scene (no collective): the periodic axes
+/// and the energy column, or the first error.
+#[allow(clippy::type_complexity)]
+fn check_rows(
+    scene: &Scene,
+    f: &FileCfg,
+    ics: &Ics,
+    at: &impl Fn(String) -> SetupError,
+) -> Result<([Option<(f64, f64)>; 3], Option<Vec<f64>>), SetupError> {
+    let dim = scene.dim();
+    if let Some(d) = ics.dim {
+        if d != dim {
+            return Err(at(format!(
+                "Header/Dimension is {d} but the scene's scene.dim is {dim}"
+            )));
+        }
+    }
+    let nf = scene.n_fractions();
+    check_axes(ics, dim, &at)?;
+    let periodic = periodic_box(ics, f, &at)?;
+    let dust_rows = ics.dust.as_ref().map_or(0, |d| d.total);
+    match (nf, dust_rows) {
+        (0, n) if n > 0 => {
+            return Err(at(format!(
+                "/PartType3 holds {n} dust particles but the scene has no [dust] section \
+                 (give each fraction's law there)"
+            )))
+        }
+        (k, 0) if k > 0 => {
+            return Err(at(format!(
+                "the scene lists {k} dust fraction(s) but the file has no dust (/PartType3)"
+            )))
+        }
+        _ => {}
+    }
+    if ics.gas.total == 0 {
+        return Err(at("/PartType0 holds no gas particles".into()));
+    }
+    let e = match scene.gas.eos {
+        GasEos::Adiabatic { .. } => Some(ics.gas.e.clone().ok_or_else(|| {
+            at("/PartType0/InternalEnergy is missing; adiabatic gas (gas.eos) needs it".into())
+        })?),
+        GasEos::Isothermal { .. } | GasEos::LocallyIsothermal { .. } => None,
+    };
+    if scene.sph.density == crate::scene::DensityMethod::Continuity && ics.gas.rho.is_none() {
+        return Err(at(
+            "/PartType0/Density is missing; sph.density = \"continuity\" starts from it".into(),
+        ));
+    }
+    Ok((periodic, e))
 }
 
 /// Positions and velocities along axes the scene does not have must be 0.
@@ -156,7 +232,8 @@ fn check_axes(ics: &Ics, dim: u32, at: &impl Fn(String) -> SetupError) -> Result
                         ""
                     };
                     return Err(at(format!(
-                        "/{name}/{col}[{i}] has {} along axis {k}{off}; a {dim}D scene needs 0 there",
+                        "/{name}/{col}[{}] has {} along axis {k}{off}; a {dim}D scene needs 0 there",
+                        ph.first + i,
                         rows[i][k]
                     )));
                 }
@@ -196,8 +273,9 @@ fn periodic_box(
             let Some(ph) = ph else { continue };
             if let Some(i) = ph.x.iter().position(|x| !(lo..lo + len).contains(&x[k])) {
                 return Err(at(format!(
-                    "/{name}/Coordinates[{i}] is at {} along axis {k}, outside the periodic box \
+                    "/{name}/Coordinates[{}] is at {} along axis {k}, outside the periodic box \
                      [{lo}, {}) (Header CoordinateOffset and BoxSizePerAxis)",
+                    ph.first + i,
                     ph.x[i][k],
                     lo + len
                 )));
@@ -217,30 +295,35 @@ fn periodic_volume(periodic: &[Option<(f64, f64)>; 3], dim: u32) -> Option<f64> 
 }
 
 /// The gas's mean particle spacing: mean (m/ρ)^(1/d) from the file's densities, else
-/// (V/N)^(1/d) of a periodic box, else the extent of the particles over N^(1/d).
-fn mean_spacing(gas: &IcPhase, dim: u32, volume: Option<f64>) -> f64 {
-    let n = gas.len() as f64;
+/// (V/N)^(1/d) of a periodic box, else the extent of the particles over N^(1/d); over every
+/// process's rows (collective). The mean is summed in blocks of [`row_block`] rows, each in
+/// row order, then block by block: the same sum for any number of processes.
+fn mean_spacing(gas: &IcPhase, dim: u32, volume: Option<f64>, c: &dyn Collective) -> f64 {
+    let n = gas.total as f64;
     let d = dim as f64;
     if let Some(rho) = &gas.rho {
-        return gas
-            .m
-            .iter()
-            .zip(rho)
-            .map(|(m, r)| (m / r).powf(1.0 / d))
-            .sum::<f64>()
-            / n;
+        let b = row_block();
+        let blocks: Vec<f64> = (gas.m.chunks(b).zip(rho.chunks(b)))
+            .map(|(m, r)| m.iter().zip(r).map(|(m, r)| (m / r).powf(1.0 / d)).sum())
+            .collect();
+        let all = c.all_gather_bytes(bytemuck::cast_slice(&blocks));
+        let sum = (all.iter().flat_map(|b| b.chunks_exact(8)))
+            .map(|v| f64::from_le_bytes(v.try_into().expect("8 bytes")))
+            .fold(0.0, |a, b| a + b);
+        return sum / n;
     }
     let v = volume.unwrap_or_else(|| {
+        // Each axis's largest coordinate and largest negated one, over every process.
+        let mut ends = [f64::NEG_INFINITY; 6];
+        for x in &gas.x {
+            for k in 0..3 {
+                ends[k] = ends[k].max(x[k]);
+                ends[3 + k] = ends[3 + k].max(-x[k]);
+            }
+        }
+        c.max_f64(&mut ends);
         (0..dim as usize)
-            .map(|k| {
-                let (lo, hi) = gas
-                    .x
-                    .iter()
-                    .fold((f64::INFINITY, f64::NEG_INFINITY), |a, x| {
-                        (a.0.min(x[k]), a.1.max(x[k]))
-                    });
-                (hi - lo).max(f64::MIN_POSITIVE)
-            })
+            .map(|k| (ends[k] + ends[3 + k]).max(f64::MIN_POSITIVE))
             .product()
     });
     (v / n).powf(1.0 / d)
@@ -253,6 +336,7 @@ fn smoothing(
     gas: &IcPhase,
     spacing: f64,
     at: &impl Fn(String) -> SetupError,
+    c: &dyn Collective,
 ) -> Result<f64, SetupError> {
     match scene.sph.smoothing {
         SmoothingLength::Absolute { h } => Ok(h),
@@ -265,13 +349,19 @@ fn smoothing(
                         .into(),
                 ));
             };
-            let h0 = h[0];
+            // Row 0's h: the first of the lowest process holding rows.
+            let firsts =
+                c.all_gather_bytes(&h.first().map_or(Vec::new(), |x| x.to_le_bytes().to_vec()));
+            let h0 = (firsts.iter().find(|b| b.len() == 8))
+                .map(|b| f64::from_le_bytes(b[..].try_into().expect("8 bytes")))
+                .expect("the file holds gas (checked before)");
             if let Some(i) = h.iter().position(|&x| x != h0) {
                 return Err(at(format!(
-                    "/PartType0/SmoothingLength varies ({} at row 0, {} at row {i}): a fixed-h run \
+                    "/PartType0/SmoothingLength varies ({} at row 0, {} at row {}): a fixed-h run \
                      takes one h; give sph.h, or sph.hfact with sph.variable_h = true",
                     2.0 * h0,
-                    2.0 * h[i]
+                    2.0 * h[i],
+                    gas.first + i
                 )));
             }
             Ok(h0)
@@ -295,8 +385,9 @@ fn fractions(
             .map(|(i, &k)| {
                 usize::try_from(k).ok().filter(|&k| k < nf).ok_or_else(|| {
                     at(format!(
-                        "/PartType3/FractionIndex[{i}] is {k}; the scene has {nf} fraction(s) \
+                        "/PartType3/FractionIndex[{}] is {k}; the scene has {nf} fraction(s) \
                          (0 to {})",
+                        d.first + i,
                         nf - 1
                     ))
                 })
@@ -316,12 +407,8 @@ fn fractions(
         p.v.push(d.v[i]);
         p.m.push(d.m[i]);
         p.rho.push(rho[i]);
-        p.id.push(d.id.as_ref().map_or(id_start + i as u64, |id| id[i]));
-    }
-    if let Some(k) = out.iter().position(|p| p.x.is_empty()) {
-        return Err(at(format!(
-            "/PartType3 has no particle of fraction {k} (FractionIndex); the scene lists {nf}"
-        )));
+        let row = (d.first + i) as u64;
+        p.id.push(d.id.as_ref().map_or(id_start + row, |id| id[i]));
     }
     Ok(out)
 }

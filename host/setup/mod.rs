@@ -27,6 +27,9 @@ pub struct Setup {
     pub notes: Vec<String>,
     /// Initial conditions from a file: which, and its digest (every output records them).
     pub source: Option<file::IcSource>,
+    /// The state holds only this process's share of the particles (a file read over MPI
+    /// ranks, [`build_on`]); otherwise every particle.
+    pub share: bool,
 }
 
 impl Setup {
@@ -52,6 +55,7 @@ impl Setup {
             box_size,
             notes: Vec::new(),
             source: None,
+            share: false,
         }
     }
 }
@@ -173,7 +177,14 @@ impl std::fmt::Display for SetupError {
 impl std::error::Error for SetupError {}
 
 pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
-    let su = build_problem(scene)?;
+    build_on(scene, &crate::dist::Alone)
+}
+
+/// [`build`] as one of the processes in `c`: initial conditions from a file are read by
+/// share (each process its own rows, [`Setup::share`]); a lattice is set up whole on each
+/// (collective; every process gets the same error).
+pub fn build_on(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
+    let su = build_problem(scene, c)?;
     // A point mass's pull has no periodic image: it needs open axes.
     if scene.gravity.is_some() && su.domain.periodic.iter().any(Option::is_some) {
         return Err(SetupError {
@@ -187,14 +198,14 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
     Ok(su)
 }
 
-fn build_problem(scene: &Scene) -> Result<Setup, SetupError> {
+fn build_problem(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
     match &scene.problem {
         ProblemCfg::Dustybox(b) => dustybox::build(scene, b),
         ProblemCfg::Dustywave(w) => dustywave::build(scene, w),
         ProblemCfg::Dustyshock(s) => dustyshock::build(scene, s),
         ProblemCfg::Dustyball(b) => dustyball::build(scene, b),
         ProblemCfg::Dustysettle(c) => dustysettle::build(scene, c),
-        ProblemCfg::File(f) => file::build(scene, f),
+        ProblemCfg::File(f) => file::build(scene, f, c),
         ProblemCfg::Dustydisc(d) => dustydisc::build(scene, d),
     }
 }

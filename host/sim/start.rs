@@ -41,9 +41,23 @@ pub fn prepare(
     state: Option<State>,
     warn: bool,
 ) -> Result<(Physics, State, Option<IcSource>), RunError> {
+    let (phys, state, source, _) = prepare_on(loaded, state, warn, &crate::dist::Alone)?;
+    Ok((phys, state, source))
+}
+
+/// [`prepare`] as one of the processes in `c` (collective): the state is this process's share
+/// where the last value is true (initial conditions from a file, read by share over MPI
+/// ranks), every particle otherwise. A share's warning on dust without gas in its cell is the
+/// caller's to give, once the ranks hold their cells whole ([`uncoupled_warning`]).
+pub fn prepare_on(
+    loaded: &LoadedScene,
+    state: Option<State>,
+    warn: bool,
+    c: &dyn crate::dist::Collective,
+) -> Result<(Physics, State, Option<IcSource>, bool), RunError> {
     let file = loaded.path.display().to_string();
-    let su =
-        crate::setup::build(&loaded.scene).map_err(|e| RunError::Input(format!("{file}: {e}")))?;
+    let su = crate::setup::build_on(&loaded.scene, c)
+        .map_err(|e| RunError::Input(format!("{file}: {e}")))?;
     if warn && state.is_none() {
         for n in &su.notes {
             eprintln!("dustsph: {n}");
@@ -57,22 +71,33 @@ pub fn prepare(
             su.state.t
         )));
     }
+    let share = su.share && state.is_none();
     let state = state.unwrap_or(su.state);
     let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
-    if warn && phys.coupling == crate::scene::Coupling::Cell {
-        if let Some(f) = crate::step::dust_without_gas_in_cell(&phys, &state) {
-            if f > UNCOUPLED_WARNING {
-                eprintln!(
-                    "dustsph: warning: {:.0}% of the dust particles share no IDIC cell with a \
-                     gas particle, so the nearest-cell coupling (idic.coupling = \"cell\") \
-                     leaves their drag off; idic.coupling = \"kernel\" couples them wherever \
-                     they sit (docs/method.md §K)",
-                    100.0 * f
-                );
-            }
+    if warn && !share {
+        let found = crate::step::dust_without_gas_in_cell(&phys, &state, |_, _| true);
+        if let Some(w) = uncoupled_warning(&phys, found) {
+            eprintln!("dustsph: warning: {w}");
         }
     }
-    Ok((phys, state, su.source))
+    Ok((phys, state, su.source, share))
+}
+
+/// The warning on dust particles without gas in their IDIC cell (`found`: how many of how
+/// many), where the nearest-cell coupling leaves too many of them without drag.
+pub fn uncoupled_warning(phys: &Physics, found: (usize, usize)) -> Option<String> {
+    let (alone, total) = found;
+    let f = alone as f64 / total.max(1) as f64;
+    (phys.coupling == crate::scene::Coupling::Cell && total > 0 && f > UNCOUPLED_WARNING).then(
+        || {
+            format!(
+                "{:.0}% of the dust particles share no IDIC cell with a gas particle, so the \
+             nearest-cell coupling (idic.coupling = \"cell\") leaves their drag off; \
+             idic.coupling = \"kernel\" couples them wherever they sit (docs/method.md §K)",
+                100.0 * f
+            )
+        },
+    )
 }
 
 /// The engine on a scene's state (sorted in place). Sorting an already sorted state is the

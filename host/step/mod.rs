@@ -149,30 +149,36 @@ impl Physics {
     }
 }
 
-/// The nearest-cell coupling's blind spot (method.md §3.5): the share of dust particles (all
-/// fractions) whose IDIC cell holds no gas particle, so that their drag is off. `None` without
-/// dust, or when the grid cannot be built (the run then stops with its own error).
-pub fn dust_without_gas_in_cell(phys: &Physics, state: &crate::particles::State) -> Option<f64> {
+/// The nearest-cell coupling's blind spot (method.md §3.5): of the dust particles (all
+/// fractions) that `counted(fraction, index)` picks, how many have no gas particle in their
+/// IDIC cell (so that their drag is off), and how many there are. (0, 0) without dust, or
+/// when the grid cannot be built (the run then stops with its own error). Over MPI ranks each
+/// rank counts its own dust among its particles and ghosts, which hold its cells whole.
+pub fn dust_without_gas_in_cell(
+    phys: &Physics,
+    state: &crate::particles::State,
+    counted: impl Fn(usize, usize) -> bool,
+) -> (usize, usize) {
     use crate::grid::{CellIndex, Grid};
     if state.dust.is_empty() {
-        return None;
+        return (0, 0);
     }
     let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
     xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
-    let grid = Grid::build(&phys.domain, phys.cell_size, phys.support(), &xs).ok()?;
+    let Ok(grid) = Grid::build(&phys.domain, phys.cell_size, phys.support(), &xs) else {
+        return (0, 0);
+    };
     let (_, gas) = CellIndex::sort(&grid, &state.gas.ph.x);
     let (mut alone, mut total) = (0usize, 0usize);
-    for d in &state.dust {
-        let (_, dust) = CellIndex::sort(&grid, &d.x);
-        for (c, key) in dust.keys.iter().enumerate() {
-            let n = dust.cell_range(c).len();
-            total += n;
-            if gas.keys.binary_search(key).is_err() {
-                alone += n;
+    for (k, d) in state.dust.iter().enumerate() {
+        for (i, &x) in d.x.iter().enumerate() {
+            if counted(k, i) {
+                total += 1;
+                alone += gas.keys.binary_search(&grid.key(x)).is_err() as usize;
             }
         }
     }
-    (total > 0).then(|| alone as f64 / total as f64)
+    (alone, total)
 }
 
 /// Which stages a step runs; derived from [`Physics`], never set by hand.

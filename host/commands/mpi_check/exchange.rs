@@ -259,12 +259,15 @@ pub fn step_over_ranks(
 ) -> Result<Option<StepReport>, String> {
     use crate::sim::{Simulation, Stepper};
     use crate::step::backend::DeviceChoice;
-    let su = crate::setup::build(scene).map_err(|e| e.to_string())?;
+    let mut su = crate::setup::build(scene).map_err(|e| e.to_string())?;
     let phys = crate::step::Physics::from_scene(scene, su.h, su.domain);
+    // Every rank sets the scene up whole (one process steps it too, below) and keeps its
+    // share: `su.state` is left without particles.
     let mut ranks = RankStepper::new(
         world,
         phys.clone(),
-        &su.state,
+        &mut su.state,
+        false,
         depth.unwrap_or_else(|| crate::dist::ranks::depth_for(&phys)),
         DeviceChoice::Cpu,
         false,
