@@ -790,4 +790,30 @@ fn a_file_read_by_share_over_ranks_names_a_bad_row_in_the_file() {
     let ((reference, vscale, t1), (got, _, t3)) = (one.unwrap(), three.unwrap());
     assert_eq!(t1, t3);
     assert_same(&reference, &got, vscale, "the box from a file over 3 ranks");
+    // The dust shifted off the gas's cells: no rank sees every particle, and the ranks'
+    // count of dust without gas in its cell warns as one process's does, once.
+    let l = dustsph::scene::load(
+        &common::config("dustybox"),
+        &[
+            "scene.dim=2",
+            "sph.n=6",
+            "sph.hfact=1.2",
+            "dustybox.dust_shift=0.2",
+        ]
+        .map(String::from),
+    )
+    .unwrap();
+    let su = dustsph::setup::build(&l.scene).unwrap();
+    let shifted = IcFile::of_state(&su.state, su.h, 2, Some([1.0, 1.0, 0.0]));
+    let warning = |err: &str| -> Vec<String> {
+        (err.lines())
+            .filter(|l| l.contains("share no IDIC cell with a gas particle"))
+            .map(String::from)
+            .collect()
+    };
+    let (_, err1, _, _d1) = run(&shifted, None);
+    let (code, err3, _, _d3) = run(&shifted, Some(3));
+    assert_eq!(code, Some(0), "{err3}");
+    assert_eq!(warning(&err1).len(), 1, "{err1}");
+    assert_eq!(warning(&err3), warning(&err1), "{err3}");
 }
