@@ -101,6 +101,41 @@ pub fn agree<T, E>(
     }
 }
 
+/// Each item of `to[q]` to process q: what every process sent here, in rank order
+/// (collective). The sizes are agreed first, so that an exchange too large for MPI's counts
+/// fails on every process alike, before any of them enters it.
+pub fn route<T: bytemuck::Pod>(c: &dyn Collective, to: Vec<Vec<T>>) -> Result<Vec<T>, String> {
+    let item = std::mem::size_of::<T>();
+    let counts: Vec<usize> = to.iter().map(|v| v.len() * item).collect();
+    let mut total: Vec<u64> = counts.iter().map(|&b| b as u64).collect();
+    c.sum_u64(&mut total);
+    if let Some(q) = total.iter().position(|&b| b > i32::MAX as u64) {
+        return Err(format!(
+            "{} B for rank {q} in one exchange, above MPI's 2 GiB",
+            total[q]
+        ));
+    }
+    let send: Vec<u8> = to
+        .iter()
+        .flat_map(|v| bytemuck::cast_slice(v).to_vec())
+        .collect();
+    drop(to);
+    let got = c.exchange_bytes(&send, &counts)?;
+    Ok(got
+        .chunks_exact(item)
+        .map(bytemuck::pod_read_unaligned)
+        .collect())
+}
+
+/// The process that checks key `k` of a check spread over `size` processes: `k` mixed
+/// (SplitMix64's finaliser) before the modulus, so that keys of one stride spread out too.
+pub fn checker_of(k: u64, size: u32) -> usize {
+    let mut z = k.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    ((z ^ (z >> 31)) % size as u64) as usize
+}
+
 /// Rows `[lo, hi)` of `n` that process `rank` of `size` holds: whole blocks of `block` rows,
 /// as even as the blocks allow, in rank order (a sum over blocks is then the same sum for any
 /// process count).
@@ -535,5 +570,38 @@ pub mod comm {
             .zip(displs)
             .map(|(&c, &d)| buf[d as usize..(d + c) as usize].to_vec())
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shares_tile_the_rows_in_whole_blocks_in_rank_order() {
+        for n in [0, 1, 7, 8, 9, 63, 64, 65, 1000] {
+            for size in 1..=5 {
+                let mut next = 0;
+                for r in 0..size {
+                    let (lo, hi) = share_rows(n, 8, r, size);
+                    assert_eq!(lo, next, "n {n} size {size} rank {r}");
+                    assert!(
+                        lo <= hi && (lo % 8 == 0 || lo == n),
+                        "n {n} rank {r}: {lo}..{hi}"
+                    );
+                    next = hi;
+                }
+                assert_eq!(next, n, "n {n} size {size}: every row once");
+            }
+        }
+    }
+
+    #[test]
+    fn checks_spread_keys_of_one_stride_over_every_process() {
+        let mut hits = [0usize; 4];
+        for k in 0..4000u64 {
+            hits[checker_of(4 * k, 4)] += 1;
+        }
+        assert!(hits.iter().all(|&h| h > 800), "{hits:?}");
     }
 }

@@ -247,7 +247,8 @@ fn a_run_can_tell_when_the_nearest_cell_leaves_dust_uncoupled() {
     // What `dustsph run` warns about: dust without gas in its IDIC cell has no drag.
     let share = |shift: &str| {
         let (phys, st) = setup(&with(&[&format!("dustybox.dust_shift={shift}")]));
-        let (alone, total) = dustsph::step::dust_without_gas_in_cell(&phys, &st, |_, _| true);
+        let (alone, total) =
+            dustsph::step::dust_without_gas_in_cell(&phys, &st, &dustsph::dist::Alone);
         alone as f64 / total as f64
     };
     assert_eq!(share("0"), 0.0);

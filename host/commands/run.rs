@@ -413,14 +413,6 @@ fn over_ranks(
         ranks.any(true);
         return Err(RunError::InputReported);
     }
-    if share {
-        // Set up by share, no rank saw every particle: each counts its own dust in cells its
-        // ghosts complete.
-        let found = ranks.dust_without_gas_in_cell();
-        if let (true, Some(w)) = (root, start::uncoupled_warning(phys, found)) {
-            eprintln!("dustsph: warning: {w}");
-        }
-    }
     Ok(Stepper::Ranks {
         ranks: Box::new(ranks),
         t_stop: None,

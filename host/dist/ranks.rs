@@ -911,28 +911,6 @@ impl RankStepper {
         }))
     }
 
-    /// Of every rank's own dust particles, how many have no gas in their IDIC cell, and how
-    /// many there are (collective): each rank counts its own among its particles and ghosts
-    /// (an IDIC cell holding an own particle is whole on its rank). A rank without a resident
-    /// engine (no gas: the deep halo) counts none.
-    pub fn dust_without_gas_in_cell(&mut self) -> (usize, usize) {
-        let mut n = [0u64; 2];
-        if let Some(res) = &self.resident {
-            let local = &res.local;
-            let mut at = local.gas.ph.len();
-            let mut first = Vec::with_capacity(local.dust.len());
-            for d in &local.dust {
-                first.push(at);
-                at += d.len();
-            }
-            let own = |k: usize, i: usize| !res.flags[first[k] + i];
-            let (alone, total) = crate::step::dust_without_gas_in_cell(&self.phys, local, own);
-            n = [alone as u64, total as u64];
-        }
-        self.world.sum_u64(&mut n);
-        (n[0] as usize, n[1] as usize)
-    }
-
     /// The momentum and its scale Σ m|v| of every rank's own particles, summed over the ranks
     /// (collective).
     pub fn momentum(&self) -> crate::step::Momentum {

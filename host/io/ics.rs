@@ -93,9 +93,14 @@ pub fn read_ics(path: &Path) -> Result<Ics, IoError> {
 /// the same error, the lowest failing rank's).
 pub fn read_ics_on(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
     let read = read_share(path, c);
+    // The message without the path, which every process's error adds again.
     let text = |e: &IoError| match e {
         IoError::Invalid { reason, .. } => reason.clone(),
-        e => e.to_string(),
+        e => {
+            let full = e.to_string();
+            let lead = format!("{}: ", path.display());
+            full.strip_prefix(&lead).map_or(full.clone(), String::from)
+        }
     };
     let ics = agree(c, read, text, |m| IoError::invalid(path, m))?;
     let dup = unique_ids(&ics.gas, ics.dust.as_ref(), path, c);
@@ -405,40 +410,30 @@ fn finite(v: &[f64], width: usize, first: usize, obj: &str, path: &Path) -> Resu
 }
 
 /// `ParticleIDs` unique over gas and dust together (where given), over every process's rows:
-/// each ID goes to process ID mod P with its particle type and row, which finds its least
-/// repeated ID; the least over the processes is the one named (collective).
+/// each ID goes with its particle type and row to the process that checks it
+/// ([`crate::dist::checker_of`]), which finds its least repeated ID; the least over the
+/// processes is the one named (collective).
 fn unique_ids(
     gas: &IcPhase,
     dust: Option<&IcPhase>,
     path: &Path,
     c: &dyn Collective,
 ) -> Result<(), IoError> {
-    let size = c.size() as u64;
     // (id, particle type: 0 gas, 1 dust, row in the file) by the process that checks it.
-    let mut to: Vec<Vec<[u64; 3]>> = vec![Vec::new(); size as usize];
+    let mut to: Vec<Vec<[u64; 3]>> = vec![Vec::new(); c.size() as usize];
     for (t, ph) in [Some(gas), dust].into_iter().enumerate() {
         if let Some((ids, ph)) = ph.and_then(|p| Some((p.id.as_ref()?, p))) {
             for (i, &id) in ids.iter().enumerate() {
-                to[(id % size) as usize].push([id, t as u64, (ph.first + i) as u64]);
+                to[crate::dist::checker_of(id, c.size())].push([
+                    id,
+                    t as u64,
+                    (ph.first + i) as u64,
+                ]);
             }
         }
     }
-    let counts: Vec<usize> = to.iter().map(|v| v.len() * 24).collect();
-    let send: Vec<u8> = to
-        .iter()
-        .flatten()
-        .flat_map(|r| bytemuck::bytes_of(r).to_vec())
-        .collect();
-    drop(to);
-    let got = c
-        .exchange_bytes(&send, &counts)
-        .map_err(|e| IoError::invalid(path, format!("the IDs' check across ranks failed: {e}")))?;
-    drop(send);
-    let mut all: Vec<[u64; 3]> = got
-        .chunks_exact(24)
-        .map(bytemuck::pod_read_unaligned)
-        .collect();
-    drop(got);
+    let mut all = crate::dist::route(c, to)
+        .map_err(|e| IoError::invalid(path, format!("the IDs' check across ranks: {e}")))?;
     all.sort_unstable();
     let first_dup = all
         .windows(2)

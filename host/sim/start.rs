@@ -47,8 +47,7 @@ pub fn prepare(
 
 /// [`prepare`] as one of the processes in `c` (collective): the state is this process's share
 /// where the last value is true (initial conditions from a file, read by share over MPI
-/// ranks), every particle otherwise. A share's warning on dust without gas in its cell is the
-/// caller's to give, once the ranks hold their cells whole ([`uncoupled_warning`]).
+/// ranks), every particle otherwise.
 pub fn prepare_on(
     loaded: &LoadedScene,
     state: Option<State>,
@@ -74,30 +73,34 @@ pub fn prepare_on(
     let share = su.share && state.is_none();
     let state = state.unwrap_or(su.state);
     let phys = Physics::from_scene(&loaded.scene, su.h, su.domain);
-    if warn && !share {
-        let found = crate::step::dust_without_gas_in_cell(&phys, &state, |_, _| true);
-        if let Some(w) = uncoupled_warning(&phys, found) {
-            eprintln!("dustsph: warning: {w}");
+    // The nearest-cell coupling's blind spot: over every rank's share where each holds its
+    // own, else on the process that says it.
+    let found = match (phys.coupling == crate::scene::Coupling::Cell, share, warn) {
+        (true, true, _) => crate::step::dust_without_gas_in_cell(&phys, &state, c),
+        (true, false, true) => {
+            crate::step::dust_without_gas_in_cell(&phys, &state, &crate::dist::Alone)
         }
+        _ => (0, 0),
+    };
+    if let (true, Some(w)) = (warn, uncoupled_warning(found)) {
+        eprintln!("dustsph: warning: {w}");
     }
     Ok((phys, state, su.source, share))
 }
 
 /// The warning on dust particles without gas in their IDIC cell (`found`: how many of how
-/// many), where the nearest-cell coupling leaves too many of them without drag.
-pub fn uncoupled_warning(phys: &Physics, found: (usize, usize)) -> Option<String> {
+/// many, under the nearest-cell coupling), where too many of them are left without drag.
+pub fn uncoupled_warning(found: (usize, usize)) -> Option<String> {
     let (alone, total) = found;
     let f = alone as f64 / total.max(1) as f64;
-    (phys.coupling == crate::scene::Coupling::Cell && total > 0 && f > UNCOUPLED_WARNING).then(
-        || {
-            format!(
-                "{:.0}% of the dust particles share no IDIC cell with a gas particle, so the \
+    (total > 0 && f > UNCOUPLED_WARNING).then(|| {
+        format!(
+            "{:.0}% of the dust particles share no IDIC cell with a gas particle, so the \
              nearest-cell coupling (idic.coupling = \"cell\") leaves their drag off; \
              idic.coupling = \"kernel\" couples them wherever they sit (docs/method.md §K)",
-                100.0 * f
-            )
-        },
-    )
+            100.0 * f
+        )
+    })
 }
 
 /// The engine on a scene's state (sorted in place). Sorting an already sorted state is the

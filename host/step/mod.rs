@@ -149,36 +149,57 @@ impl Physics {
     }
 }
 
-/// The nearest-cell coupling's blind spot (method.md §3.5): of the dust particles (all
-/// fractions) that `counted(fraction, index)` picks, how many have no gas particle in their
-/// IDIC cell (so that their drag is off), and how many there are. (0, 0) without dust, or
-/// when the grid cannot be built (the run then stops with its own error). Over MPI ranks each
-/// rank counts its own dust among its particles and ghosts, which hold its cells whole.
+/// The nearest-cell coupling's blind spot (method.md §3.5): how many dust particles (all
+/// fractions) have no gas particle in their IDIC cell, so that their drag is off, and how many
+/// there are, over the particles of every process in `c` (collective; each process its own).
+/// The cells are those of one grid over every process's particles; each cell's gas and dust
+/// counts meet on the process that checks it ([`crate::dist::checker_of`]). (0, 0) without
+/// dust, or when the grid cannot be built or the counts not exchanged (the run then stops
+/// with its own error).
 pub fn dust_without_gas_in_cell(
     phys: &Physics,
     state: &crate::particles::State,
-    counted: impl Fn(usize, usize) -> bool,
+    c: &dyn crate::dist::Collective,
 ) -> (usize, usize) {
-    use crate::grid::{CellIndex, Grid};
+    use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
     if state.dust.is_empty() {
         return (0, 0);
     }
-    let mut xs: Vec<&[[f64; 3]]> = vec![&state.gas.ph.x];
-    xs.extend(state.dust.iter().map(|d| d.x.as_slice()));
-    let Ok(grid) = Grid::build(&phys.domain, phys.cell_size, phys.support(), &xs) else {
+    let phases = std::iter::once(&state.gas.ph.x).chain(state.dust.iter().map(|d| &d.x));
+    let (lo, hi) = (phases.flatten()).fold(EMPTY_BOUNDS, |b, &x| merge_bounds(b, (x, x)));
+    let mut ends = [hi[0], hi[1], hi[2], -lo[0], -lo[1], -lo[2]];
+    c.max_f64(&mut ends);
+    let bounds = ([-ends[3], -ends[4], -ends[5]], [ends[0], ends[1], ends[2]]);
+    let Ok(grid) = Grid::from_bounds(&phys.domain, phys.cell_size, phys.support(), bounds) else {
         return (0, 0);
     };
-    let (_, gas) = CellIndex::sort(&grid, &state.gas.ph.x);
-    let (mut alone, mut total) = (0usize, 0usize);
-    for (k, d) in state.dust.iter().enumerate() {
-        for (i, &x) in d.x.iter().enumerate() {
-            if counted(k, i) {
-                total += 1;
-                alone += gas.keys.binary_search(&grid.key(x)).is_err() as usize;
-            }
+    // (cell key, u64::MAX) for a cell holding gas, (cell key, n) for n dust particles in it.
+    const GAS: u64 = u64::MAX;
+    let mut to: Vec<Vec<[u64; 2]>> = vec![Vec::new(); c.size() as usize];
+    let mut runs = |mut keys: Vec<u64>, gas: bool| {
+        keys.sort_unstable();
+        for run in keys.chunk_by(|a, b| a == b) {
+            let n = if gas { GAS } else { run.len() as u64 };
+            to[crate::dist::checker_of(run[0], c.size())].push([run[0], n]);
+        }
+    };
+    runs(state.gas.ph.x.iter().map(|&x| grid.key(x)).collect(), true);
+    let dust = state.dust.iter().flat_map(|d| d.x.iter());
+    runs(dust.map(|&x| grid.key(x)).collect(), false);
+    let Ok(got) = crate::dist::route(c, to) else {
+        return (0, 0);
+    };
+    let gas: std::collections::HashSet<u64> =
+        (got.iter()).filter(|p| p[1] == GAS).map(|p| p[0]).collect();
+    let mut n = [0u64; 2];
+    for p in got.iter().filter(|p| p[1] != GAS) {
+        n[1] += p[1];
+        if !gas.contains(&p[0]) {
+            n[0] += p[1];
         }
     }
-    (alone, total)
+    c.sum_u64(&mut n);
+    (n[0] as usize, n[1] as usize)
 }
 
 /// Which stages a step runs; derived from [`Physics`], never set by hand.
