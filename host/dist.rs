@@ -88,16 +88,36 @@ pub fn agree<T, E>(
     text: impl Fn(&E) -> String,
     from_other: impl Fn(String) -> E,
 ) -> Result<T, E> {
-    let said = mine.as_ref().err().map(&text).unwrap_or_default();
-    // One byte ahead of the text: an error with an empty message still counts.
-    let sent = [&[mine.is_err() as u8][..], said.as_bytes()].concat();
+    agree_first(c, mine.map_err(|e| (0, e)), text, from_other)
+}
+
+/// [`agree`] where each error comes with its place among the checks (`order`): the error of
+/// the least place, of the lowest rank at that place. Checks taken in the same order on every
+/// process, each over the rows in rank order, so name the error one process would.
+pub fn agree_first<T, E>(
+    c: &dyn Collective,
+    mine: Result<T, (u64, E)>,
+    text: impl Fn(&E) -> String,
+    from_other: impl Fn(String) -> E,
+) -> Result<T, E> {
+    let said = match &mine {
+        Ok(_) => Vec::new(),
+        Err((order, e)) => [&order.to_le_bytes()[..], text(e).as_bytes()].concat(),
+    };
+    // One byte ahead: an error with an empty message still counts.
+    let sent = [&[mine.is_err() as u8][..], &said[..]].concat();
     let all = c.all_gather_bytes(&sent);
-    let first = all.iter().position(|b| b.first() == Some(&1));
+    let order = |b: &Vec<u8>| u64::from_le_bytes(b[1..9].try_into().expect("8 bytes"));
+    let first = (0..all.len())
+        .filter(|&r| all[r].first() == Some(&1))
+        .min_by_key(|&r| (order(&all[r]), r));
     match (mine, first) {
-        (Ok(_), Some(r)) => Err(from_other(
-            String::from_utf8_lossy(&all[r][1..]).into_owned(),
+        (Err((_, e)), Some(r)) if r == c.rank() as usize => Err(e),
+        (_, Some(r)) => Err(from_other(
+            String::from_utf8_lossy(&all[r][9..]).into_owned(),
         )),
-        (mine, _) => mine,
+        (Ok(t), None) => Ok(t),
+        (Err(_), None) => unreachable!("this process's error was gathered"),
     }
 }
 

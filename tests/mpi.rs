@@ -708,8 +708,9 @@ fn a_first_step_refused_on_rank_0_stops_every_rank_before_any_output() {
 }
 
 /// Initial conditions read by share over 3 ranks (`DUSTSPH_ROW_BLOCK=8`: rank 0 reads the
-/// gas's rows 0–7, rank 1 rows 8–23, rank 2 rows 24–35): a value no rank but rank 1 reads, and
-/// an ID that rank 2's dust repeats from rank 0's gas, stop every rank with exit 2, rank 0
+/// gas's rows 0–7, rank 1 rows 8–23, rank 2 rows 24–35): a value no rank but rank 1 reads, an
+/// ID that rank 2's dust repeats from rank 0's gas, and two bad columns on different ranks
+/// (the first column's named, as one process names it), stop every rank with exit 2, rank 0
 /// naming the row in the file once, and nothing written; the good file runs, each rank
 /// reading its own rows, to where one process ends.
 #[test]
@@ -783,6 +784,21 @@ fn a_file_read_by_share_over_ranks_names_a_bad_row_in_the_file() {
     let named =
         format!("/PartType0/ParticleIDs[2] and /PartType3/ParticleIDs[{dust_rows}] are both");
     assert_eq!(err.matches(&named).count(), 1, "{err}");
+    // Two bad rows: one process checks the whole of Coordinates before Masses, and so names
+    // rank 2's row 30, not rank 0's row 3.
+    let err = bad(&|f| {
+        if let Column::F(v, w) = f.column("PartType0", "Coordinates") {
+            v[30 * *w] = f64::INFINITY;
+        }
+        if let Column::F(v, _) = f.column("PartType0", "Masses") {
+            v[3] = -1.0;
+        }
+    });
+    assert_eq!(
+        err.matches("/PartType0/Coordinates[30] holds inf").count(),
+        1,
+        "{err}"
+    );
     let (code, err, one, _d1) = run(&good(), None);
     assert_eq!(code, Some(0), "{err}");
     let (code, err, three, _d3) = run(&good(), Some(3));

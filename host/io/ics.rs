@@ -21,7 +21,7 @@ use super::snapshot::{
     INTERNAL_ENERGY, MASSES, PARTICLE_IDS, SMOOTHING_LENGTH, VELOCITIES,
 };
 use super::IoError;
-use crate::dist::{agree, share_rows, Alone, Collective};
+use crate::dist::{agree, agree_first, share_rows, Alone, Collective};
 
 /// Rows per block of a shared read: a rank's share is whole blocks, and sums over the rows
 /// (the mean spacing) are taken block by block, so they come out the same on any number of
@@ -92,7 +92,10 @@ pub fn read_ics(path: &Path) -> Result<Ics, IoError> {
 /// checks them, the IDs' uniqueness across every process's (collective: every process gets
 /// the same error, the lowest failing rank's).
 pub fn read_ics_on(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
-    let read = read_share(path, c);
+    // Each check's place in the order one process takes them: the error named is the first
+    // check's that fails anywhere, at its lowest row.
+    let step = std::cell::Cell::new(0u64);
+    let read = read_share(path, c, &step).map_err(|e| (step.get(), e));
     // The message without the path, which every process's error adds again.
     let text = |e: &IoError| match e {
         IoError::Invalid { reason, .. } => reason.clone(),
@@ -102,14 +105,18 @@ pub fn read_ics_on(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
             full.strip_prefix(&lead).map_or(full.clone(), String::from)
         }
     };
-    let ics = agree(c, read, text, |m| IoError::invalid(path, m))?;
+    let ics = agree_first(c, read, text, |m| IoError::invalid(path, m))?;
     let dup = unique_ids(&ics.gas, ics.dust.as_ref(), path, c);
     agree(c, dup, text, |m| IoError::invalid(path, m))?;
     Ok(ics)
 }
 
-/// [`read_ics_on`] without its collective checks.
-fn read_share(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
+/// [`read_ics_on`] without its collective checks; `step` counts the checks of the rows taken.
+fn read_share(
+    path: &Path,
+    c: &dyn Collective,
+    step: &std::cell::Cell<u64>,
+) -> Result<Ics, IoError> {
     std::fs::metadata(path).map_err(|e| IoError::io(path, e))?;
     let file = File::open(path).map_err(|e| {
         IoError::invalid(
@@ -192,9 +199,16 @@ fn read_share(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
             format!("has no group /{GAS_GROUP} (the gas particles)"),
         ));
     }
-    let gas = read_phase(&file, GAS_GROUP, offset, per_h, path, c)?;
+    let gas = read_phase(&file, GAS_GROUP, (offset, per_h), path, c, step)?;
     let dust = if file.link_exists(DUST_GROUP) {
-        Some(read_phase(&file, DUST_GROUP, offset, per_h, path, c)?)
+        Some(read_phase(
+            &file,
+            DUST_GROUP,
+            (offset, per_h),
+            path,
+            c,
+            step,
+        )?)
     } else {
         None
     };
@@ -236,15 +250,16 @@ fn one_value(path: &Path, name: &str, n: usize) -> IoError {
 }
 
 /// This process's rows of one particle type: required columns, then the optional ones, every
-/// one the same length.
+/// one the same length; `step` counts the columns' checks.
 fn read_phase(
     file: &File,
     name: &str,
-    offset: [f64; 3],
-    per_h: f64,
+    (offset, per_h): ([f64; 3], f64),
     path: &Path,
     c: &dyn Collective,
+    step: &std::cell::Cell<u64>,
 ) -> Result<IcPhase, IoError> {
+    let next = || step.set(step.get() + 1);
     let g = file.group(name).map_err(h5err(path, &format!("/{name}")))?;
     let obj = |d: &str| format!("/{name}/{d}");
     if !g.link_exists(COORDINATES) {
@@ -257,11 +272,13 @@ fn read_phase(
     let n = share_rows(total, row_block(), c.rank(), c.size());
     let first = n.0;
     let vec3 = |d: &str| -> Result<Vec<[f64; 3]>, IoError> {
+        next();
         let flat: Vec<f64> = column(&g, d, total, n, 3, path)?;
         finite(&flat, 3, first, &obj(d), path)?;
         Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     };
     let scalar = |d: &str, positive: bool| -> Result<Option<Vec<f64>>, IoError> {
+        next();
         if !g.link_exists(d) {
             return Ok(None);
         }
@@ -298,6 +315,7 @@ fn read_phase(
     let rho = scalar(DENSITY, true)?;
     let h = scalar(SMOOTHING_LENGTH, true)?.map(|s| s.into_iter().map(|s| s / per_h).collect());
     let e = scalar(INTERNAL_ENERGY, false)?;
+    next();
     let id = if g.link_exists(PARTICLE_IDS) {
         let v: Vec<i64> = column(&g, PARTICLE_IDS, total, n, 1, path)?;
         if let Some(i) = v.iter().position(|&x| x < 0) {
@@ -315,6 +333,7 @@ fn read_phase(
     } else {
         None
     };
+    next();
     let fraction = if g.link_exists(FRACTION_INDEX) {
         Some(column::<i64>(&g, FRACTION_INDEX, total, n, 1, path)?)
     } else {

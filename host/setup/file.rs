@@ -3,7 +3,7 @@
 //! fractions, equation of state and smoothing-length rule), each failure naming the file,
 //! the dataset and the first offending row.
 use super::*;
-use crate::dist::{agree, Collective};
+use crate::dist::{agree_first, Collective};
 use crate::io::ics::{read_ics_on, row_block, IcPhase, Ics};
 use crate::scene::{FileCfg, GasEos, SmoothingLength};
 
@@ -34,8 +34,11 @@ pub(super) fn build(scene: &Scene, f: &FileCfg, c: &dyn Collective) -> Result<Se
     let sha256 = agreed(c, sha256)?;
     let ics = read_ics_on(path, c).map_err(io)?;
     let at = |msg: String| fail(format!("{}: {msg}", path.display()));
-    let checked = check_rows(scene, f, &ics, &at);
-    let (periodic, e) = agreed(c, checked)?;
+    // Each check's place in the order one process takes them: the error named is the first
+    // check's that fails anywhere, at its lowest row.
+    let step = std::cell::Cell::new(0u64);
+    let checked = check_rows(scene, f, &ics, &at, &step).map_err(|e| (step.get(), e));
+    let (periodic, e) = agreed_first(c, checked)?;
     let dim = scene.dim();
     let nf = scene.n_fractions();
     let volume = periodic_volume(&periodic, dim);
@@ -130,6 +133,11 @@ pub(super) fn build(scene: &Scene, f: &FileCfg, c: &dyn Collective) -> Result<Se
 
 /// A set-up's result agreed over the processes: the lowest failing rank's error on all.
 fn agreed<T>(c: &dyn Collective, r: Result<T, SetupError>) -> Result<T, SetupError> {
+    agreed_first(c, r.map_err(|e| (0, e)))
+}
+
+/// [`agreed`]: the error of the first check (its place given with it) that fails anywhere.
+fn agreed_first<T>(c: &dyn Collective, r: Result<T, (u64, SetupError)>) -> Result<T, SetupError> {
     let text = |e: &SetupError| format!("{}\n{}", e.key, e.msg);
     let from = |m: String| {
         let (key, msg) = m.split_once('\n').unwrap_or(("file.path", &m));
@@ -138,7 +146,7 @@ fn agreed<T>(c: &dyn Collective, r: Result<T, SetupError>) -> Result<T, SetupErr
             msg: msg.into(),
         }
     };
-    agree(c, r, text, from)
+    agree_first(c, r, text, from)
 }
 
 /// The largest of every process's value (`None` where no process has one).
@@ -172,6 +180,7 @@ fn check_rows(
     f: &FileCfg,
     ics: &Ics,
     at: &impl Fn(String) -> SetupError,
+    step: &std::cell::Cell<u64>,
 ) -> Result<([Option<(f64, f64)>; 3], Option<Vec<f64>>), SetupError> {
     let dim = scene.dim();
     if let Some(d) = ics.dim {
@@ -182,8 +191,10 @@ fn check_rows(
         }
     }
     let nf = scene.n_fractions();
-    check_axes(ics, dim, &at)?;
-    let periodic = periodic_box(ics, f, &at)?;
+    check_axes(ics, dim, &at, step)?;
+    let periodic = periodic_box(ics, f, &at, step)?;
+    // The checks below read only the file's layout: the same on every process.
+    step.set(step.get() + 1);
     let dust_rows = ics.dust.as_ref().map_or(0, |d| d.total);
     match (nf, dust_rows) {
         (0, n) if n > 0 => {
@@ -217,7 +228,12 @@ fn check_rows(
 }
 
 /// Positions and velocities along axes the scene does not have must be 0.
-fn check_axes(ics: &Ics, dim: u32, at: &impl Fn(String) -> SetupError) -> Result<(), SetupError> {
+fn check_axes(
+    ics: &Ics,
+    dim: u32,
+    at: &impl Fn(String) -> SetupError,
+    step: &std::cell::Cell<u64>,
+) -> Result<(), SetupError> {
     for (name, ph) in [
         ("PartType0", Some(&ics.gas)),
         ("PartType3", ics.dust.as_ref()),
@@ -225,6 +241,7 @@ fn check_axes(ics: &Ics, dim: u32, at: &impl Fn(String) -> SetupError) -> Result
         let Some(ph) = ph else { continue };
         for (col, rows) in [("Coordinates", &ph.x), ("Velocities", &ph.v)] {
             for k in dim as usize..3 {
+                step.set(step.get() + 1);
                 if let Some(i) = rows.iter().position(|r| r[k] != 0.0) {
                     let off = if col == "Coordinates" {
                         " (with Header/CoordinateOffset added)"
@@ -248,6 +265,7 @@ fn periodic_box(
     ics: &Ics,
     f: &FileCfg,
     at: &impl Fn(String) -> SetupError,
+    step: &std::cell::Cell<u64>,
 ) -> Result<[Option<(f64, f64)>; 3], SetupError> {
     let mut out = [None; 3];
     for k in 0..3 {
@@ -271,6 +289,7 @@ fn periodic_box(
             ("PartType3", ics.dust.as_ref()),
         ] {
             let Some(ph) = ph else { continue };
+            step.set(step.get() + 1);
             if let Some(i) = ph.x.iter().position(|x| !(lo..lo + len).contains(&x[k])) {
                 return Err(at(format!(
                     "/{name}/Coordinates[{}] is at {} along axis {k}, outside the periodic box \
