@@ -95,10 +95,12 @@ pub(super) fn build(scene: &Scene, f: &FileCfg, c: &dyn Collective) -> Result<Se
         }
         None => Vec::new(),
     };
-    // The note's counts and masses over every process (summed in rank order).
-    let mut mine = vec![gas.total_mass()];
-    mine.extend(dust.iter().map(|d| d.total_mass()));
-    let masses = sum_in_rank_order(c, &mine);
+    // The note's counts and masses over every process (block by block, as the spacing).
+    let mut masses = blocked_sums(c, &ics.gas.m, |_| 0, 1);
+    if let Some(d) = &ics.dust {
+        let class = |i: usize| d.fraction.as_ref().map_or(0, |f| f[i] as usize);
+        masses.extend(blocked_sums(c, &d.m, class, nf));
+    }
     let mut counts: Vec<u64> = dust.iter().map(|d| d.len() as u64).collect();
     c.sum_u64(&mut counts);
     let gas_mass = masses[0];
@@ -159,13 +161,25 @@ fn largest(c: &dyn Collective, mine: Option<u64>) -> Option<u64> {
         .max()
 }
 
-/// Element-wise sums of every process's values, added in rank order (the same on every
-/// process).
-fn sum_in_rank_order(c: &dyn Collective, mine: &[f64]) -> Vec<f64> {
-    let all = c.all_gather_bytes(bytemuck::cast_slice(mine));
-    let mut out = vec![0.0; mine.len()];
-    for b in &all {
-        for (o, v) in out.iter_mut().zip(b.chunks_exact(8)) {
+/// Per class (`class(row)` < `classes`), the sum of `values` over every process's rows: each
+/// block of [`row_block`] rows summed in row order, then the blocks in file order (the same
+/// sums on any number of processes; collective).
+fn blocked_sums(
+    c: &dyn Collective,
+    values: &[f64],
+    class: impl Fn(usize) -> usize,
+    classes: usize,
+) -> Vec<f64> {
+    let b = row_block();
+    let mut mine = vec![0.0; values.len().div_ceil(b) * classes];
+    for (i, v) in values.iter().enumerate() {
+        mine[i / b * classes + class(i)] += v;
+    }
+    let all = c.all_gather_bytes(bytemuck::cast_slice(&mine));
+    let mut out = vec![0.0; classes];
+    let blocks = all.iter().flat_map(|bytes| bytes.chunks_exact(8 * classes));
+    for block in blocks {
+        for (o, v) in out.iter_mut().zip(block.chunks_exact(8)) {
             *o += f64::from_le_bytes(v.try_into().expect("8 bytes"));
         }
     }
@@ -321,15 +335,10 @@ fn mean_spacing(gas: &IcPhase, dim: u32, volume: Option<f64>, c: &dyn Collective
     let n = gas.total as f64;
     let d = dim as f64;
     if let Some(rho) = &gas.rho {
-        let b = row_block();
-        let blocks: Vec<f64> = (gas.m.chunks(b).zip(rho.chunks(b)))
-            .map(|(m, r)| m.iter().zip(r).map(|(m, r)| (m / r).powf(1.0 / d)).sum())
+        let each: Vec<f64> = (gas.m.iter().zip(rho))
+            .map(|(m, r)| (m / r).powf(1.0 / d))
             .collect();
-        let all = c.all_gather_bytes(bytemuck::cast_slice(&blocks));
-        let sum = (all.iter().flat_map(|b| b.chunks_exact(8)))
-            .map(|v| f64::from_le_bytes(v.try_into().expect("8 bytes")))
-            .fold(0.0, |a, b| a + b);
-        return sum / n;
+        return blocked_sums(c, &each, |_| 0, 1)[0] / n;
     }
     let v = volume.unwrap_or_else(|| {
         // Each axis's largest coordinate and largest negated one, over every process.
