@@ -232,9 +232,10 @@ fn rank_device(
 }
 
 impl RankStepper {
-    /// This rank's share of `full` (the scene's whole state, built alike on every rank): the
-    /// particles of id + phase ≡ rank (mod R), until the first step's cut moves them to their
-    /// owners.
+    /// This rank's share of `full`, until the first step's cut moves the particles to their
+    /// owners: `full` itself where it is already this rank's share (`shared`: a file read by
+    /// share), else, of the scene's whole state built alike on every rank, the particles of
+    /// id + phase ≡ rank (mod R). `full` is left without particles.
     /// Each rank steps on the device `device` resolves to for it ([`rank_device`]); a rank
     /// that cannot stops every rank (collective), before anything is written.
     pub fn new(
