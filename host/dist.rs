@@ -169,6 +169,7 @@ pub fn share_rows(n: usize, block: usize, rank: u32, size: u32) -> (usize, usize
 pub mod farm;
 #[cfg(feature = "mpi")]
 pub mod halo;
+pub mod motion;
 #[cfg(feature = "mpi")]
 pub mod ranks;
 pub mod records;

@@ -95,7 +95,8 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
 /// process to 1e-12 of each field's scale (velocities: at least the sound speed) for every
 /// particle matched by id. The thin halo (ghosts one reach deep, refreshed from their owners
 /// between the step's passes; the step retaken when particles outrun its margin): the box (also
-/// with dust at 30 sound speeds), the 1D wave (also with IDIC cells of 4h, and with variable h,
+/// with dust at 30 sound speeds, and one fraction drifting at 5 through a box of 1024 particles
+/// a phase, where the halo's motion test gives the gas–dust pairs their own room), the 1D wave (also with IDIC cells of 4h, and with variable h,
 /// whose output dust density must not depend on its warm start), the Phantom slab (leapfrog,
 /// variable h, IAD, CFL), the shock tube (walls, adiabatic, heating), the settling column
 /// (kernel coupling, IAD, gravity), the open 3D ball, the explicit drag baseline with its limit
@@ -107,8 +108,21 @@ fn one_failing_rank_stops_every_rank_with_its_message() {
 /// column's kernel coupling.
 #[test]
 fn stepping_over_ranks_matches_one_process() {
-    let cases: [&[&str]; 12] = [
+    let cases: [&[&str]; 13] = [
         &["configs/dustybox.toml"],
+        // One fraction drifting through the gas on a box 64 supports long: its halo holds
+        // only where the gas–dust pairs' room (host/dist/motion.rs) is as the passes need it.
+        &[
+            "configs/dustybox.toml",
+            "--set",
+            "dust.fractions=[{eps=0.5,t_stop=1.0}]",
+            "--set",
+            "dustybox.u_dust=[5.0]",
+            "--set",
+            "sph.n=1024",
+            "--set",
+            "time.dt=0.001",
+        ],
         // Dust at 30 sound speeds: the thin halo's margin is outrun and the step retaken.
         &[
             "configs/dustybox.toml",

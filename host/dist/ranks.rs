@@ -13,6 +13,7 @@
 //! results.
 use super::comm::World;
 use super::halo::{cut, fail_requested, halo_sends, shell, RankGhosts};
+use super::motion::MotionCells;
 use super::records::{
     append_records, record_at, records_where, state_from, state_of, ParticleRecord,
 };
@@ -68,6 +69,8 @@ struct LocalLayer {
     near: f64,
     /// How far the halo reaches.
     reach: f64,
+    /// The cut's cells.
+    cbox: crate::decomp::CellBox,
 }
 
 /// The thin halo's least margin beyond the support, in supports.
@@ -115,6 +118,8 @@ struct Resident {
     ratio: f64,
     build_seconds: f64,
     step_seconds: f64,
+    /// The cells the motion test compares pair by pair.
+    cells: MotionCells,
 }
 
 /// One rank's share of a scene stepped over the ranks.
@@ -156,6 +161,8 @@ pub struct RankStepper {
     steps: u64,
     /// `DUSTSPH_FAIL_IN_STEP`: refreshes of this step before one fails (negative: none).
     fail: std::sync::Arc<std::sync::atomic::AtomicI64>,
+    /// `DUSTSPH_HALO_TRACE` is set: rank 0 prints each step's halo test to stderr.
+    trace: bool,
     /// The kernel coupling's normalisers of the layer the last step ended on, by particle key,
     /// from the engine dropped for a rebuilt halo: the next engine, on the same layer, takes
     /// them instead of computing them again (a disc rebuilds its halo about every step).
@@ -310,6 +317,7 @@ impl RankStepper {
             builds: 0,
             steps: 0,
             fail: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(-1)),
+            trace: std::env::var_os("DUSTSPH_HALO_TRACE").is_some(),
             carried_norms: None,
         })
     }
@@ -524,7 +532,7 @@ impl RankStepper {
             let Some(res) = self.build_resident_once(step)? else {
                 return Ok(None);
             };
-            let m = (res.eng.owned_motion())
+            let m = (res.eng.owned_motion(&mut |_, _, _| {}))
                 .unwrap_or_else(|x| abort_job(&self.world, step, &x))
                 .expect("a resident engine has its ghosts");
             let mut h_max = [m.h_max];
@@ -563,8 +571,10 @@ impl RankStepper {
             replies,
             halo,
             ghost_keys,
+            cbox,
             ..
         } = lay;
+        let cells = MotionCells::new(world, &cbox, reach, positions(&self.own));
         let arriving: Vec<(u64, u64)> = halo.iter().map(ParticleRecord::key).collect();
         let owned = self.own.len();
         let mut ratio = [halo.len() as f64 / owned.max(1) as f64];
@@ -625,6 +635,7 @@ impl RankStepper {
             ratio: ratio[0],
             build_seconds: seconds[0],
             step_seconds: 0.0,
+            cells,
         }))
     }
 
@@ -669,7 +680,7 @@ impl RankStepper {
         let t0 = std::time::Instant::now();
         let t_new = local.t;
         // The motion since the halo was built, and the largest h, over every rank.
-        let m = (e.owned_motion())
+        let m = (e.owned_motion(&mut |_, _, _| {}))
             .unwrap_or_else(|x| abort_job(world, step, &x))
             .expect("a resident engine has its ghosts");
         let (lo, hi) = (m.lo, m.hi);
@@ -678,8 +689,38 @@ impl RankStepper {
         ];
         world.max_f64(&mut worst);
         let lo = [-worst[6], -worst[7], -worst[8]];
-        let moved = relative_motion(worst[0], lo, [worst[3], worst[4], worst[5]]);
-        let need = (crate::step::SUPPORT * worst[1]).max(res.near) + 2.0 * moved;
+        let spread = relative_motion(worst[0], lo, [worst[3], worst[4], worst[5]]);
+        let near = (crate::step::SUPPORT * worst[1]).max(res.near);
+        // Where the global bound, growing as it has, would hold the halo another step, it
+        // serves; otherwise the pairs of cells of two ranks close enough to meet give twice
+        // the motion that matters, and the phases' own reach where they meet
+        // ([`MotionCells::bound`]).
+        let next = 2.0 * spread * (res.steps + 2) as f64 / (res.steps + 1) as f64;
+        let moved = if near + next <= res.reach {
+            spread
+        } else {
+            let cross = match self.phys.coupling {
+                crate::scene::Coupling::Kernel => near,
+                crate::scene::Coupling::Cell => {
+                    (self.phys.cell_size * (self.phys.dim as f64).sqrt()).min(near)
+                }
+            };
+            let cells = &mut res.cells;
+            cells.clear();
+            (e.owned_motion(&mut |k, x, d| cells.add(k, x, d)))
+                .unwrap_or_else(|x| abort_job(world, step, &x));
+            0.5 * cells.bound(world, res.reach, near, cross, 2.0 * spread)
+        };
+        let need = near + 2.0 * moved;
+        if me == 0 && self.trace {
+            eprintln!(
+                "halo: step {step}: reach {:.4e}, near {near:.4e}, global bound {:.4e}, \
+                 used {:.4e}",
+                res.reach,
+                2.0 * spread,
+                2.0 * moved
+            );
+        }
         // This step's motion (a cumulative largest displacement does not add up exactly; this
         // estimate only sets when the halo is rebuilt, the test above keeps it exact).
         let d = (moved - res.moved).max(moved / (res.steps + 1) as f64);
@@ -909,6 +950,7 @@ impl RankStepper {
             support,
             near,
             reach,
+            cbox: part.cbox,
         }))
     }
 

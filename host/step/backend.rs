@@ -434,8 +434,11 @@ impl Backend {
     }
 
     /// See [`Engine::owned_motion`].
-    pub fn owned_motion(&self) -> Result<Option<engine::OwnedMotion>, StepError> {
-        each!(self, e => Ok(e.owned_motion()?))
+    pub fn owned_motion(
+        &self,
+        each: &mut dyn FnMut(usize, [f64; 3], [f64; 3]),
+    ) -> Result<Option<engine::OwnedMotion>, StepError> {
+        each!(self, e => Ok(e.owned_motion(each)?))
     }
 
     /// See [`Engine::dust_density_as_after_step`].

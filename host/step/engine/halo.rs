@@ -397,8 +397,12 @@ impl<L: Launcher, R: Float> Engine<L, R> {
 
     /// How far the particles that are not ghosts moved since the ghosts were set, and their
     /// largest solved h: what decides whether the halo still holds every neighbour
-    /// (docs/scaling.md, "A resident engine"). `None` without ghosts.
-    pub fn owned_motion(&self) -> Result<Option<OwnedMotion>, GpuError> {
+    /// (docs/scaling.md, "A resident engine"). `None` without ghosts. `each` sees every such
+    /// particle's phase table (0 the gas, 1 the dust), position then and displacement since.
+    pub fn owned_motion(
+        &self,
+        each: &mut dyn FnMut(usize, V3, V3),
+    ) -> Result<Option<OwnedMotion>, GpuError> {
         let Some(g) = &self.ghosts else {
             return Ok(None);
         };
@@ -423,17 +427,17 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 if g.host_only[k][i] != 0 {
                     continue;
                 }
-                let mut d2 = 0.0;
+                let mut d = [0.0; 3];
                 for a in 0..3 {
-                    let mut d = xi[a] - ai[a];
+                    d[a] = xi[a] - ai[a];
                     if let Some((_, len)) = domain.periodic[a] {
-                        d = dustsph_device::update::min_image(d, len);
+                        d[a] = dustsph_device::update::min_image(d[a], len);
                     }
-                    m.lo[a] = m.lo[a].min(d);
-                    m.hi[a] = m.hi[a].max(d);
-                    d2 += d * d;
+                    m.lo[a] = m.lo[a].min(d[a]);
+                    m.hi[a] = m.hi[a].max(d[a]);
                 }
-                m.largest = m.largest.max(d2.sqrt());
+                m.largest = m.largest.max(d.iter().map(|v| v * v).sum::<f64>().sqrt());
+                each(k, *ai, d);
                 if let Some(&hi) = h.get(i) {
                     m.h_max = m.h_max.max(hi);
                 }
