@@ -14,9 +14,20 @@
 use super::Collective;
 use crate::decomp::CellBox;
 
-/// How many cells (each one halo reach wide) either way the test pairs cells: pairs further
-/// apart are at least this many reaches apart, and the global bound serves them.
+/// How many halo reaches either way the test pairs cells: pairs further apart are at least
+/// this many reaches apart, and the global bound serves them.
 pub const REACH_CELLS: i64 = 2;
+
+/// Cells per halo reach: finer cells bound the motion of closer neighbours (a disc's inner
+/// orbits turn across a cell one reach wide), but pair (2K + 1)^dim cells each. In 3D a reach
+/// per cell keeps the pairs to about 10⁵ on the ball (1 to 4 × 10⁴ at 2 × 248 439 particles).
+pub fn cells_per_reach(dim: u32) -> u32 {
+    if dim <= 2 {
+        4
+    } else {
+        1
+    }
+}
 
 /// Phase classes binned apart: the gas and the dust (every fraction).
 const CLASSES: usize = 2;
@@ -32,6 +43,9 @@ enum Slots {
 }
 
 const NONE: u32 = u32::MAX;
+
+/// The most cells a box may have for its lookups to be arrays.
+const DENSE_CELLS: usize = 1 << 21;
 
 /// Cells whose bins are merged and compared, agreed by every rank when a halo is built.
 pub struct MotionCells {
@@ -50,18 +64,18 @@ pub struct MotionCells {
 type Present = (u32, u32);
 
 impl MotionCells {
-    /// Cells `reach` wide over the build's box `within` (the cut's), paired where two ranks
-    /// hold particles in them or in cells within [`REACH_CELLS`] (collective): `anchors` are
-    /// this rank's own particles' positions at the build.
+    /// Cells `reach / per_reach` wide over the build's box `within` (the cut's), paired where
+    /// two ranks hold particles in them or in cells within [`REACH_CELLS`] reaches along the
+    /// scene's `dim` axes (collective): `anchors` are this rank's own particles' positions at
+    /// the build.
     pub fn new(
         c: &dyn Collective,
         within: &CellBox,
         reach: f64,
+        (dim, per_reach): (u32, u32),
         anchors: impl Iterator<Item = [f64; 3]>,
     ) -> MotionCells {
-        let hi: [f64; 3] =
-            std::array::from_fn(|k| within.lo[k] + within.n[k] as f64 * within.size[k]);
-        let cbox = CellBox::new(within.lo, hi, reach, within.periodic);
+        let cbox = Self::cells_for(within, reach, per_reach);
         let mut mine: Vec<u64> = anchors
             .map(|x| cbox.index(cbox.cell_of(x)) as u64)
             .collect();
@@ -79,12 +93,27 @@ impl MotionCells {
         }
         let mut cells: Vec<(usize, Present)> = present.iter().map(|(&i, &p)| (i, p)).collect();
         cells.sort_unstable();
-        let (pairs_at, beyond) = pairs_of(&cbox, &cells, |i| present.get(&i).copied());
+        let k = REACH_CELLS * per_reach as i64;
+        // Occupancy by index where the box is small, else by hash.
+        const ABSENT: Present = (1, 0);
+        let dense = (cbox.len() <= DENSE_CELLS).then(|| {
+            let mut d = vec![ABSENT; cbox.len()];
+            for &(i, p) in &cells {
+                d[i] = p;
+            }
+            d
+        });
+        let at = |i: usize| match &dense {
+            Some(d) => (d[i] != ABSENT).then_some(d[i]),
+            None => present.get(&i).copied(),
+        };
+        let (pairs_at, beyond) = pairs_of(&cbox, &cells, (dim, k), at);
+        drop(dense);
         // Slots for the cells in a pair only.
         let mut listed: Vec<usize> = pairs_at.iter().flat_map(|&(a, b, _)| [a, b]).collect();
         listed.sort_unstable();
         listed.dedup();
-        let slots = if cbox.len() <= 1 << 21 {
+        let slots = if cbox.len() <= DENSE_CELLS {
             let mut d = vec![NONE; cbox.len()];
             for (s, &i) in listed.iter().enumerate() {
                 d[i] = s as u32;
@@ -111,6 +140,13 @@ impl MotionCells {
             beyond,
             bins: vec![f64::NEG_INFINITY; listed.len() * CLASSES * BIN],
         }
+    }
+
+    /// The cells `reach / per_reach` wide over the cut's box `within`.
+    pub fn cells_for(within: &CellBox, reach: f64, per_reach: u32) -> CellBox {
+        let hi: [f64; 3] =
+            std::array::from_fn(|k| within.lo[k] + within.n[k] as f64 * within.size[k]);
+        CellBox::new(within.lo, hi, reach / per_reach as f64, within.periodic)
     }
 
     /// Cell pairs compared per step.
@@ -184,24 +220,33 @@ impl MotionCells {
     }
 }
 
-/// The pairs (a, b) of occupied cells (a ≤ b by index) within [`REACH_CELLS`] of each other
-/// on every axis (across the period on periodic axes) that could hold particles of two ranks,
-/// with their least distance apart; and the least distance apart of cells further than that.
+/// The pairs (a, b) of occupied cells (a ≤ b by index) within `k` cells of each other on
+/// each of the first `dim` axes (across the period on periodic axes; every particle shares its
+/// coordinate on the others) that could hold particles of two ranks, with their least
+/// distance apart; and the least distance apart of cells further than that.
 fn pairs_of(
     cbox: &CellBox,
     cells: &[(usize, Present)],
+    (dim, k): (u32, i64),
     at: impl Fn(usize) -> Option<Present>,
 ) -> (Vec<(usize, usize, f64)>, f64) {
-    let k = REACH_CELLS;
     let mut pairs = Vec::new();
     // Rounding: a position on a cell's face may fall either side.
     let shave = 1e-9 * cbox.size.iter().fold(0.0f64, |a, &s| a.max(s));
     let single = |p: Present| p.0 == p.1;
     for &(ia, pa) in cells {
         let ca = cell_coords(cbox, ia);
-        for dz in -k..=k {
-            for dy in -k..=k {
-                for dx in -k..=k {
+        let span = |a: usize| {
+            if a < dim as usize && cbox.n[a] > 1 {
+                k
+            } else {
+                0
+            }
+        };
+        let (kx, ky, kz) = (span(0), span(1), span(2));
+        for dz in -kz..=kz {
+            for dy in -ky..=ky {
+                for dx in -kx..=kx {
                     let o = [dx, dy, dz];
                     let Some(cb) = offset(cbox, ca, o) else {
                         continue;
@@ -225,7 +270,7 @@ fn pairs_of(
         }
     }
     let beyond = (0..3)
-        .filter(|&a| cbox.n[a] as i64 > k + 1)
+        .filter(|&a| a < dim as usize && cbox.n[a] as i64 > k + 1)
         .map(|a| k as f64 * cbox.size[a])
         .fold(f64::INFINITY, f64::min)
         - shave;
@@ -302,7 +347,7 @@ mod tests {
         let (reach, near, cross) = (0.1, 0.07, 0.03);
         let within = CellBox::new([0.0; 3], [1.0; 3], 0.05, [false, false, true]);
         let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        for field in 0..4 {
+        for (field, per_reach) in (0..4).flat_map(|f| [(f, 1), (f, 2)]) {
             let n = 1500;
             let x: Vec<[f64; 3]> = (0..n)
                 .map(|_| [rng(&mut seed), rng(&mut seed), rng(&mut seed)])
@@ -321,7 +366,7 @@ mod tests {
                     }
                 })
                 .collect();
-            let cbox = CellBox::new(within.lo, [1.0; 3], reach, within.periodic);
+            let cbox = MotionCells::cells_for(&within, reach, per_reach);
             let theirs: Vec<u8> = {
                 let mut v: Vec<u64> = (0..n)
                     .filter(|&i| rank[i] == 1)
@@ -333,7 +378,7 @@ mod tests {
             };
             let two = Two { other: theirs };
             let mine = (0..n).filter(|&i| rank[i] == 0).map(|i| x[i]);
-            let mut cells = MotionCells::new(&two, &within, reach, mine);
+            let mut cells = MotionCells::new(&two, &within, reach, (3, per_reach), mine);
             assert!(cells.pairs() > 0);
             cells.clear();
             for i in 0..n {
@@ -369,7 +414,7 @@ mod tests {
             let bound = cells.bound(&two, reach, near, cross, global);
             assert!(
                 worst <= bound * (1.0 + 1e-12) + 1e-15,
-                "field {field}: a pair needs {worst}, the bound is {bound}"
+                "field {field}, {per_reach} cells a reach: a pair needs {worst}, the bound is {bound}"
             );
             assert!(bound <= global, "field {field}: {bound} > {global}");
             if field < 3 {
@@ -387,10 +432,10 @@ mod tests {
     fn a_cell_two_ranks_share_bounds_the_pairs_inside_it() {
         let within = CellBox::new([0.0; 3], [1.0; 3], 0.05, [false; 3]);
         let (a, b) = ([0.42, 0.4, 0.4], [0.48, 0.4, 0.4]);
-        let cbox = CellBox::new(within.lo, [1.0; 3], 0.1, within.periodic);
+        let cbox = MotionCells::cells_for(&within, 0.1, 1);
         let other = (cbox.index(cbox.cell_of(b)) as u64).to_le_bytes().to_vec();
         let two = Two { other };
-        let mut cells = MotionCells::new(&two, &within, 0.1, std::iter::once(a));
+        let mut cells = MotionCells::new(&two, &within, 0.1, (3, 1), std::iter::once(a));
         assert_eq!(cells.pairs(), 1);
         cells.clear();
         cells.add(0, a, [0.02, 0.0, 0.0]);

@@ -574,7 +574,9 @@ impl RankStepper {
             cbox,
             ..
         } = lay;
-        let cells = MotionCells::new(world, &cbox, reach, positions(&self.own));
+        let per_reach = super::motion::cells_per_reach(self.phys.dim);
+        let shape = (self.phys.dim, per_reach);
+        let cells = MotionCells::new(world, &cbox, reach, shape, positions(&self.own));
         let arriving: Vec<(u64, u64)> = halo.iter().map(ParticleRecord::key).collect();
         let owned = self.own.len();
         let mut ratio = [halo.len() as f64 / owned.max(1) as f64];
