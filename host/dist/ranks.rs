@@ -681,8 +681,12 @@ impl RankStepper {
         let stepped = t_step.elapsed().as_secs_f64();
         let t0 = std::time::Instant::now();
         let t_new = local.t;
-        // The motion since the halo was built, and the largest h, over every rank.
-        let m = (e.owned_motion(&mut |_, _, _| {}))
+        // The motion since the halo was built, and the largest h, over every rank; each own
+        // particle's displacement binned by its cell at the build, in the same pass (on a GPU
+        // rank the positions cross to the host once).
+        let cells = &mut res.cells;
+        cells.clear();
+        let m = (e.owned_motion(&mut |k, x, d| cells.add(k, x, d)))
             .unwrap_or_else(|x| abort_job(world, step, &x))
             .expect("a resident engine has its ghosts");
         let (lo, hi) = (m.lo, m.hi);
@@ -707,11 +711,7 @@ impl RankStepper {
                     (self.phys.cell_size * (self.phys.dim as f64).sqrt()).min(near)
                 }
             };
-            let cells = &mut res.cells;
-            cells.clear();
-            (e.owned_motion(&mut |k, x, d| cells.add(k, x, d)))
-                .unwrap_or_else(|x| abort_job(world, step, &x));
-            0.5 * cells.bound(world, res.reach, near, cross, 2.0 * spread)
+            0.5 * res.cells.bound(world, res.reach, near, cross, 2.0 * spread)
         };
         let need = near + 2.0 * moved;
         if me == 0 && self.trace {
