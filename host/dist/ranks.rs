@@ -37,7 +37,7 @@ pub fn depth_for(phys: &Physics) -> f64 {
     if phys.coupling == crate::scene::Coupling::Kernel && !phys.laws.is_empty() {
         return chain + 3.0;
     }
-    let cell = phys.cell_size * (phys.dim as f64).sqrt() / phys.support();
+    let cell = phys.cell_diagonal() / phys.support();
     chain + cell.max(1.0)
 }
 
@@ -707,9 +707,7 @@ impl RankStepper {
         } else {
             let cross = match self.phys.coupling {
                 crate::scene::Coupling::Kernel => near,
-                crate::scene::Coupling::Cell => {
-                    (self.phys.cell_size * (self.phys.dim as f64).sqrt()).min(near)
-                }
+                crate::scene::Coupling::Cell => self.phys.cell_diagonal().min(near),
             };
             0.5 * res.cells.bound(world, res.reach, near, cross, 2.0 * spread)
         };
@@ -900,7 +898,7 @@ impl RankStepper {
         let mut h_max = [solved.fold(self.phys.h, |a, &h| a.max(h))];
         world.max_f64(&mut h_max);
         let support = crate::step::SUPPORT * h_max[0];
-        let cell = self.phys.cell_size * (self.phys.dim as f64).sqrt();
+        let cell = self.phys.cell_diagonal();
         let near = support.max(cell);
         let (inner, reach) = if thin {
             (near + self.margin, near + self.margin)

@@ -147,6 +147,11 @@ impl Physics {
     pub fn support(&self) -> f64 {
         dustsph_device::kernel::SUPPORT * self.h
     }
+
+    /// An IDIC cell's diagonal: the furthest two cell-mates can be apart (method.md §3.3).
+    pub fn cell_diagonal(&self) -> f64 {
+        self.cell_size * (self.dim as f64).sqrt()
+    }
 }
 
 /// The nearest-cell coupling's blind spot (method.md §3.5): how many dust particles (all
