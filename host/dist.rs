@@ -53,11 +53,23 @@ pub trait Collective {
     fn max_f64(&self, v: &mut [f64]);
     /// Element-wise sum over the processes.
     fn sum_u64(&self, v: &mut [u64]);
+    /// Element-wise sum over the processes.
+    fn sum_f64(&self, v: &mut [f64]);
     /// Every process's bytes, in rank order, on every process.
     fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>>;
     /// `counts[q]` bytes of `send` (laid out rank by rank) to process q: what every process
     /// sent here, in rank order.
     fn exchange_bytes(&self, send: &[u8], counts: &[usize]) -> Result<Vec<u8>, String>;
+    /// `bytes` to process 0, one message of a stream it reads with
+    /// [`Collective::receive_from`] (a snapshot's chunks written by share). One process never
+    /// sends to itself.
+    fn send_to_root(&self, _bytes: &[u8]) {
+        unreachable!("one process sends nothing to itself")
+    }
+    /// On process 0, the next message of process `from`'s stream.
+    fn receive_from(&self, _from: u32) -> Vec<u8> {
+        unreachable!("one process hears from no other")
+    }
 }
 
 /// One process: every collective is the identity.
@@ -72,6 +84,7 @@ impl Collective for Alone {
     }
     fn max_f64(&self, _: &mut [f64]) {}
     fn sum_u64(&self, _: &mut [u64]) {}
+    fn sum_f64(&self, _: &mut [f64]) {}
     fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
         vec![mine.to_vec()]
     }
@@ -553,8 +566,17 @@ pub mod comm {
         fn sum_u64(&self, v: &mut [u64]) {
             World::sum_u64(self, v)
         }
+        fn sum_f64(&self, v: &mut [f64]) {
+            World::sum_f64(self, v)
+        }
         fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
             World::all_gather_bytes(self, mine)
+        }
+        fn send_to_root(&self, bytes: &[u8]) {
+            World::send_to_root(self, bytes)
+        }
+        fn receive_from(&self, from: u32) -> Vec<u8> {
+            World::receive_from(self, from)
         }
         fn exchange_bytes(&self, send: &[u8], counts: &[usize]) -> Result<Vec<u8>, String> {
             let mut recv = Vec::new();

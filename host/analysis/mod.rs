@@ -172,6 +172,17 @@ fn all_phase_errors(
     out
 }
 
+/// Whether a scene's outputs read every particle at once: its errors against an exact solution
+/// ([`exact_errors`]: every built-in problem but the disc) or the ball's core. Over MPI ranks
+/// such outputs are written from the whole state gathered on rank 0; the others (a file of
+/// initial conditions, the disc) are written by share, no rank holding every particle.
+pub fn outputs_read_whole_state(scene: &Scene) -> bool {
+    !matches!(
+        scene.problem,
+        ProblemCfg::File(_) | ProblemCfg::Dustydisc(_)
+    )
+}
+
 /// Errors against the exact solution of the scene (`None` if the problem has none).
 /// `dt_fixed` enables the discrete IDIC oracle of the dusty box.
 pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<ExactErrors> {

@@ -121,10 +121,13 @@ impl Run {
             ..Default::default()
         };
         // Over ranks the whole state comes together on rank 0 here, its output fields computed
-        // by the ranks' engines (one process syncs what it already holds).
-        stepper
-            .sync(&mut state)
-            .map_err(|e| RunError::Step(e.to_string()))?;
+        // by the ranks' engines (one process syncs what it already holds), unless the outputs
+        // are written by share.
+        if !stepper.writes_by_share() {
+            stepper
+                .sync(&mut state)
+                .map_err(|e| RunError::Step(e.to_string()))?;
+        }
         let sim = Simulation::new(phys, &loaded.scene.time, state, stepper)
             .map_err(|e| RunError::Step(e.to_string()))?;
         let mut r = Run::with(
@@ -418,6 +421,7 @@ fn over_ranks(
         t_stop: None,
         output: None,
         stale: false,
+        by_share: !crate::analysis::outputs_read_whole_state(&loaded.scene),
     })
 }
 

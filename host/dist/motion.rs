@@ -323,6 +323,7 @@ mod tests {
         }
         fn max_f64(&self, _: &mut [f64]) {}
         fn sum_u64(&self, _: &mut [u64]) {}
+        fn sum_f64(&self, _: &mut [f64]) {}
         fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
             vec![mine.to_vec(), self.other.clone()]
         }

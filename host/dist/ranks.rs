@@ -96,6 +96,8 @@ const STAGE_MOTION: &str =
     "ranks: the motion since the halo reduced, the engine's particles copied to the host";
 const STAGE_OUTPUT: &str =
     "ranks: an output's dust densities and stopping times, gathered on rank 0";
+const STAGE_OWN_OUTPUT: &str =
+    "ranks: an output's dust densities and stopping times, each rank's own particles copied";
 
 /// A rank's engine kept across steps on its owned particles and thin halo, until the motion
 /// since the halo was built uses up its margin (docs/scaling.md, "A resident engine").
@@ -988,6 +990,63 @@ impl RankStepper {
             l: [s[4], s[5], s[6]],
             inside: 0,
         }
+    }
+
+    /// This rank's own particles as they stand (a copy: the resident engine's host copy less
+    /// its ghosts, or the rank's share).
+    pub fn own_state(&self) -> State {
+        match (&self.resident, self.owned_stale) {
+            (Some(r), true) => {
+                let mut own = r.local.clone();
+                own.retain_rows(&r.flags.iter().map(|&g| !g).collect::<Vec<_>>());
+                own
+            }
+            _ => self.own.clone(),
+        }
+    }
+
+    /// This rank's own particles for an output written by share, at time `t`, step `step`,
+    /// with the dust densities and stopping times per fraction its engine computed for them,
+    /// the ghosts refreshed between (collective); `None` on every rank where no rank steps on
+    /// a thin halo (the deep halo, a rank without gas: the output is gathered instead).
+    #[allow(clippy::type_complexity)]
+    pub fn own_output(
+        &mut self,
+        t: f64,
+        step: u64,
+    ) -> Result<Option<(State, Vec<Vec<f64>>)>, String> {
+        let t0 = std::time::Instant::now();
+        if self.thin && self.resident.is_none() {
+            self.resident = self.build_resident(step)?;
+            self.timers.add(STAGE_BUILD, t0.elapsed().as_secs_f64());
+        }
+        let t0 = std::time::Instant::now();
+        let Some(res) = self.resident.as_mut() else {
+            return Ok(None);
+        };
+        res.local.t = t;
+        res.local.step = step;
+        let world = &self.world;
+        let ts = (res.eng.dust_stopping_times(&mut res.local))
+            .unwrap_or_else(|x| abort_job(world, step, &x));
+        res.eng.free_refresh_buffers();
+        // The engine's host copy keeps the output's dust densities, which the next steps start
+        // from (as one process's engine does); the own rows are copied out of it.
+        let keep: Vec<bool> = ghost_flags(&res.eng).iter().map(|&g| !g).collect();
+        let mut own = res.local.clone();
+        own.retain_rows(&keep);
+        let gas = res.local.gas.ph.len();
+        let mut at = gas;
+        let ts = (ts.into_iter().zip(&res.local.dust))
+            .map(|(v, ph)| {
+                let k = &keep[at..at + ph.len()];
+                at += ph.len();
+                v.into_iter().zip(k).filter(|p| *p.1).map(|p| p.0).collect()
+            })
+            .collect();
+        self.timers
+            .add(STAGE_OWN_OUTPUT, t0.elapsed().as_secs_f64());
+        Ok(Some((own, ts)))
     }
 
     /// Every rank's particles as one state on rank 0 for an output (`None` on the other

@@ -79,61 +79,262 @@ pub fn filter_chunk(
     z.finish()
 }
 
-/// Writes `data` (rows of `width` values) into `ds`, created with chunks of `chunk_rows` rows
-/// (and the full width) and the filters shuffle then deflate at `level`, in that order, the
-/// chunks filtered by `filter`.
+/// Where the rows of one particle group lie in its datasets when every process holds a share
+/// of them (over MPI ranks; one process holds the whole group): each process's runs of rows,
+/// (first row in the dataset, rows), in its own row order. The group is laid out part by part
+/// (the gas is one part, the dust one per fraction), each part process by process.
+pub struct RowShare {
+    me: usize,
+    runs: Vec<Vec<(u64, u64)>>,
+    /// Every non-empty run as (first row, its process), in row order: who holds a row.
+    starts: Vec<(u64, usize)>,
+    pub total: u64,
+}
+
+impl RowShare {
+    /// `counts[q][k]`: process q's rows of part k; this process is `me`.
+    pub fn of(counts: &[Vec<u64>], me: usize) -> RowShare {
+        let parts = counts.first().map_or(0, Vec::len);
+        let mut runs = vec![Vec::with_capacity(parts); counts.len()];
+        let mut starts = Vec::new();
+        let mut at = 0;
+        for k in 0..parts {
+            for (q, c) in counts.iter().enumerate() {
+                runs[q].push((at, c[k]));
+                if c[k] > 0 {
+                    starts.push((at, q));
+                }
+                at += c[k];
+            }
+        }
+        RowShare {
+            me,
+            runs,
+            starts,
+            total: at,
+        }
+    }
+
+    /// One process holding every row (`rows` of them).
+    pub fn whole(rows: u64) -> RowShare {
+        RowShare::of(&[vec![rows]], 0)
+    }
+
+    /// The process holding row `row` (< total).
+    fn holder(&self, row: u64) -> usize {
+        let i = self.starts.partition_point(|&(s, _)| s <= row);
+        self.starts[i - 1].1
+    }
+}
+
+/// A piece of a chunk held by the process that stores it: (first row within the chunk, rows,
+/// where its bytes are: this process's rows from `local` or the received bytes from `at`).
+enum Piece {
+    Local(usize),
+    Received(usize),
+}
+
+/// Writes this process's rows `data` (rows of `width` values; where they lie: `share`) into a
+/// dataset of `share.total` rows in chunks of `chunk_rows` rows, shuffled then deflated at
+/// `level` (collective over `c`). Each chunk is filtered by `filter` on the process that holds
+/// its first row, which the other holders send their rows of it; process 0 stores every
+/// chunk (`H5Dwrite_chunk` into `ds`: its dataset, or why it has none; `None` elsewhere) as
+/// each process's filtered chunks reach it, so that no process holds the whole dataset. One
+/// process ([`RowShare::whole`]) filters its chunks from its rows in place.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn write_shuffled_deflated<T: H5Type + Copy + Sync>(
-    ds: &Dataset,
+pub(crate) fn write_rows_shared<T: H5Type + Copy + Sync>(
+    ds: Option<Result<&Dataset, IoError>>,
     data: &[T],
     width: usize,
-    chunk_rows: usize,
-    level: u8,
+    share: &RowShare,
+    (chunk_rows, level): (usize, u8),
+    c: &dyn crate::dist::Collective,
     filter: &dyn ChunkFilter,
-    path: &Path,
-    obj: &str,
+    (path, obj): (&Path, &str),
 ) -> Result<(), IoError> {
     let elem = std::mem::size_of::<T>();
+    let row = width * elem;
     // SAFETY: `T` is plain data (an HDF5 scalar type) whose in-memory bytes are the dataset's
     // native file type: the bytes of `data`, read only.
     let bytes = unsafe {
         std::slice::from_raw_parts(data.as_ptr().cast::<u8>(), std::mem::size_of_val(data))
     };
-    let chunk_bytes = chunk_rows * width * elem;
-    let chunks: Vec<&[u8]> = bytes.chunks(chunk_bytes).collect();
-    let filtered = (filter.filter(&chunks, elem, chunk_bytes, level))
-        .map_err(|e| IoError::invalid(path, format!("{obj}: {e}")))?;
-    if filtered.len() != chunks.len() {
-        return Err(IoError::invalid(
-            path,
-            format!(
-                "{obj}: {} chunks filtered of {}",
-                filtered.len(),
-                chunks.len()
-            ),
-        ));
-    }
-    for (c, buf) in filtered.iter().enumerate() {
-        let row0 = (c * chunk_rows) as hdf5_sys::h5::hsize_t;
-        let offset = [row0, 0];
-        // SAFETY: `ds` is an open chunked dataset; `offset` holds its rank's coordinates (a
-        // chunk's first row, then column 0); `buf` holds `buf.len()` bytes. Under HDF5's lock.
-        let status = hdf5::sync::sync(|| unsafe {
-            hdf5_sys::h5d::H5Dwrite_chunk(
-                ds.id(),
-                hdf5_sys::h5p::H5P_DEFAULT,
-                0,
-                offset.as_ptr(),
-                buf.len(),
-                buf.as_ptr().cast(),
-            )
-        });
-        if status < 0 {
-            return Err(IoError::invalid(
-                path,
-                format!("{obj}: HDF5 refused chunk {c} (H5Dwrite_chunk)"),
-            ));
+    let cr = chunk_rows as u64;
+    let me = share.me;
+    let size = c.size() as usize;
+    // This process's rows by chunk: kept where it holds the chunk's first row, else sent to
+    // the process that does, as blocks (first row, rows, their bytes).
+    let mut pieces: std::collections::BTreeMap<u64, Vec<(usize, usize, Piece)>> =
+        std::collections::BTreeMap::new();
+    let mut out: Vec<Vec<u8>> = vec![Vec::new(); size];
+    let mut local = 0usize;
+    for &(start, len) in &share.runs[me] {
+        let mut g = start;
+        while g < start + len {
+            let ch = g / cr;
+            let n = ((ch + 1) * cr).min(start + len) - g;
+            let holder = share.holder(ch * cr);
+            let rows = &bytes[local * row..(local + n as usize) * row];
+            if holder == me {
+                let within = (g - ch * cr) as usize;
+                pieces
+                    .entry(ch)
+                    .or_default()
+                    .push((within, n as usize, Piece::Local(local)));
+            } else {
+                out[holder].extend_from_slice(&g.to_le_bytes());
+                out[holder].extend_from_slice(&n.to_le_bytes());
+                out[holder].extend_from_slice(rows);
+            }
+            g += n;
+            local += n as usize;
         }
+    }
+    let failed = |why: String| IoError::invalid(path, format!("{obj}: {why}"));
+    let got = if size > 1 {
+        let counts: Vec<usize> = out.iter().map(Vec::len).collect();
+        c.exchange_bytes(&out.concat(), &counts).map_err(failed)?
+    } else {
+        Vec::new()
+    };
+    drop(out);
+    let mut at = 0;
+    while at < got.len() {
+        let word = |i: usize| -> Result<u64, IoError> {
+            (got.get(i..i + 8))
+                .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+                .ok_or_else(|| failed("a process sent a cut block of rows".into()))
+        };
+        let (g, n) = (word(at)?, word(at + 8)? as usize);
+        at += 16;
+        if at + n * row > got.len() {
+            return Err(failed("a process sent a cut block of rows".into()));
+        }
+        let ch = g / cr;
+        (pieces.entry(ch).or_default()).push(((g - ch * cr) as usize, n, Piece::Received(at)));
+        at += n * row;
+    }
+    // Each chunk held here, whole: borrowed where this process's rows are all of it.
+    let mut raw: Vec<std::borrow::Cow<[u8]>> = Vec::with_capacity(pieces.len());
+    for (&ch, ps) in &pieces {
+        let rows = (cr.min(share.total - ch * cr)) as usize;
+        if let [(0, n, Piece::Local(l))] = ps[..] {
+            if n == rows {
+                raw.push(std::borrow::Cow::Borrowed(&bytes[l * row..(l + n) * row]));
+                continue;
+            }
+        }
+        let mut buf = vec![0u8; rows * row];
+        let mut filled = 0;
+        for (within, n, p) in ps {
+            let src = match *p {
+                Piece::Local(l) => &bytes[l * row..(l + n) * row],
+                Piece::Received(a) => &got[a..a + n * row],
+            };
+            buf[within * row..(within + n) * row].copy_from_slice(src);
+            filled += n;
+        }
+        if filled != rows {
+            return Err(failed(format!(
+                "chunk {ch} has {filled} of its {rows} rows from the processes"
+            )));
+        }
+        raw.push(std::borrow::Cow::Owned(buf));
+    }
+    let views: Vec<&[u8]> = raw.iter().map(|r| &r[..]).collect();
+    let chunk_bytes = chunk_rows * row;
+    let stored = filter.filter(&views, elem, chunk_bytes, level);
+    drop(views);
+    drop(raw);
+    let chunks: Vec<u64> = pieces.keys().copied().collect();
+    // Length-prefixed: a chunk's index, its stored length and bytes; a failed filter sends
+    // its message instead (process 0 stops the write, the others go on to the end of it).
+    let pack = |stored: &Result<Vec<Vec<u8>>, String>| -> Vec<u8> {
+        match stored {
+            Ok(v) => {
+                let mut m = vec![0u8];
+                for (ch, b) in chunks.iter().zip(v) {
+                    m.extend_from_slice(&ch.to_le_bytes());
+                    m.extend_from_slice(&(b.len() as u64).to_le_bytes());
+                    m.extend_from_slice(b);
+                }
+                m
+            }
+            Err(e) => [&[1u8][..], e.as_bytes()].concat(),
+        }
+    };
+    let Some(ds) = ds else {
+        if me != 0 {
+            c.send_to_root(&pack(&stored));
+        }
+        return stored.map(|_| ()).map_err(failed);
+    };
+    // Process 0 reads every process's message even where it cannot store them (they wait).
+    let (ds, mut first_err) = match ds {
+        Ok(ds) => (Some(ds), None),
+        Err(e) => (None, Some(e)),
+    };
+    let mut store = |msg: &[u8], from: usize| {
+        let Some(ds) = ds else {
+            return;
+        };
+        if first_err.is_some() {
+            return;
+        }
+        match msg.first() {
+            Some(0) => {}
+            _ => {
+                let why = String::from_utf8_lossy(msg.get(1..).unwrap_or(&[])).to_string();
+                first_err = Some(failed(format!("process {from}: {why}")));
+                return;
+            }
+        }
+        let mut at = 1;
+        while at < msg.len() {
+            let word = |i: usize| {
+                (msg.get(i..i + 8)).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+            };
+            let (Some(ch), Some(n)) = (word(at), word(at + 8)) else {
+                first_err = Some(failed(format!("process {from} sent a cut chunk")));
+                return;
+            };
+            let (lo, hi) = (at + 16, at + 16 + n as usize);
+            let Some(b) = msg.get(lo..hi) else {
+                first_err = Some(failed(format!("process {from} sent a cut chunk")));
+                return;
+            };
+            if let Err(e) = write_chunk(ds, ch * cr, b) {
+                first_err = Some(failed(format!("HDF5 refused chunk {ch} ({e})")));
+                return;
+            }
+            at = hi;
+        }
+    };
+    store(&pack(&stored), 0);
+    drop(stored);
+    for q in 1..size {
+        store(&c.receive_from(q as u32), q);
+    }
+    first_err.map_or(Ok(()), Err)
+}
+
+/// One chunk's stored bytes `buf` at row `row0` of `ds` (a chunked dataset).
+fn write_chunk(ds: &Dataset, row0: u64, buf: &[u8]) -> Result<(), &'static str> {
+    let offset = [row0 as hdf5_sys::h5::hsize_t, 0];
+    // SAFETY: `ds` is an open chunked dataset; `offset` holds its rank's coordinates (a
+    // chunk's first row, then column 0); `buf` holds `buf.len()` bytes. Under HDF5's lock.
+    let status = hdf5::sync::sync(|| unsafe {
+        hdf5_sys::h5d::H5Dwrite_chunk(
+            ds.id(),
+            hdf5_sys::h5p::H5P_DEFAULT,
+            0,
+            offset.as_ptr(),
+            buf.len(),
+            buf.as_ptr().cast(),
+        )
+    });
+    if status < 0 {
+        return Err("H5Dwrite_chunk");
     }
     Ok(())
 }

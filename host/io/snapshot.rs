@@ -10,6 +10,7 @@ use hdf5::types::{FixedAscii, TypeDescriptor, VarLenAscii, VarLenUnicode};
 use hdf5::{File, Group, H5Type, Location};
 use ndarray::{ArrayViewD, IxDyn};
 
+use super::chunks::RowShare;
 use super::{commit_tmp, remove_stale, require_parent_dir, tmp_path, IoError, WithPath};
 
 /// Value of the `Code` header attribute.
@@ -211,8 +212,15 @@ impl Frame {
     /// support) on both sides, so no particle's kernel reaches a face; unused axes get a
     /// width of 2 `pad` with the particles (at 0) in the middle.
     pub fn of(snap: &SnapshotView) -> Frame {
-        let pad = if snap.pad.is_finite() && snap.pad > 0.0 {
-            snap.pad
+        let (lo, hi) = extent(snap);
+        Frame::of_extent(snap, snap.pad, lo, hi)
+    }
+
+    /// [`Frame::of`] for particles spanning `lo`..`hi` (over every process's share), with the
+    /// margin `pad`.
+    fn of_extent(snap: &SnapshotView, pad: f64, lo: [f64; 3], hi: [f64; 3]) -> Frame {
+        let pad = if pad.is_finite() && pad > 0.0 {
+            pad
         } else {
             1.0
         };
@@ -225,20 +233,27 @@ impl Frame {
                 (f.offset[k], f.size[k]) = (lo, len);
                 continue;
             }
-            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-            for ph in snap.gas.iter().chain(&snap.dust) {
-                for x in ph.x {
-                    lo = lo.min(x[k]);
-                    hi = hi.max(x[k]);
-                }
-            }
-            if lo <= hi {
-                f.offset[k] = lo - pad;
-                f.size[k] = hi - lo + 2.0 * pad;
+            if lo[k] <= hi[k] {
+                f.offset[k] = lo[k] - pad;
+                f.size[k] = hi[k] - lo[k] + 2.0 * pad;
             }
         }
         f
     }
+}
+
+/// The particles' least and largest coordinate per axis (+∞ and −∞ without particles).
+fn extent(snap: &SnapshotView) -> ([f64; 3], [f64; 3]) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for ph in snap.gas.iter().chain(&snap.dust) {
+        for x in ph.x {
+            for k in 0..3 {
+                lo[k] = lo[k].min(x[k]);
+                hi[k] = hi[k].max(x[k]);
+            }
+        }
+    }
+    (lo, hi)
 }
 
 impl<'a> Columns<'a> {
@@ -318,10 +333,6 @@ impl<'a> Columns<'a> {
         })
     }
 
-    fn len(&self) -> usize {
-        self.x.len()
-    }
-
     /// Positions in the file's frame.
     fn shift(mut self, f: &Frame) -> Self {
         let o = f.offset;
@@ -391,63 +402,136 @@ pub fn write_snapshot(path: &Path, snap: &SnapshotView) -> Result<(), IoError> {
     write_snapshot_with(path, snap, &super::chunks::OnCores)
 }
 
-/// [`write_snapshot`], the datasets' chunks filtered by `filter` (over MPI ranks, on every
-/// rank).
+/// [`write_snapshot`], the datasets' chunks filtered by `filter` (over MPI ranks, while rank 0
+/// writes the whole state, on every rank: `dist::farm`).
 pub fn write_snapshot_with(
     path: &Path,
     snap: &SnapshotView,
     filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<(), IoError> {
+    write_snapshot_shared(path, snap, &crate::dist::Alone, filter).map(|_| ())
+}
+
+/// The snapshot of particles every process of `c` holds a share of (collective; `snap`: this
+/// process's, in its order): one file, the layout of [`write_snapshot`], each part of a group
+/// (the gas; each dust fraction) process by process, each share in its process's order.
+/// Process 0 writes the file (to a temporary name, renamed when whole); each chunk is filtered
+/// where most of its rows are ([`super::chunks::write_rows_shared`]), so no process holds
+/// every particle. Everything is checked on every process first; every process returns the
+/// first process's error. Returns the rows of the gas and of the dust in all.
+pub fn write_snapshot_shared(
+    path: &Path,
+    snap: &SnapshotView,
+    c: &dyn crate::dist::Collective,
+    filter: &dyn super::chunks::ChunkFilter,
+) -> Result<[u64; 2], IoError> {
+    let agree = |mine: Result<(), IoError>| agreed(c, path, mine);
     // Check everything that can be checked before touching the disk.
-    let scene = validate(path, snap)?;
-    let frame = Frame::of(snap);
-    let gas = snap.gas.as_ref().map(|g| Columns::gas(g).shift(&frame));
-    let dust = if snap.dust.is_empty() {
-        None
-    } else {
-        Some(Columns::dust(&snap.dust, path)?.shift(&frame))
+    let checked = validate(path, snap).and_then(|scene| {
+        let gas = snap.gas.as_ref().map(Columns::gas);
+        let dust = if snap.dust.is_empty() {
+            None
+        } else {
+            Some(Columns::dust(&snap.dust, path)?)
+        };
+        Ok((scene, gas, dust))
+    });
+    // Which columns this process has, and its rows of each part.
+    let mine = match &checked {
+        Ok((_, gas, dust)) => {
+            let has = |x: bool| x as u64;
+            let mut v = vec![
+                has(gas.is_some()),
+                has(gas.as_ref().is_some_and(|g| g.e.is_some())),
+                has(gas.as_ref().is_some_and(|g| g.p.is_some())),
+                has(gas.as_ref().is_some_and(|g| g.t_stop.is_some())),
+                has(dust.as_ref().is_some_and(|d| d.t_stop.is_some())),
+                snap.dust.len() as u64,
+                snap.gas.as_ref().map_or(0, |g| g.len() as u64),
+            ];
+            v.extend(snap.dust.iter().map(|d| d.len() as u64));
+            v
+        }
+        Err(_) => Vec::new(),
     };
-    require_parent_dir(path)?;
-    let tmp = tmp_path(path)?;
-    remove_stale(&tmp)?;
-    let result = write_file(
-        (&tmp, path),
-        snap,
-        &frame,
-        &scene,
-        (gas.as_ref(), dust.as_ref()),
-        filter,
-    )
-    .and_then(|()| commit_tmp(&tmp, path));
-    if result.is_err() {
+    let (scene, gas, dust) = match agree(checked.as_ref().map(|_| ()).map_err(clone_err)) {
+        Ok(()) => checked.expect("agreed"),
+        Err(e) => return Err(e),
+    };
+    let all: Vec<Vec<u64>> = (c.all_gather_bytes(bytemuck::cast_slice(&mine)).iter())
+        .map(|b| {
+            (b.chunks_exact(8))
+                .map(|w| u64::from_le_bytes(w.try_into().expect("8 bytes")))
+                .collect()
+        })
+        .collect();
+    if all.iter().any(|v| v[..6] != mine[..6]) {
+        return Err(IoError::invalid(
+            path,
+            "the processes hold different columns or dust fractions",
+        ));
+    }
+    let me = c.rank() as usize;
+    let gas_share = RowShare::of(&all.iter().map(|v| vec![v[6]]).collect::<Vec<_>>(), me);
+    let dust_share = RowShare::of(&all.iter().map(|v| v[7..].to_vec()).collect::<Vec<_>>(), me);
+    // The box over every process's particles.
+    let (lo, hi) = extent(snap);
+    let mut most = [snap.pad, -lo[0], -lo[1], -lo[2], hi[0], hi[1], hi[2]];
+    c.max_f64(&mut most);
+    let lo = [-most[1], -most[2], -most[3]];
+    let frame = Frame::of_extent(snap, most[0], lo, [most[4], most[5], most[6]]);
+    let gas = gas.map(|g| g.shift(&frame));
+    let dust = dust.map(|d| d.shift(&frame));
+    let mut num_part = [0u64; 6];
+    num_part[GAS_TYPE] = if gas.is_some() { gas_share.total } else { 0 };
+    num_part[DUST_TYPE] = if dust.is_some() { dust_share.total } else { 0 };
+    let tmp = if me == 0 {
+        require_parent_dir(path).and_then(|()| tmp_path(path))
+    } else {
+        Ok(path.to_path_buf())
+    };
+    let tmp = tmp?;
+    let result = (|| {
+        // create_excl: never write through something that appeared under the temporary name.
+        let file = if me == 0 {
+            let made = remove_stale(&tmp)
+                .and_then(|()| File::create_excl(&tmp).with_path(&tmp))
+                .and_then(|f| {
+                    write_header(&f, path, snap, &frame, &scene, &num_part)?;
+                    Ok(f)
+                });
+            agree(made.as_ref().map(|_| ()).map_err(clone_err))?;
+            Some(made.expect("agreed"))
+        } else {
+            agree(Ok(()))?;
+            None
+        };
+        let groups = [
+            (GAS_GROUP, gas.as_ref(), &gas_share),
+            (DUST_GROUP, dust.as_ref(), &dust_share),
+        ];
+        for (name, cols, share) in groups {
+            if let Some(cols) = cols {
+                write_group(file.as_ref(), name, cols, share, path, c, filter)?;
+            }
+        }
+        // Explicit close so a failed final flush is reported instead of lost in Drop.
+        let closed = match file {
+            Some(f) => (f.close().map_err(h5err(path, ""))).and_then(|()| commit_tmp(&tmp, path)),
+            None => Ok(()),
+        };
+        agree(closed)
+    })();
+    if result.is_err() && me == 0 {
         // Best effort: the original error matters more than a failed cleanup.
         let _ = fs::remove_file(&tmp);
     }
-    result
+    result.map(|()| [num_part[GAS_TYPE], num_part[DUST_TYPE]])
 }
 
-fn write_file(
-    (tmp, path): (&Path, &Path),
-    snap: &SnapshotView,
-    frame: &Frame,
-    scene: &SceneTexts,
-    (gas, dust): (Option<&Columns>, Option<&Columns>),
-    filter: &dyn super::chunks::ChunkFilter,
-) -> Result<(), IoError> {
-    // create_excl: never write through something that appeared under the temporary name.
-    let file = File::create_excl(tmp).with_path(tmp)?;
-    let mut num_part = [0u64; 6];
-    num_part[GAS_TYPE] = gas.map_or(0, |g| g.len() as u64);
-    num_part[DUST_TYPE] = dust.map_or(0, |d| d.len() as u64);
-    write_header(&file, path, snap, frame, scene, &num_part)?;
-    if let Some(g) = gas {
-        write_group(&file, GAS_GROUP, g, path, filter)?;
-    }
-    if let Some(d) = dust {
-        write_group(&file, DUST_GROUP, d, path, filter)?;
-    }
-    // Explicit close so a failed final flush is reported instead of lost in Drop.
-    file.close().map_err(h5err(path, ""))
+/// A copy of an error to agree on (the original is returned where it arose).
+fn clone_err(e: &IoError) -> IoError {
+    IoError::invalid(e.path(), e.to_string())
 }
 
 fn write_header(
@@ -557,33 +641,139 @@ fn put_array<T: H5Type>(g: &Group, name: &str, values: &[T], path: &Path) -> Res
 }
 
 fn write_group(
-    file: &File,
+    file: Option<&File>,
     name: &str,
-    c: &Columns,
+    cols: &Columns,
+    share: &RowShare,
     path: &Path,
+    c: &dyn crate::dist::Collective,
     filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<(), IoError> {
     let obj = format!("/{name}");
-    let g = file.create_group(name).map_err(h5err(path, &obj))?;
-    put_dataset_with(&g, COORDINATES, c.x.as_flattened(), 3, path, filter)?;
-    put_dataset_with(&g, VELOCITIES, c.v.as_flattened(), 3, path, filter)?;
-    put_dataset_with(&g, MASSES, &c.m, 1, path, filter)?;
-    put_dataset_with(&g, DENSITY, &c.rho, 1, path, filter)?;
-    if let Some(e) = &c.e {
-        put_dataset_with(&g, INTERNAL_ENERGY, e, 1, path, filter)?;
+    let g = file.map(|f| f.create_group(name).map_err(h5err(path, &obj)));
+    let g = || g.as_ref().map(|r| r.as_ref().map_err(clone_err));
+    // Each dataset agreed before the next: no process sends chunks process 0 stopped reading.
+    let put = |r: Result<(), IoError>| agreed(c, path, r);
+    put(put_dataset_shared(
+        g(),
+        COORDINATES,
+        cols.x.as_flattened(),
+        3,
+        share,
+        path,
+        c,
+        filter,
+    ))?;
+    put(put_dataset_shared(
+        g(),
+        VELOCITIES,
+        cols.v.as_flattened(),
+        3,
+        share,
+        path,
+        c,
+        filter,
+    ))?;
+    put(put_dataset_shared(
+        g(),
+        MASSES,
+        &cols.m,
+        1,
+        share,
+        path,
+        c,
+        filter,
+    ))?;
+    put(put_dataset_shared(
+        g(),
+        DENSITY,
+        &cols.rho,
+        1,
+        share,
+        path,
+        c,
+        filter,
+    ))?;
+    if let Some(e) = &cols.e {
+        put(put_dataset_shared(
+            g(),
+            INTERNAL_ENERGY,
+            e,
+            1,
+            share,
+            path,
+            c,
+            filter,
+        ))?;
     }
-    if let Some(p) = &c.p {
-        put_dataset_with(&g, PRESSURE, p, 1, path, filter)?;
+    if let Some(p) = &cols.p {
+        put(put_dataset_shared(
+            g(),
+            PRESSURE,
+            p,
+            1,
+            share,
+            path,
+            c,
+            filter,
+        ))?;
     }
-    put_dataset_with(&g, SMOOTHING_LENGTH, &c.h, 1, path, filter)?;
-    put_dataset_with(&g, PARTICLE_IDS, &c.id, 1, path, filter)?;
-    if let Some(f) = &c.fraction {
-        put_dataset_with(&g, FRACTION_INDEX, f, 1, path, filter)?;
+    put(put_dataset_shared(
+        g(),
+        SMOOTHING_LENGTH,
+        &cols.h,
+        1,
+        share,
+        path,
+        c,
+        filter,
+    ))?;
+    put(put_dataset_shared(
+        g(),
+        PARTICLE_IDS,
+        &cols.id,
+        1,
+        share,
+        path,
+        c,
+        filter,
+    ))?;
+    if let Some(f) = &cols.fraction {
+        put(put_dataset_shared(
+            g(),
+            FRACTION_INDEX,
+            f,
+            1,
+            share,
+            path,
+            c,
+            filter,
+        ))?;
     }
-    if let Some(t) = &c.t_stop {
-        put_dataset_with(&g, STOPPING_TIME, t, 1, path, filter)?;
+    if let Some(t) = &cols.t_stop {
+        put(put_dataset_shared(
+            g(),
+            STOPPING_TIME,
+            t,
+            1,
+            share,
+            path,
+            c,
+            filter,
+        ))?;
     }
     Ok(())
+}
+
+/// Every process's verdict on a step of a shared write: the first process's error on each.
+fn agreed(
+    c: &dyn crate::dist::Collective,
+    path: &Path,
+    mine: Result<(), IoError>,
+) -> Result<(), IoError> {
+    crate::dist::agree(c, mine, IoError::to_string, |why| {
+        IoError::invalid(path, format!("another process: {why}"))
+    })
 }
 
 /// Writes `data` as an N (width 1) or N×width dataset, chunked and compressed unless empty
@@ -595,56 +785,76 @@ pub(crate) fn put_dataset<T: H5Type + Copy + Sync>(
     width: usize,
     path: &Path,
 ) -> Result<(), IoError> {
-    put_dataset_with(g, name, data, width, path, &super::chunks::OnCores)
+    let share = RowShare::whole((data.len() / width) as u64);
+    let (c, filter) = (&crate::dist::Alone, &super::chunks::OnCores);
+    put_dataset_shared(Some(Ok(g)), name, data, width, &share, path, c, filter)
 }
 
-/// [`put_dataset`], the chunks filtered by `filter`.
-fn put_dataset_with<T: H5Type + Copy + Sync>(
-    g: &Group,
+/// [`put_dataset`] of the rows every process of `c` holds a share of (`data`: this process's;
+/// `share`: where they lie), into `g` (process 0's group, or why it has none; `None`
+/// elsewhere), the chunks filtered by `filter` (collective).
+#[allow(clippy::too_many_arguments)]
+fn put_dataset_shared<T: H5Type + Copy + Sync>(
+    g: Option<Result<&Group, IoError>>,
     name: &str,
     data: &[T],
     width: usize,
+    share: &RowShare,
     path: &Path,
+    c: &dyn crate::dist::Collective,
     filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<(), IoError> {
-    let obj = format!("{}/{name}", g.name());
-    let rows = data.len() / width;
+    let rows = share.total as usize;
     let shape = if width == 1 {
         vec![rows]
     } else {
         vec![rows, width]
     };
+    let obj = |g: &Group| format!("{}/{name}", g.name());
     if rows == 0 {
         // Chunk dimensions must be positive and there is nothing to compress: plain contiguous.
-        let view = ArrayViewD::from_shape(IxDyn(&shape), data)
-            .map_err(|e| IoError::invalid(path, format!("{obj}: {e}")))?;
-        g.new_dataset_builder()
-            .with_data(view)
-            .no_chunk()
-            .create(name)
-            .map_err(h5err(path, &obj))?;
-        return Ok(());
+        return match g {
+            Some(Ok(g)) => {
+                let view = ArrayViewD::from_shape(IxDyn(&shape), data)
+                    .map_err(|e| IoError::invalid(path, format!("{}: {e}", obj(g))))?;
+                g.new_dataset_builder()
+                    .with_data(view)
+                    .no_chunk()
+                    .create(name)
+                    .map(|_| ())
+                    .map_err(h5err(path, &obj(g)))
+            }
+            Some(Err(e)) => Err(e),
+            None => Ok(()),
+        };
     }
+    let chunk_rows = rows.min(chunk_rows());
     let mut chunk = shape.clone();
-    chunk[0] = rows.min(chunk_rows());
+    chunk[0] = chunk_rows;
     // Shuffle first: it groups bytes of equal significance, which deflate then packs.
-    let ds = g
-        .new_dataset::<T>()
-        .shape(shape)
-        .chunk(chunk)
-        .shuffle()
-        .deflate(DEFLATE_LEVEL)
-        .create(name)
-        .map_err(h5err(path, &obj))?;
-    super::chunks::write_shuffled_deflated(
-        &ds,
+    let ds = g.map(|g| {
+        g.and_then(|g| {
+            g.new_dataset::<T>()
+                .shape(shape)
+                .chunk(chunk)
+                .shuffle()
+                .deflate(DEFLATE_LEVEL)
+                .create(name)
+                .map_err(h5err(path, &obj(g)))
+        })
+    });
+    let ds_ref = ds.as_ref().map(|r| r.as_ref().map_err(clone_err));
+    let label =
+        (ds.as_ref().and_then(|r| r.as_ref().ok())).map_or_else(|| name.to_string(), |d| d.name());
+    super::chunks::write_rows_shared(
+        ds_ref,
         data,
         width,
-        rows.min(chunk_rows()),
-        DEFLATE_LEVEL,
+        share,
+        (chunk_rows, DEFLATE_LEVEL),
+        c,
         filter,
-        path,
-        &obj,
+        (path, &label),
     )
 }
 

@@ -298,6 +298,24 @@ pub fn write_xdmf_view(h5_path: &Path, snap: &SnapshotView) -> Result<(), IoErro
     write_sidecar(h5_path, snap.time, &layout_of_view(snap))
 }
 
+/// [`write_xdmf_view`] of a snapshot written by share ([`super::write_snapshot_shared`]):
+/// `snap` is one process's share, `rows` the gas's and the dust's rows in the file.
+pub fn write_xdmf_view_rows(
+    h5_path: &Path,
+    snap: &SnapshotView,
+    rows: [u64; 2],
+) -> Result<(), IoError> {
+    let mut layout = layout_of_view(snap);
+    for g in &mut layout {
+        g.n = if g.group == GAS_GROUP {
+            rows[0]
+        } else {
+            rows[1]
+        };
+    }
+    write_sidecar(h5_path, snap.time, &layout)
+}
+
 /// Writes `dir/snapshots.xmf` atomically: a temporal collection with one member per entry
 /// `(time, file)`, in the given order. `file` names a snapshot in `dir` (`snapshot_0003.h5`) or
 /// its sidecar (`snapshot_0003.xmf`); the member takes the phase grids of the sidecar (which must

@@ -16,6 +16,67 @@ pub struct ParticleCounts {
     pub dust_fixed: Vec<usize>,
 }
 
+/// The sums over every particle that the conservation figures compare, and the counts: of
+/// one process's state, or over MPI ranks of every rank's share ([`Totals::reduce`]).
+#[derive(Debug, Clone)]
+pub struct Totals {
+    pub counts: ParticleCounts,
+    pub mass_gas: f64,
+    pub mass_dust: Vec<f64>,
+    pub momentum: [f64; 3],
+    /// Kinetic and thermal.
+    pub energy: f64,
+    /// The largest sound speed.
+    pub c_max: f64,
+}
+
+impl Totals {
+    pub fn of(state: &State) -> Totals {
+        Totals {
+            counts: ParticleCounts::of(state),
+            mass_gas: state.gas.ph.total_mass(),
+            mass_dust: state.dust.iter().map(|d| d.total_mass()).collect(),
+            momentum: state.total_momentum(),
+            energy: state.total_energy(),
+            c_max: state.gas.c.iter().copied().fold(0.0, f64::max),
+        }
+    }
+
+    /// Summed (the largest sound speed: the largest) over the processes of `c`, each holding
+    /// a share of the particles (collective).
+    pub fn reduce(mut self, c: &dyn crate::dist::Collective) -> Totals {
+        let nd = self.mass_dust.len();
+        let mut f: Vec<f64> = [self.mass_gas, self.energy]
+            .into_iter()
+            .chain(self.momentum)
+            .chain(self.mass_dust.iter().copied())
+            .collect();
+        c.sum_f64(&mut f);
+        self.mass_gas = f[0];
+        self.energy = f[1];
+        self.momentum = [f[2], f[3], f[4]];
+        self.mass_dust = f[5..5 + nd].to_vec();
+        let n = &self.counts;
+        let mut u: Vec<u64> = [n.gas, n.gas_fixed]
+            .into_iter()
+            .chain(n.dust.iter().copied())
+            .chain(n.dust_fixed.iter().copied())
+            .map(|x| x as u64)
+            .collect();
+        c.sum_u64(&mut u);
+        self.counts = ParticleCounts {
+            gas: u[0] as usize,
+            gas_fixed: u[1] as usize,
+            dust: u[2..2 + nd].iter().map(|&x| x as usize).collect(),
+            dust_fixed: u[2 + nd..2 + 2 * nd].iter().map(|&x| x as usize).collect(),
+        };
+        let mut cm = [self.c_max];
+        c.max_f64(&mut cm);
+        self.c_max = cm[0];
+        self
+    }
+}
+
 impl ParticleCounts {
     pub fn of(state: &State) -> ParticleCounts {
         let fixed =
@@ -81,10 +142,9 @@ pub struct Diagnostics {
 impl Diagnostics {
     /// At the start of a run: `state` (host copy, up to date) and its momentum from the
     /// stepper's reduction (the sums every later step is compared with).
-    pub fn start(state: &State, m: Momentum) -> Diagnostics {
-        let mass: f64 =
-            state.gas.ph.total_mass() + state.dust.iter().map(|d| d.total_mass()).sum::<f64>();
-        let c_max = state.gas.c.iter().copied().fold(0.0, f64::max);
+    pub fn start(totals: &Totals, m: Momentum) -> Diagnostics {
+        let t = totals;
+        let mass: f64 = t.mass_gas + t.mass_dust.iter().sum::<f64>();
         Diagnostics {
             steps: 0,
             dt_min: f64::INFINITY,
@@ -92,15 +152,12 @@ impl Diagnostics {
             first_dt_free: None,
             cfl_max: 0.0,
             drag_limited_steps: 0,
-            counts: ParticleCounts::of(state),
-            mass0: (
-                state.gas.ph.total_mass(),
-                state.dust.iter().map(|d| d.total_mass()).collect(),
-            ),
+            counts: t.counts.clone(),
+            mass0: (t.mass_gas, t.mass_dust.clone()),
             momentum0: m.p,
-            energy0: state.total_energy(),
+            energy0: t.energy,
             momentum_scale: m.scale,
-            rest_scale: mass * c_max,
+            rest_scale: mass * t.c_max,
             momentum_change_max: 0.0,
             angular_momentum0: m.l,
             angular_momentum_change_max: 0.0,
@@ -208,7 +265,7 @@ mod tests {
     #[test]
     fn diagnostics_before_the_first_step_read_back() {
         let d = Diagnostics::start(
-            &State::default(),
+            &Totals::of(&State::default()),
             Momentum {
                 p: [0.0; 3],
                 scale: 0.0,
@@ -227,7 +284,7 @@ mod tests {
     #[test]
     fn momentum_drift_is_the_largest_change_against_the_largest_scale() {
         let mut d = Diagnostics::start(
-            &State::default(),
+            &Totals::of(&State::default()),
             Momentum {
                 p: [1.0, 0.0, 0.0],
                 scale: 2.0,

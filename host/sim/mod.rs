@@ -138,9 +138,10 @@ impl Simulation {
         mut stepper: Stepper,
     ) -> Result<Simulation, StepError> {
         let m = stepper.momentum()?;
+        let totals = stepper.totals(&state);
         Ok(Simulation {
             planner: StepPlanner::new(time, phys.h),
-            diagnostics: Diagnostics::start(&state, m),
+            diagnostics: Diagnostics::start(&totals, m),
             phys,
             state,
             stepper,
@@ -330,7 +331,8 @@ impl Simulation {
                 .filter_map(|o| o.next_time(self.state.t))
                 .fold(t_end, f64::min);
             let taken = self.step(target).map_err(step_err)?;
-            if taken.plan.landing {
+            // Where the outputs are written by share, no rank gathers the whole state.
+            if taken.plan.landing && !self.stepper.writes_by_share() {
                 let t0 = Instant::now();
                 self.sync().map_err(step_err)?;
                 self.output_timers

@@ -77,6 +77,10 @@ impl Outputs {
     /// series. Over ranks every rank goes on, or none.
     pub fn write_next(&mut self, sim: &mut Simulation) -> Result<(), RunError> {
         let name = io::snapshot_name(self.record.snapshots.len());
+        #[cfg(feature = "mpi")]
+        if self.write_by_share(sim, &name)? {
+            return Ok(());
+        }
         // Over ranks the others deflate a share of rank 0's chunks while it writes.
         #[cfg(feature = "mpi")]
         let helpers = sim.stepper.output_world();
@@ -116,6 +120,46 @@ impl Outputs {
         Ok(())
     }
 
+    /// Over ranks whose outputs are written by share: the next snapshot, each rank its own
+    /// particles ([`write_snapshot_of`]; collective). False (nothing written) elsewhere.
+    #[cfg(feature = "mpi")]
+    fn write_by_share(&mut self, sim: &mut Simulation, name: &str) -> Result<bool, RunError> {
+        let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
+        let Some((own, t_stop, world)) = sim.stepper.own_output(&sim.state).map_err(step_err)?
+        else {
+            return Ok(false);
+        };
+        let ics = self.record.initial_conditions.as_ref();
+        let path = self.dir.join(name);
+        let phys = sim.stepper.phys();
+        let chunks = &OnCores;
+        let written = write_snapshot_of(
+            &path,
+            (&self.loaded, ics),
+            phys,
+            (&own, &t_stop),
+            &world,
+            chunks,
+        );
+        drop(own);
+        // The scene has no analysis of every particle at once; the series is rank 0's.
+        let written = written.and_then(|()| match world.rank() {
+            0 => self.write_series((sim.state.t, sim.state.step), name),
+            _ => Ok(()),
+        });
+        // No rank may wait on one that stopped.
+        if sim.any(written.is_err()) {
+            written.clone()?;
+            return Err(RunError::Io(
+                "another rank could not write the output".into(),
+            ));
+        }
+        self.record.snapshots.push(name.to_string());
+        self.record.snapshot_times.push(sim.state.t);
+        self.record.next_output += 1;
+        Ok(true)
+    }
+
     fn write_files(
         &mut self,
         sim: &mut Simulation,
@@ -133,14 +177,16 @@ impl Outputs {
         if let Some(c) = ball_core(&self.loaded, sim) {
             self.record.ball_core.push(c);
         }
+        self.write_series((sim.state.t, sim.state.step), name)
+    }
+
+    /// The XDMF time series with the snapshot `name` at time `t` added.
+    fn write_series(&self, (t, step): (f64, u64), name: &str) -> Result<(), RunError> {
         if self.verbose {
-            eprintln!(
-                "  t = {:.6}  step {:>7}  → {}",
-                sim.state.t, sim.state.step, name
-            );
+            eprintln!("  t = {t:.6}  step {step:>7}  → {name}");
         }
         let series: Vec<(f64, String)> = (self.record.snapshot_times.iter().copied())
-            .chain([sim.state.t])
+            .chain([t])
             .zip(
                 self.record
                     .snapshots
@@ -194,7 +240,21 @@ pub fn write_snapshot(
     // rank 0 alone, so nothing here may be collective).
     let Simulation { stepper, state, .. } = sim;
     let t_stop = stepper.output_fields(state).map_err(step_err)?;
-    let phys = stepper.phys();
+    let (phys, c) = (stepper.phys(), &crate::dist::Alone);
+    write_snapshot_of(path, (loaded, ics), phys, (state, &t_stop), c, chunks)
+}
+
+/// The snapshot of `state` with its dust stopping times per fraction, over the processes of
+/// `c` that each hold a share of the particles (collective; one process holds them all):
+/// process 0 writes the file ([`io::write_snapshot_shared`]) and its XDMF sidecar.
+pub fn write_snapshot_of(
+    path: &Path,
+    (loaded, ics): (&LoadedScene, Option<&crate::setup::file::IcSource>),
+    phys: &crate::step::Physics,
+    (state, t_stop): (&crate::particles::State, &[Vec<f64>]),
+    c: &dyn crate::dist::Collective,
+    chunks: &dyn ChunkFilter,
+) -> Result<(), RunError> {
     let h = phys.h;
     let g = &state.gas;
     // Variable h: the gas's own h; the dust's from its density (h = hfact (m/ρ)^(1/d), the
@@ -257,7 +317,7 @@ pub fn write_snapshot(
         dust: state
             .dust
             .iter()
-            .zip(&t_stop)
+            .zip(t_stop)
             .zip(&dust_h)
             .map(|((d, ts), dh)| PhaseView {
                 x: &d.x,
@@ -273,9 +333,13 @@ pub fn write_snapshot(
             })
             .collect(),
     };
-    io::write_snapshot_with(path, &view, chunks).map_err(|e| RunError::Io(e.to_string()))?;
+    let io_err = |e: io::IoError| RunError::Io(e.to_string());
+    let rows = io::write_snapshot_shared(path, &view, c, chunks).map_err(io_err)?;
     // ParaView sidecar: gas and dust as two point sets.
-    io::write_xdmf_view(path, &view).map_err(|e| RunError::Io(e.to_string()))
+    if c.rank() == 0 {
+        io::write_xdmf_view_rows(path, &view, rows).map_err(io_err)?;
+    }
+    Ok(())
 }
 
 /// The ball's undisturbed core (docs/method.md §6.1) against the initial state, for a ball

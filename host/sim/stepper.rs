@@ -29,6 +29,10 @@ pub enum Stepper {
         output: Option<Backend>,
         /// `output` no longer matches the gathered state (rebuilt before its next use).
         stale: bool,
+        /// The outputs are written by share, each rank its own particles, and no rank gathers
+        /// the whole state (the scene's outputs need no analysis of every particle at once,
+        /// [`crate::analysis::outputs_read_whole_state`]).
+        by_share: bool,
     },
 }
 
@@ -68,6 +72,53 @@ impl Stepper {
         match self {
             Stepper::Ranks { ranks, .. } => Some(ranks.world.dup()),
             Stepper::Local(_) => None,
+        }
+    }
+
+    /// Whether the outputs are written by share over ranks (the whole state never gathered).
+    pub fn writes_by_share(&self) -> bool {
+        match self {
+            Stepper::Local(_) => false,
+            #[cfg(feature = "mpi")]
+            Stepper::Ranks { by_share, .. } => *by_share,
+        }
+    }
+
+    /// The sums over every particle (collective over ranks): of the (synced) state, or where
+    /// the outputs are written by share, of every rank's own particles.
+    pub fn totals(&mut self, state: &State) -> crate::sim::diagnostics::Totals {
+        use crate::sim::diagnostics::Totals;
+        match self {
+            #[cfg(feature = "mpi")]
+            Stepper::Ranks {
+                ranks,
+                by_share: true,
+                ..
+            } => Totals::of(&ranks.own_state()).reduce(&ranks.world),
+            _ => Totals::of(state),
+        }
+    }
+
+    /// Where the outputs are written by share: this rank's own particles at `state`'s time
+    /// and step, the dust stopping times its engine computed for them, and a communicator
+    /// for the write (collective); `None` elsewhere, and where the ranks step on the deep
+    /// halo (the output is then gathered: [`Stepper::sync`]).
+    #[cfg(feature = "mpi")]
+    #[allow(clippy::type_complexity)]
+    pub fn own_output(
+        &mut self,
+        state: &State,
+    ) -> Result<Option<(State, Vec<Vec<f64>>, crate::dist::comm::World)>, StepError> {
+        match self {
+            Stepper::Ranks {
+                ranks,
+                by_share: true,
+                ..
+            } => {
+                let own = (ranks.own_output(state.t, state.step)).map_err(StepError::Blowup)?;
+                Ok(own.map(|(st, ts)| (st, ts, ranks.world.dup())))
+            }
+            _ => Ok(None),
         }
     }
 

@@ -148,30 +148,28 @@ pub struct Summary {
     pub ball: Option<BallReport>,
 }
 
-/// The conservation of a run from its diagnostics and its final (synced) state; masses count
+/// The conservation of a run from its diagnostics and the sums over its final state; masses count
 /// what the star accreted, and the angular momentum (about `phys`'s point mass) is the
 /// engine's reduction after the last step plus the star's record.
 pub fn conservation(
     d: &Diagnostics,
-    state: &crate::particles::State,
+    totals: &crate::sim::diagnostics::Totals,
     phys: &crate::step::Physics,
 ) -> Conservation {
     let a = &d.accreted;
     let taken = |k: usize| a.dust_mass.get(k).copied().unwrap_or(0.0);
     let l = dustsph_device::add(d.angular_momentum, a.angular_momentum);
     Conservation {
-        mass_gas: Drift::new(d.mass0.0, state.gas.ph.total_mass() + a.gas_mass),
-        mass_dust: state
-            .dust
-            .iter()
+        mass_gas: Drift::new(d.mass0.0, totals.mass_gas + a.gas_mass),
+        mass_dust: (totals.mass_dust.iter())
             .zip(&d.mass0.1)
             .enumerate()
-            .map(|(k, (p, &m))| Drift::new(m, p.total_mass() + taken(k)))
+            .map(|(k, (&p, &m))| Drift::new(m, p + taken(k)))
             .collect(),
         momentum_initial: d.momentum0,
-        momentum_final: state.total_momentum(),
+        momentum_final: totals.momentum,
         momentum_drift_relative: d.momentum_drift(),
-        energy: Drift::new(d.energy0, state.total_energy()),
+        energy: Drift::new(d.energy0, totals.energy),
         angular_momentum: phys.gravity.is_on().then(|| AngularMomentum {
             about: phys.gravity.pos,
             initial: d.angular_momentum0,
@@ -211,7 +209,12 @@ pub fn finish(
     ball: Option<BallRecord>,
     wall: f64,
 ) -> Result<(Summary, crate::particles::State), RunError> {
-    sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
+    // Where the outputs are written by share, no rank gathers the whole state: the sums
+    // are reduced over the ranks.
+    if !sim.stepper.writes_by_share() {
+        sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
+    }
+    let totals = sim.stepper.totals(&sim.state);
     let scene = &loaded.scene;
     let root = sim.is_root();
     let phys = sim.stepper.phys().clone();
@@ -291,7 +294,7 @@ pub fn finish(
         cfl_max: d.cfl_max,
         wall_seconds: wall,
         particle_steps_per_second: d.counts.total() as f64 * state.step as f64 / wall.max(1e-12),
-        conservation: conservation(&d, &state, &phys),
+        conservation: conservation(&d, &totals, &phys),
         errors: outputs.errors,
         snapshots: outputs.snapshots,
         stage_seconds: timers.entries().to_vec(),

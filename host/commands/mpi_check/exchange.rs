@@ -281,6 +281,8 @@ pub fn step_over_ranks(
         t_stop: None,
         output: None,
         stale: false,
+        // The check compares the whole state, gathered.
+        by_share: false,
     };
     let mut over =
         Simulation::new(phys.clone(), &scene.time, su.state.shape(), stepper).map_err(err)?;
