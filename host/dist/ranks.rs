@@ -1005,16 +1005,17 @@ impl RankStepper {
         }
     }
 
-    /// This rank's own particles for an output written by share, at time `t`, step `step`,
-    /// with the dust densities and stopping times per fraction its engine computed for them,
-    /// the ghosts refreshed between (collective); `None` on every rank where no rank steps on
-    /// a thin halo (the deep halo, a rank without gas: the output is gathered instead).
-    #[allow(clippy::type_complexity)]
-    pub fn own_output(
+    /// An output written by share: `write` gets this rank's own particles at time `t`, step
+    /// `step`, with the dust densities and stopping times per fraction its engine computed for
+    /// them (the ghosts refreshed between), and the ranks (collective); `None` on every rank
+    /// where no rank steps on a thin halo (the deep halo, a rank without gas: the output is
+    /// gathered instead).
+    pub fn own_output<R>(
         &mut self,
         t: f64,
         step: u64,
-    ) -> Result<Option<(State, Vec<Vec<f64>>)>, String> {
+        write: impl FnOnce(&State, &[Vec<f64>], &World) -> R,
+    ) -> Result<Option<R>, String> {
         let t0 = std::time::Instant::now();
         if self.thin && self.resident.is_none() {
             self.resident = self.build_resident(step)?;
@@ -1030,23 +1031,22 @@ impl RankStepper {
         let ts = (res.eng.dust_stopping_times(&mut res.local))
             .unwrap_or_else(|x| abort_job(world, step, &x));
         res.eng.free_refresh_buffers();
-        // The engine's host copy keeps the output's dust densities, which the next steps start
-        // from (as one process's engine does); the own rows are copied out of it.
+        // The host copy (synced whole by the stopping times) keeps only the own rows from
+        // here to the next sync (a retake of the next step starts from them: no ghost is
+        // flagged), and the output reads them where they lie.
         let keep: Vec<bool> = ghost_flags(&res.eng).iter().map(|&g| !g).collect();
-        let mut own = res.local.clone();
-        own.retain_rows(&keep);
-        let gas = res.local.gas.ph.len();
-        let mut at = gas;
-        let ts = (ts.into_iter().zip(&res.local.dust))
+        let mut at = res.local.gas.ph.len();
+        let ts: Vec<Vec<f64>> = (ts.into_iter().zip(&res.local.dust))
             .map(|(v, ph)| {
                 let k = &keep[at..at + ph.len()];
                 at += ph.len();
                 v.into_iter().zip(k).filter(|p| *p.1).map(|p| p.0).collect()
             })
             .collect();
-        self.timers
-            .add(STAGE_OWN_OUTPUT, t0.elapsed().as_secs_f64());
-        Ok(Some((own, ts)))
+        res.local.retain_rows(&keep);
+        res.flags = vec![false; res.local.len()];
+        self.timers.add(STAGE_OWN_OUTPUT, t0.elapsed().as_secs_f64());
+        Ok(Some(write(&res.local, &ts, world)))
     }
 
     /// Every rank's particles as one state on rank 0 for an output (`None` on the other
@@ -1074,6 +1074,8 @@ impl RankStepper {
         let world = &self.world;
         let ts = (res.eng.dust_stopping_times(&mut res.local))
             .unwrap_or_else(|x| abort_job(world, step, &x));
+        // The host copy is synced whole again, beside its ghost flags.
+        res.flags = ghost_flags(&res.eng);
         // No refresh until the next step: its buffers go before rank 0 builds the whole state.
         res.eng.free_refresh_buffers();
         // The own particles in key order (phase, index), read where they lie: the engine's

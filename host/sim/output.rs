@@ -7,6 +7,8 @@ use crate::analysis::{self, ExactErrors};
 use crate::io::chunks::{ChunkFilter, OnCores};
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::scene::{LoadedScene, OutputSchedule, Problem};
+#[cfg(feature = "mpi")]
+use crate::dist::comm::World;
 use crate::step::timestep::Taken;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -125,25 +127,21 @@ impl Outputs {
     #[cfg(feature = "mpi")]
     fn write_by_share(&mut self, sim: &mut Simulation, name: &str) -> Result<bool, RunError> {
         let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
-        let Some((own, t_stop, world)) = sim.stepper.own_output(&sim.state).map_err(step_err)?
+        let ics = self.record.initial_conditions.as_ref();
+        let path = self.dir.join(name);
+        let phys = sim.stepper.phys().clone();
+        let loaded = &self.loaded;
+        let write = |own: &crate::particles::State, t_stop: &[Vec<f64>], w: &World| {
+            let c: &dyn crate::dist::Collective = w;
+            let written = write_snapshot_of(&path, (loaded, ics), &phys, (own, t_stop), c, &OnCores);
+            (written, w.rank())
+        };
+        let Some((written, rank)) = sim.stepper.own_output(&sim.state, write).map_err(step_err)?
         else {
             return Ok(false);
         };
-        let ics = self.record.initial_conditions.as_ref();
-        let path = self.dir.join(name);
-        let phys = sim.stepper.phys();
-        let chunks = &OnCores;
-        let written = write_snapshot_of(
-            &path,
-            (&self.loaded, ics),
-            phys,
-            (&own, &t_stop),
-            &world,
-            chunks,
-        );
-        drop(own);
         // The scene has no analysis of every particle at once; the series is rank 0's.
-        let written = written.and_then(|()| match world.rank() {
+        let written = written.and_then(|()| match rank {
             0 => self.write_series((sim.state.t, sim.state.step), name),
             _ => Ok(()),
         });

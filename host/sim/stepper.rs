@@ -99,25 +99,22 @@ impl Stepper {
         }
     }
 
-    /// Where the outputs are written by share: this rank's own particles at `state`'s time
-    /// and step, the dust stopping times its engine computed for them, and a communicator
-    /// for the write (collective); `None` elsewhere, and where the ranks step on the deep
-    /// halo (the output is then gathered: [`Stepper::sync`]).
+    /// Where the outputs are written by share: `write` gets this rank's own particles at
+    /// `state`'s time and step, the dust stopping times its engine computed for them, and the
+    /// ranks (collective); `None` elsewhere, and where the ranks step on the deep halo (the
+    /// output is then gathered: [`Stepper::sync`]).
     #[cfg(feature = "mpi")]
-    #[allow(clippy::type_complexity)]
-    pub fn own_output(
+    pub fn own_output<R>(
         &mut self,
         state: &State,
-    ) -> Result<Option<(State, Vec<Vec<f64>>, crate::dist::comm::World)>, StepError> {
+        write: impl FnOnce(&State, &[Vec<f64>], &crate::dist::comm::World) -> R,
+    ) -> Result<Option<R>, StepError> {
         match self {
             Stepper::Ranks {
                 ranks,
                 by_share: true,
                 ..
-            } => {
-                let own = (ranks.own_output(state.t, state.step)).map_err(StepError::Blowup)?;
-                Ok(own.map(|(st, ts)| (st, ts, ranks.world.dup())))
-            }
+            } => (ranks.own_output(state.t, state.step, write)).map_err(StepError::Blowup),
             _ => Ok(None),
         }
     }
