@@ -28,6 +28,43 @@ pub fn core_check(
     cs: f64,
     h: f64,
 ) -> Option<CoreCheck> {
+    core_check_over(&crate::dist::Alone, state, (r0, rho0, rho_d0, p0, cs, h))
+}
+
+/// [`core_check`] of the particles every process of `c` holds a share of (`state`: this
+/// process's; collective): the counts summed, the largest deviations over the processes.
+pub fn core_check_over(
+    c: &dyn crate::dist::Collective,
+    state: &State,
+    (r0, rho0, rho_d0, p0, cs, h): (f64, f64, f64, f64, f64, f64),
+) -> Option<CoreCheck> {
+    let check = core_check_here(state, r0, rho0, rho_d0, p0, cs, h)?;
+    let mut n = [check.particles as u64];
+    c.sum_u64(&mut n);
+    let mut most = [check.rho_g, check.p, check.v, check.rho_d, check.u];
+    c.max_f64(&mut most);
+    let [rho_g, p, v, rho_d, u] = most;
+    Some(CoreCheck {
+        particles: n[0] as usize,
+        rho_g,
+        p,
+        v,
+        rho_d,
+        u,
+        ..check
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn core_check_here(
+    state: &State,
+    r0: f64,
+    rho0: f64,
+    rho_d0: f64,
+    p0: f64,
+    cs: f64,
+    h: f64,
+) -> Option<CoreCheck> {
     let r_core = r0 - cs * state.t - 2.0 * h;
     if r_core <= 0.0 {
         return None;

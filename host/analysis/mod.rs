@@ -6,6 +6,7 @@ pub mod profiles;
 pub mod radial;
 pub mod spherical;
 
+use crate::dist::Collective;
 use crate::exact::dustybox::{DustyBox, Forcing};
 use crate::exact::dustywave::WaveGas;
 use crate::exact::riemann::{DustyRiemann, Prim};
@@ -57,6 +58,7 @@ fn dustybox_model(scene: &Scene, b: &BoxCfg) -> (DustyBox, f64, Vec<f64>) {
 }
 
 fn phase_errors(
+    c: &dyn Collective,
     name: &str,
     ph: &Phase,
     rho_scale: f64,
@@ -79,22 +81,27 @@ fn phase_errors(
     [
         FieldError {
             field: format!("rho_{name}"),
-            norms: Norms::of(&rho, &m),
+            norms: Norms::over(c, &rho, &m),
         },
         FieldError {
             field: format!("{}_{name}", if name == "g" { "v" } else { "u" }),
-            norms: Norms::of(&v, &m),
+            norms: Norms::over(c, &v, &m),
         },
     ]
 }
 
 /// v_x errors of one phase normalised by the rms of the exact v_x over its particles (all three
 /// norms use that scale); mass-weighted like every other norm (equal masses: plain means).
-fn relative_velocity_error(name: &str, ph: &Phase, exact: impl Fn([f64; 3]) -> f64) -> FieldError {
+fn relative_velocity_error(
+    c: &dyn Collective,
+    name: &str,
+    ph: &Phase,
+    exact: impl Fn([f64; 3]) -> f64,
+) -> FieldError {
     let active: Vec<usize> = (0..ph.len()).filter(|&i| !ph.is_fixed(i)).collect();
     let m: Vec<f64> = active.iter().map(|&i| ph.m[i]).collect();
     let ex: Vec<f64> = active.iter().map(|&i| exact(ph.x[i])).collect();
-    let rms = Norms::of(&ex, &m).l2.max(f64::MIN_POSITIVE);
+    let rms = Norms::over(c, &ex, &m).l2.max(f64::MIN_POSITIVE);
     let err: Vec<f64> = active
         .iter()
         .zip(&ex)
@@ -102,17 +109,20 @@ fn relative_velocity_error(name: &str, ph: &Phase, exact: impl Fn([f64; 3]) -> f
         .collect();
     FieldError {
         field: name.into(),
-        norms: Norms::of(&err, &m),
+        norms: Norms::over(c, &err, &m),
     }
 }
 
 /// The constant part of a phase's density error: the mass-weighted mean of ρ − ρ_exact.
-fn density_offset(ph: &Phase, exact: impl Fn([f64; 3]) -> f64) -> f64 {
+fn density_offset(c: &dyn Collective, ph: &Phase, exact: impl Fn([f64; 3]) -> f64) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for i in (0..ph.len()).filter(|&i| !ph.is_fixed(i)) {
         num += ph.m[i] * (ph.rho[i] - exact(ph.x[i]));
         den += ph.m[i];
     }
+    let mut s = [num, den];
+    c.sum_f64(&mut s);
+    let [num, den] = s;
     if den > 0.0 {
         num / den
     } else {
@@ -124,16 +134,21 @@ fn density_offset(ph: &Phase, exact: impl Fn([f64; 3]) -> f64) -> f64 {
 /// perturbation `exact(x)`, relative to the rms of the exact perturbation (as
 /// [`relative_velocity_error`]).
 fn relative_perturbation_error(
+    c: &dyn Collective,
     name: &str,
     ph: &Phase,
     exact: impl Fn([f64; 3]) -> f64,
 ) -> FieldError {
     let active: Vec<usize> = (0..ph.len()).filter(|&i| !ph.is_fixed(i)).collect();
     let m: Vec<f64> = active.iter().map(|&i| ph.m[i]).collect();
-    let mtot: f64 = m.iter().sum();
-    let mean = active.iter().map(|&i| ph.m[i] * ph.rho[i]).sum::<f64>() / mtot;
+    let mut s = [
+        m.iter().sum::<f64>(),
+        active.iter().map(|&i| ph.m[i] * ph.rho[i]).sum::<f64>(),
+    ];
+    c.sum_f64(&mut s);
+    let mean = s[1] / s[0];
     let ex: Vec<f64> = active.iter().map(|&i| exact(ph.x[i])).collect();
-    let rms = Norms::of(&ex, &m).l2.max(f64::MIN_POSITIVE);
+    let rms = Norms::over(c, &ex, &m).l2.max(f64::MIN_POSITIVE);
     let err: Vec<f64> = active
         .iter()
         .zip(&ex)
@@ -141,11 +156,12 @@ fn relative_perturbation_error(
         .collect();
     FieldError {
         field: name.into(),
-        norms: Norms::of(&err, &m),
+        norms: Norms::over(c, &err, &m),
     }
 }
 
 fn all_phase_errors(
+    c: &dyn Collective,
     state: &State,
     rho_scale: &dyn Fn(usize) -> f64,
     v_scale: f64,
@@ -153,6 +169,7 @@ fn all_phase_errors(
     exact_dust: impl Fn(usize, [f64; 3]) -> (f64, f64),
 ) -> Vec<FieldError> {
     let mut out: Vec<FieldError> = phase_errors(
+        c,
         "g",
         &state.gas.ph,
         rho_scale(usize::MAX),
@@ -162,6 +179,7 @@ fn all_phase_errors(
     .into();
     for (k, d) in state.dust.iter().enumerate() {
         out.extend(phase_errors(
+            c,
             &format!("d{k}"),
             d,
             rho_scale(k),
@@ -172,33 +190,49 @@ fn all_phase_errors(
     out
 }
 
-/// Whether a scene's outputs read every particle at once: its errors against an exact solution
-/// ([`exact_errors`]: every built-in problem but the disc) or the ball's core. Over MPI ranks
-/// such outputs are written from the whole state gathered on rank 0; the others (a file of
-/// initial conditions, the disc) are written by share, no rank holding every particle.
+/// Whether a scene's outputs read every particle at once: the settling column's drift, which
+/// interpolates the gas velocity between the gas particles around each dust particle. Over
+/// MPI ranks its outputs are written from the whole state gathered on rank 0; every other
+/// scene's are written by share, no rank holding every particle, with its errors
+/// ([`exact_errors_over`]) and the ball's core reduced over the ranks.
 pub fn outputs_read_whole_state(scene: &Scene) -> bool {
-    !matches!(
-        scene.problem,
-        ProblemCfg::File(_) | ProblemCfg::Dustydisc(_)
-    )
+    matches!(scene.problem, ProblemCfg::Dustysettle(_))
 }
 
 /// Errors against the exact solution of the scene (`None` if the problem has none).
 /// `dt_fixed` enables the discrete IDIC oracle of the dusty box.
 pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<ExactErrors> {
+    exact_errors_over(&crate::dist::Alone, scene, state, dt_fixed)
+}
+
+/// [`exact_errors`] of the particles every process of `c` holds a share of (`state`: this
+/// process's; collective): the same norms, their sums reduced over the processes. Not for
+/// the settling column ([`outputs_read_whole_state`]).
+pub fn exact_errors_over(
+    c: &dyn Collective,
+    scene: &Scene,
+    state: &State,
+    dt_fixed: Option<f64>,
+) -> Vec<ExactErrors> {
     match &scene.problem {
-        ProblemCfg::Dustyball(b) => ball_reference_errors(scene, b, state),
-        ProblemCfg::Dustybox(b) => box_errors(scene, b, state, dt_fixed),
-        ProblemCfg::Dustywave(w) => wave_errors(scene, w, state),
-        ProblemCfg::Dustysettle(c) => vec![settle_errors(scene, c, state)],
-        ProblemCfg::Dustyshock(s) => shock_errors(scene, s, state),
+        ProblemCfg::Dustyball(b) => ball_reference_errors(c, scene, b, state),
+        ProblemCfg::Dustybox(b) => box_errors(c, scene, b, state, dt_fixed),
+        ProblemCfg::Dustywave(w) => wave_errors(c, scene, w, state),
+        ProblemCfg::Dustysettle(s) => vec![settle_errors(c, scene, s, state)],
+        ProblemCfg::Dustyshock(s) => shock_errors(c, scene, s, state),
         ProblemCfg::File(_) | ProblemCfg::Dustydisc(_) => Vec::new(),
     }
 }
 
 /// The dusty box against the exact solution of its linear drag ODE, and (fixed τ, IDIC) against
 /// IDIC's own discrete solution.
-fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -> Vec<ExactErrors> {
+fn box_errors(
+    c: &dyn Collective,
+    scene: &Scene,
+    b: &BoxCfg,
+    state: &State,
+    dt_fixed: Option<f64>,
+) -> Vec<ExactErrors> {
     let t = state.t;
     let mut out = Vec::new();
     let rho = b.background.rho;
@@ -213,7 +247,7 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
     out.push(ExactErrors {
             t,
             reference: "exact (matrix) solution of the linear drag ODE (with the [external] accelerations along x); densities relative to ρ0, velocities relative to the largest of |u0 − v0| and the terminal drifts |w*_k|".into(),
-            fields: all_phase_errors(state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
+            fields: all_phase_errors(c, state, &rs, scale, |_| (rho, vg), |k, _| (rho * eps[k], ud[k])),
         });
     // The oracle is IDIC's own discrete solution; the explicit baseline has none here.
     let idic = scene.drag.method == crate::scene::DragMethod::Idic;
@@ -226,6 +260,7 @@ fn box_errors(scene: &Scene, b: &BoxCfg, state: &State, dt_fixed: Option<f64>) -
                     "discrete IDIC oracle (I + τM)^-n with τ = {dt}, n = {n}; same normalisation"
                 ),
                 fields: all_phase_errors(
+                    c,
                     state,
                     &rs,
                     scale,
@@ -284,7 +319,7 @@ fn box_velocity_scale(bx: &DustyBox, v0: f64, u0: &[f64], a: Forcing) -> f64 {
 
 /// The dusty wave against the exact linear solution, in two metrics: this code's (normalised
 /// by the amplitude) and Phantom's DUSTYWAVE one.
-fn wave_errors(scene: &Scene, w: &WaveCfg, state: &State) -> Vec<ExactErrors> {
+fn wave_errors(c: &dyn Collective, scene: &Scene, w: &WaveCfg, state: &State) -> Vec<ExactErrors> {
     let t = state.t;
     let mut out = Vec::new();
     let lw = dustywave::model(scene, w);
@@ -299,14 +334,15 @@ fn wave_errors(scene: &Scene, w: &WaveCfg, state: &State) -> Vec<ExactErrors> {
     // The summed density of a lattice sits a constant fraction off ρ0 (0.2 % on the 3D
     // close-packed lattice, 20 amplitudes): the errors are measured with each phase's
     // constant offset removed, and the offset is reported on its own line.
-    let off_g = density_offset(&state.gas.ph, rho_g_ex);
+    let off_g = density_offset(c, &state.gas.ph, rho_g_ex);
     let off_d: Vec<f64> = state
         .dust
         .iter()
         .enumerate()
-        .map(|(kf, d)| density_offset(d, |x| rho_d_ex(kf, x)))
+        .map(|(kf, d)| density_offset(c, d, |x| rho_d_ex(kf, x)))
         .collect();
     let mut fields = all_phase_errors(
+        c,
         state,
         &rs,
         a * cs,
@@ -348,23 +384,29 @@ fn wave_errors(scene: &Scene, w: &WaveCfg, state: &State) -> Vec<ExactErrors> {
         });
     // Phantom's DUSTYWAVE metric: L2 of v_x − exact over the particles of a phase,
     // divided by the rms of the exact v_x over the same particles.
-    let mut fields = vec![relative_velocity_error("v_g", &state.gas.ph, |x| {
+    let mut fields = vec![relative_velocity_error(c, "v_g", &state.gas.ph, |x| {
         dustywave::field(0.0, a, y.v_g, k, x[0])
     })];
     for (kf, d) in state.dust.iter().enumerate() {
-        fields.push(relative_velocity_error(&format!("u_d{kf}"), d, |x| {
+        fields.push(relative_velocity_error(c, &format!("u_d{kf}"), d, |x| {
             dustywave::field(0.0, a, y.v_d[kf], k, x[0])
         }));
     }
     // The density perturbation in the same metric: the phase's mean density removed (the
     // summed density of a lattice sits a fixed fraction off ρ0, far above the amplitude).
-    fields.push(relative_perturbation_error("rho_g", &state.gas.ph, |x| {
-        dustywave::field(0.0, a, y.rho_g, k, x[0])
-    }));
+    fields.push(relative_perturbation_error(
+        c,
+        "rho_g",
+        &state.gas.ph,
+        |x| dustywave::field(0.0, a, y.rho_g, k, x[0]),
+    ));
     for (kf, d) in state.dust.iter().enumerate() {
-        fields.push(relative_perturbation_error(&format!("rho_d{kf}"), d, |x| {
-            dustywave::field(0.0, a, y.rho_d[kf], k, x[0])
-        }));
+        fields.push(relative_perturbation_error(
+            c,
+            &format!("rho_d{kf}"),
+            d,
+            |x| dustywave::field(0.0, a, y.rho_d[kf], k, x[0]),
+        ));
     }
     out.push(ExactErrors {
             t,
@@ -375,7 +417,12 @@ fn wave_errors(scene: &Scene, w: &WaveCfg, state: &State) -> Vec<ExactErrors> {
 }
 
 /// The dusty shock tube against the equilibrium (t_stop → 0) mixture Riemann solution.
-fn shock_errors(scene: &Scene, s: &ShockCfg, state: &State) -> Vec<ExactErrors> {
+fn shock_errors(
+    c: &dyn Collective,
+    scene: &Scene,
+    s: &ShockCfg,
+    state: &State,
+) -> Vec<ExactErrors> {
     let t = state.t;
     let mut out = Vec::new();
     let eps_k: Vec<f64> = scene.fractions().iter().map(|f| f.eps).collect();
@@ -397,6 +444,7 @@ fn shock_errors(scene: &Scene, s: &ShockCfg, state: &State) -> Vec<ExactErrors> 
             t,
             reference: "equilibrium (t_stop → 0) mixture Riemann solution; absolute errors".into(),
             fields: all_phase_errors(
+                c,
                 state,
                 &|_| 1.0,
                 1.0,
@@ -418,15 +466,15 @@ fn shock_errors(scene: &Scene, s: &ShockCfg, state: &State) -> Vec<ExactErrors> 
 /// ([`crate::exact::settle`]), over the particles in the middle 60% of the column: ρ_g and the
 /// dust velocities relative to their exact values (u_dk: (u − u_term)/|u_term|), the gas
 /// velocity in units of the largest terminal speed in the column.
-fn settle_errors(scene: &Scene, c: &SettleCfg, state: &State) -> ExactErrors {
-    let col = crate::setup::dustysettle::column(scene, c);
+fn settle_errors(c: &dyn Collective, scene: &Scene, cfg: &SettleCfg, state: &State) -> ExactErrors {
+    let col = crate::setup::dustysettle::column(scene, cfg);
     let laws: Vec<_> = scene.fractions().iter().map(|f| f.law).collect();
-    let h = crate::setup::dustysettle::smoothing(scene, c).0;
+    let h = crate::setup::dustysettle::smoothing(scene, cfg).0;
     // Away from the walls: the middle 60% of the column (sound from the walls needs 0.2 L/c_s
     // to get there) and at least 4h from either end.
     let (lo, hi) = (
-        (0.2 * c.height).max(4.0 * h),
-        (0.8 * c.height).min(c.height - 4.0 * h),
+        (0.2 * cfg.height).max(4.0 * h),
+        (0.8 * cfg.height).min(cfg.height - 4.0 * h),
     );
     let inside = |x: f64| x > lo && x < hi;
     let mut fields = Vec::new();
@@ -440,16 +488,16 @@ fn settle_errors(scene: &Scene, c: &SettleCfg, state: &State) -> ExactErrors {
         .map(|&i| g.rho[i] / col.rho_gas(g.x[i][0]) - 1.0)
         .collect();
     let u_max = (0..laws.len())
-        .map(|k| col.u_terminal(k, laws[k], c.height).abs())
+        .map(|k| col.u_terminal(k, laws[k], cfg.height).abs())
         .fold(f64::MIN_POSITIVE, f64::max);
     let v: Vec<f64> = idx.iter().map(|&i| g.v[i][0] / u_max).collect();
     fields.push(FieldError {
         field: "rho_g".into(),
-        norms: Norms::of(&rho, &m),
+        norms: Norms::over(c, &rho, &m),
     });
     fields.push(FieldError {
         field: "v_g".into(),
-        norms: Norms::of(&v, &m),
+        norms: Norms::over(c, &v, &m),
     });
     // The gas velocity at a point by linear interpolation between the gas particles around it
     // (1D): the drift u − v is what the drag sets, whatever small motion the gas column has.
@@ -479,11 +527,11 @@ fn settle_errors(scene: &Scene, c: &SettleCfg, state: &State) -> ExactErrors {
             .collect();
         fields.push(FieldError {
             field: format!("u_d{k}"),
-            norms: Norms::of(&u, &m),
+            norms: Norms::over(c, &u, &m),
         });
         fields.push(FieldError {
             field: format!("drift_d{k}"),
-            norms: Norms::of(&w, &m),
+            norms: Norms::over(c, &w, &m),
         });
     }
     ExactErrors {
@@ -523,7 +571,12 @@ pub fn ball_reference(scene: &Scene, t: f64) -> Option<radial::RadialCurve> {
 /// The ball against the 1D spherical equilibrium reference (method.md §6.1): L1/L2/L∞ of ρ_g,
 /// p, radial v_g, ρ_d, radial u_d inside r < R0 − 2h (away from the kernel-truncated edge) and
 /// over the whole ball. Absolute errors (the initial state is ρ_g = 1, p = 1 in the seed).
-fn ball_reference_errors(scene: &Scene, b: &BallCfg, state: &State) -> Vec<ExactErrors> {
+fn ball_reference_errors(
+    c: &dyn Collective,
+    scene: &Scene,
+    b: &BallCfg,
+    state: &State,
+) -> Vec<ExactErrors> {
     let Some(reference) = ball_reference(scene, state.t) else {
         return Vec::new();
     };
@@ -550,7 +603,9 @@ fn ball_reference_errors(scene: &Scene, b: &BallCfg, state: &State) -> Vec<Exact
             .collect();
         // A region without particles (a ball under two smoothing lengths: R0 − 2h ≤ 0) has no
         // error to report, rather than a zero one.
-        if sel.is_empty() {
+        let mut n = [sel.len() as u64];
+        c.sum_u64(&mut n);
+        if n[0] == 0 {
             out.push(ExactErrors {
                 t: state.t,
                 reference: format!("{label}: no particles, nothing compared"),
@@ -565,7 +620,7 @@ fn ball_reference_errors(scene: &Scene, b: &BallCfg, state: &State) -> Vec<Exact
             .collect();
         let field = |name: &str, err: Vec<f64>, m: &[f64]| FieldError {
             field: name.into(),
-            norms: Norms::of(&err, m),
+            norms: Norms::over(c, &err, m),
         };
         fields.push(field(
             "rho_g",

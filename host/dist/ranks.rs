@@ -1045,7 +1045,8 @@ impl RankStepper {
             .collect();
         res.local.retain_rows(&keep);
         res.flags = vec![false; res.local.len()];
-        self.timers.add(STAGE_OWN_OUTPUT, t0.elapsed().as_secs_f64());
+        self.timers
+            .add(STAGE_OWN_OUTPUT, t0.elapsed().as_secs_f64());
         Ok(Some(write(&res.local, &ts, world)))
     }
 

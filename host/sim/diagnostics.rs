@@ -28,6 +28,8 @@ pub struct Totals {
     pub energy: f64,
     /// The largest sound speed.
     pub c_max: f64,
+    /// (Σ m r², Σ m) of the gas and of all the dust (the ball's radius estimates).
+    pub moments: [(f64, f64); 2],
 }
 
 impl Totals {
@@ -39,6 +41,10 @@ impl Totals {
             momentum: state.total_momentum(),
             energy: state.total_energy(),
             c_max: state.gas.c.iter().copied().fold(0.0, f64::max),
+            moments: [
+                moments(&[&state.gas.ph]),
+                moments(&state.dust.iter().collect::<Vec<_>>()),
+            ],
         }
     }
 
@@ -46,7 +52,8 @@ impl Totals {
     /// a share of the particles (collective).
     pub fn reduce(mut self, c: &dyn crate::dist::Collective) -> Totals {
         let nd = self.mass_dust.len();
-        let mut f: Vec<f64> = [self.mass_gas, self.energy]
+        let [(a, b), (d, e)] = self.moments;
+        let mut f: Vec<f64> = [self.mass_gas, self.energy, a, b, d, e]
             .into_iter()
             .chain(self.momentum)
             .chain(self.mass_dust.iter().copied())
@@ -54,8 +61,9 @@ impl Totals {
         c.sum_f64(&mut f);
         self.mass_gas = f[0];
         self.energy = f[1];
-        self.momentum = [f[2], f[3], f[4]];
-        self.mass_dust = f[5..5 + nd].to_vec();
+        self.moments = [(f[2], f[3]), (f[4], f[5])];
+        self.momentum = [f[6], f[7], f[8]];
+        self.mass_dust = f[9..9 + nd].to_vec();
         let n = &self.counts;
         let mut u: Vec<u64> = [n.gas, n.gas_fixed]
             .into_iter()
@@ -75,6 +83,18 @@ impl Totals {
         self.c_max = cm[0];
         self
     }
+}
+
+/// (Σ m r², Σ m) of the phases, in their order.
+fn moments(phs: &[&crate::particles::Phase]) -> (f64, f64) {
+    let (mut mr2, mut m) = (0.0, 0.0);
+    for ph in phs {
+        for (mi, x) in ph.m.iter().zip(&ph.x) {
+            mr2 += mi * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+            m += mi;
+        }
+    }
+    (mr2, m)
 }
 
 impl ParticleCounts {

@@ -4,11 +4,11 @@
 //! after every step).
 use super::{Flow, Observer, RunError, Simulation};
 use crate::analysis::{self, ExactErrors};
+#[cfg(feature = "mpi")]
+use crate::dist::comm::World;
 use crate::io::chunks::{ChunkFilter, OnCores};
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::scene::{LoadedScene, OutputSchedule, Problem};
-#[cfg(feature = "mpi")]
-use crate::dist::comm::World;
 use crate::step::timestep::Taken;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -131,18 +131,27 @@ impl Outputs {
         let path = self.dir.join(name);
         let phys = sim.stepper.phys().clone();
         let loaded = &self.loaded;
+        let fixed_dt = loaded.scene.time.fixed_dt();
         let write = |own: &crate::particles::State, t_stop: &[Vec<f64>], w: &World| {
             let c: &dyn crate::dist::Collective = w;
-            let written = write_snapshot_of(&path, (loaded, ics), &phys, (own, t_stop), c, &OnCores);
-            (written, w.rank())
+            let written =
+                write_snapshot_of(&path, (loaded, ics), &phys, (own, t_stop), c, &OnCores);
+            // The errors and the ball's core reduced over the ranks (whatever the write said:
+            // every rank takes part).
+            let errors = analysis::exact_errors_over(c, &loaded.scene, own, fixed_dt);
+            let core = ball_core(loaded, own, &phys, c);
+            (written, errors, core, w.rank())
         };
-        let Some((written, rank)) = sim.stepper.own_output(&sim.state, write).map_err(step_err)?
-        else {
+        let own = sim.stepper.own_output(&sim.state, write);
+        let Some((written, errors, core, rank)) = own.map_err(step_err)? else {
             return Ok(false);
         };
-        // The scene has no analysis of every particle at once; the series is rank 0's.
         let written = written.and_then(|()| match rank {
-            0 => self.write_series((sim.state.t, sim.state.step), name),
+            0 => {
+                self.record.errors.extend(errors);
+                self.record.ball_core.extend(core);
+                self.write_series((sim.state.t, sim.state.step), name)
+            }
             _ => Ok(()),
         });
         // No rank may wait on one that stopped.
@@ -172,8 +181,9 @@ impl Outputs {
             &sim.state,
             fixed_dt,
         ));
-        if let Some(c) = ball_core(&self.loaded, sim) {
-            self.record.ball_core.push(c);
+        let c = &crate::dist::Alone;
+        if let Some(core) = ball_core(&self.loaded, &sim.state, &sim.phys, c) {
+            self.record.ball_core.push(core);
         }
         self.write_series((sim.state.t, sim.state.step), name)
     }
@@ -341,14 +351,19 @@ pub fn write_snapshot_of(
 }
 
 /// The ball's undisturbed core (docs/method.md §6.1) against the initial state, for a ball
-/// scene (`None` otherwise).
-fn ball_core(loaded: &LoadedScene, sim: &Simulation) -> Option<analysis::ball::CoreCheck> {
+/// scene (`None` otherwise), of the particles every process of `c` holds a share of.
+fn ball_core(
+    loaded: &LoadedScene,
+    state: &crate::particles::State,
+    phys: &crate::step::Physics,
+    c: &dyn crate::dist::Collective,
+) -> Option<analysis::ball::CoreCheck> {
     let sc = &loaded.scene;
     let b = sc.ball()?;
     let (rho, p) = (b.background.rho, b.background.p);
-    let cs = sim.phys.eos.sound_speed(rho, p);
+    let cs = phys.eos.sound_speed(rho, p);
     let eps: f64 = sc.fractions().iter().map(|f| f.eps).sum();
-    analysis::ball::core_check(&sim.state, b.radius, rho, eps * rho, p, cs, sim.phys.h)
+    analysis::ball::core_check_over(c, state, (b.radius, rho, eps * rho, p, cs, phys.h))
 }
 
 /// The ball's Lagrange–Jacobi terms while it runs (a checkpoint keeps them).

@@ -181,14 +181,7 @@ pub fn conservation(
 }
 
 /// R_est = sqrt(5 Σm r² / (3 Σm)) of the phases.
-fn radius_estimate(phs: &[&crate::particles::Phase]) -> f64 {
-    let (mut mr2, mut m) = (0.0, 0.0);
-    for ph in phs {
-        for (mi, x) in ph.m.iter().zip(&ph.x) {
-            mr2 += mi * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
-            m += mi;
-        }
-    }
+fn radius_estimate((mr2, m): (f64, f64)) -> f64 {
     if m > 0.0 {
         (5.0 * mr2 / (3.0 * m)).sqrt()
     } else {
@@ -246,8 +239,8 @@ pub fn finish(
         }),
         lagrange_jacobi_max_relative: analysis::ball::lagrange_jacobi_deviation(&b.lagrange_jacobi),
         core: outputs.ball_core.clone(),
-        radius_estimate_gas: radius_estimate(&[&state.gas.ph]),
-        radius_estimate_dust: radius_estimate(&state.dust.iter().collect::<Vec<_>>()),
+        radius_estimate_gas: radius_estimate(totals.moments[0]),
+        radius_estimate_dust: radius_estimate(totals.moments[1]),
     });
     let summary = Summary {
         code: "dustsph",
