@@ -144,6 +144,8 @@ impl Outputs {
         };
         let own = sim.stepper.own_output(&sim.state, write);
         let Some((written, errors, core, rank)) = own.map_err(step_err)? else {
+            // The ranks step on the deep halo (a rank holds no gas): the output is gathered.
+            sim.sync().map_err(step_err)?;
             return Ok(false);
         };
         let written = written.and_then(|()| match rank {
