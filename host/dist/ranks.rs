@@ -97,7 +97,7 @@ const STAGE_MOTION: &str =
 const STAGE_OUTPUT: &str =
     "ranks: an output's dust densities and stopping times, gathered on rank 0";
 const STAGE_OWN_OUTPUT: &str =
-    "ranks: an output's dust densities and stopping times, each rank's own particles copied";
+    "ranks: an output's dust densities and stopping times, on each rank's own particles";
 
 /// A rank's engine kept across steps on its owned particles and thin halo, until the motion
 /// since the halo was built uses up its margin (docs/scaling.md, "A resident engine").
