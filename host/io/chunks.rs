@@ -127,8 +127,8 @@ impl RowShare {
     }
 }
 
-/// A piece of a chunk held by the process that stores it: (first row within the chunk, rows,
-/// where its bytes are: this process's rows from `local` or the received bytes from `at`).
+/// Where a piece of a chunk lies on the process that filters the chunk: its own rows from
+/// row `Local(l)`, or the bytes another process sent from `Received(at)`.
 enum Piece {
     Local(usize),
     Received(usize),
@@ -243,10 +243,13 @@ pub(crate) fn write_rows_shared<T: H5Type + Copy + Sync>(
     }
     let views: Vec<&[u8]> = raw.iter().map(|r| &r[..]).collect();
     let chunk_bytes = chunk_rows * row;
-    let stored = filter.filter(&views, elem, chunk_bytes, level);
+    let chunks: Vec<u64> = pieces.keys().copied().collect();
+    let stored = (filter.filter(&views, elem, chunk_bytes, level)).and_then(|v| match v.len() {
+        n if n == chunks.len() => Ok(v),
+        n => Err(format!("{n} of {} chunks filtered", chunks.len())),
+    });
     drop(views);
     drop(raw);
-    let chunks: Vec<u64> = pieces.keys().copied().collect();
     // Length-prefixed: a chunk's index, its stored length and bytes; a failed filter sends
     // its message instead (process 0 stops the write, the others go on to the end of it).
     let pack = |stored: &Result<Vec<Vec<u8>>, String>| -> Vec<u8> {

@@ -490,7 +490,8 @@ pub fn write_snapshot_shared(
     } else {
         Ok(path.to_path_buf())
     };
-    let tmp = tmp?;
+    agree(tmp.as_ref().map(|_| ()).map_err(clone_err))?;
+    let tmp = tmp.expect("agreed");
     let result = (|| {
         // create_excl: never write through something that appeared under the temporary name.
         let file = if me == 0 {
