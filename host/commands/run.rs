@@ -52,7 +52,8 @@ impl Run {
 
     /// [`Run::start`] as one of several MPI ranks: every rank sets up the scene, keeps its
     /// share and builds its engine on it; the first step is checked over every rank (its
-    /// verdict the same on each) before anything is written; rank 0 writes every output.
+    /// verdict the same on each) before anything is written; the ranks write each output
+    /// together (rank 0 the file, each rank its particles' chunks).
     #[cfg(feature = "mpi")]
     pub fn start_over_ranks(
         loaded: &LoadedScene,
@@ -173,8 +174,9 @@ impl Run {
         }
     }
 
-    /// Over ranks, no rank keeps the whole state: each steps its share, and rank 0 gathers the
-    /// whole for each output.
+    /// Over ranks, no rank keeps the whole state: each steps its share and writes it into each
+    /// output (rank 0 gathers the whole for an output only on the settling column, the deep
+    /// halo and at a checkpoint).
     fn shed_whole_state(&mut self) {
         self.sim.shed_gathered();
     }
@@ -344,7 +346,8 @@ struct Start {
 /// The stepper of a run over ranks: each rank's share of the scene and its engine on it, and
 /// (`check_first`, a run's start) the first step checked over every rank. Every rank drops the
 /// whole `state` once its share is taken (before its engine is built), or takes it as its
-/// share (`share`); rank 0 gathers the whole again for each output. A start refused is
+/// share (`share`); the outputs are written by share where the scene's analyses allow
+/// ([`crate::analysis::outputs_read_whole_state`]), else gathered on rank 0. A start refused is
 /// said before any rank leaves (mpirun stops the job at the first rank that exits non-zero,
 /// which could otherwise cut the others off before they speak).
 #[cfg(feature = "mpi")]

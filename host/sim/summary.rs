@@ -190,7 +190,8 @@ fn radius_estimate((mr2, m): (f64, f64)) -> f64 {
 }
 
 /// The run's summary from the simulation, its outputs and its ball checks, with the final
-/// state (over ranks, gathered on rank 0); for the ball the profiles and figures of the last
+/// state (over ranks gathered on rank 0 where the outputs are, else this rank's time and step
+/// alone; the sums are reduced over the ranks); for the ball the profiles and figures of the last
 /// snapshot are made here, after the engines are dropped (the post-processing reads the whole
 /// snapshot: with an engine alive beside it, the end of a run would be its peak of memory).
 /// Written to `DIR/summary.json` by rank 0.
