@@ -18,27 +18,15 @@ pub struct CoreCheck {
     pub u: f64,
 }
 
-/// The core check; `None` once the core has shrunk to nothing.
+/// The core check of the particles every process of `c` holds a share of (`state`: this
+/// process's; collective: the counts summed, the largest deviations over the processes);
+/// `None` once the core has shrunk to nothing.
 pub fn core_check(
-    state: &State,
-    r0: f64,
-    rho0: f64,
-    rho_d0: f64,
-    p0: f64,
-    cs: f64,
-    h: f64,
-) -> Option<CoreCheck> {
-    core_check_over(&crate::dist::Alone, state, (r0, rho0, rho_d0, p0, cs, h))
-}
-
-/// [`core_check`] of the particles every process of `c` holds a share of (`state`: this
-/// process's; collective): the counts summed, the largest deviations over the processes.
-pub fn core_check_over(
     c: &dyn crate::dist::Collective,
     state: &State,
-    (r0, rho0, rho_d0, p0, cs, h): (f64, f64, f64, f64, f64, f64),
+    ball: (f64, f64, f64, f64, f64, f64),
 ) -> Option<CoreCheck> {
-    let check = core_check_here(state, r0, rho0, rho_d0, p0, cs, h)?;
+    let check = core_check_here(state, ball)?;
     let mut n = [check.particles as u64];
     c.sum_u64(&mut n);
     let mut most = [check.rho_g, check.p, check.v, check.rho_d, check.u];
@@ -55,15 +43,11 @@ pub fn core_check_over(
     })
 }
 
-#[allow(clippy::too_many_arguments)]
+/// [`core_check`] of this process's particles: (r0, ρ0, ρ_d0, p0, c_s, h) the ball's radius,
+/// background gas and dust densities, pressure, sound speed and smoothing length.
 fn core_check_here(
     state: &State,
-    r0: f64,
-    rho0: f64,
-    rho_d0: f64,
-    p0: f64,
-    cs: f64,
-    h: f64,
+    (r0, rho0, rho_d0, p0, cs, h): (f64, f64, f64, f64, f64, f64),
 ) -> Option<CoreCheck> {
     let r_core = r0 - cs * state.t - 2.0 * h;
     if r_core <= 0.0 {

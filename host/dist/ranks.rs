@@ -992,6 +992,34 @@ impl RankStepper {
         }
     }
 
+    /// An output's dust densities and stopping times per fraction, on the resident engine
+    /// (built first where there is none: timed as a build, not as the output), for every
+    /// particle of its host copy at time `t`, step `step`, which is synced whole beside its
+    /// ghost flags; the refresh's buffers freed until the next step (collective). `None` where
+    /// no rank steps on a thin halo.
+    fn output_fields_here(
+        &mut self,
+        t: f64,
+        step: u64,
+        t0: &mut std::time::Instant,
+    ) -> Result<Option<Vec<Vec<f64>>>, String> {
+        if self.thin && self.resident.is_none() {
+            self.resident = self.build_resident(step)?;
+            self.timers.add(STAGE_BUILD, t0.elapsed().as_secs_f64());
+            *t0 = std::time::Instant::now();
+        }
+        let Some(res) = self.resident.as_mut() else {
+            return Ok(None);
+        };
+        res.local.t = t;
+        res.local.step = step;
+        let ts = (res.eng.dust_stopping_times(&mut res.local))
+            .unwrap_or_else(|x| abort_job(&self.world, step, &x));
+        res.flags = ghost_flags(&res.eng);
+        res.eng.free_refresh_buffers();
+        Ok(Some(ts))
+    }
+
     /// This rank's own particles as they stand (a copy: the resident engine's host copy less
     /// its ghosts, or the rank's share).
     pub fn own_state(&self) -> State {
@@ -1016,25 +1044,18 @@ impl RankStepper {
         step: u64,
         write: impl FnOnce(&State, &[Vec<f64>], &World) -> R,
     ) -> Result<Option<R>, String> {
-        let t0 = std::time::Instant::now();
-        if self.thin && self.resident.is_none() {
-            self.resident = self.build_resident(step)?;
-            self.timers.add(STAGE_BUILD, t0.elapsed().as_secs_f64());
-        }
-        let t0 = std::time::Instant::now();
-        let Some(res) = self.resident.as_mut() else {
+        let mut t0 = std::time::Instant::now();
+        let Some(ts) = self.output_fields_here(t, step, &mut t0)? else {
             return Ok(None);
         };
-        res.local.t = t;
-        res.local.step = step;
-        let world = &self.world;
-        let ts = (res.eng.dust_stopping_times(&mut res.local))
-            .unwrap_or_else(|x| abort_job(world, step, &x));
-        res.eng.free_refresh_buffers();
+        let (res, world) = (
+            self.resident.as_mut().expect("fields computed"),
+            &self.world,
+        );
         // The host copy (synced whole by the stopping times) keeps only the own rows from
         // here to the next sync (a retake of the next step starts from them: no ghost is
         // flagged), and the output reads them where they lie.
-        let keep: Vec<bool> = ghost_flags(&res.eng).iter().map(|&g| !g).collect();
+        let keep: Vec<bool> = res.flags.iter().map(|&g| !g).collect();
         let mut at = res.local.gas.ph.len();
         let ts: Vec<Vec<f64>> = (ts.into_iter().zip(&res.local.dust))
             .map(|(v, ph)| {
@@ -1061,30 +1082,19 @@ impl RankStepper {
         t: f64,
         step: u64,
     ) -> Result<Option<(State, Option<Vec<Vec<f64>>>)>, String> {
-        let t0 = std::time::Instant::now();
-        if self.thin && self.resident.is_none() {
-            self.resident = self.build_resident(step)?;
-            self.timers.add(STAGE_BUILD, t0.elapsed().as_secs_f64());
-        }
-        let t0 = std::time::Instant::now();
-        let Some(res) = self.resident.as_mut() else {
+        let mut t0 = std::time::Instant::now();
+        let Some(ts) = self.output_fields_here(t, step, &mut t0)? else {
             return Ok(self.gather(t, step)?.map(|st| (st, None)));
         };
-        res.local.t = t;
-        res.local.step = step;
-        let world = &self.world;
-        let ts = (res.eng.dust_stopping_times(&mut res.local))
-            .unwrap_or_else(|x| abort_job(world, step, &x));
-        // The host copy is synced whole again, beside its ghost flags.
-        res.flags = ghost_flags(&res.eng);
-        // No refresh until the next step: its buffers go before rank 0 builds the whole state.
-        res.eng.free_refresh_buffers();
+        let (res, world) = (
+            self.resident.as_mut().expect("fields computed"),
+            &self.world,
+        );
         // The own particles in key order (phase, index), read where they lie: the engine's
         // host copy keeps them (the output's dust densities too, which the next steps start
         // from, as one process's engine does), and their records only pass through the
         // stream to rank 0, a message at a time.
-        let ghost = ghost_flags(&res.eng);
-        let local = &res.local;
+        let (ghost, local) = (&res.flags, &res.local);
         let mut own: Vec<((u64, u64), u32, u32)> = Vec::with_capacity(ghost.len());
         let phases = std::iter::once(&local.gas.ph).chain(local.dust.iter());
         let mut n = 0;
@@ -1096,7 +1106,6 @@ impl RankStepper {
                 n += 1;
             }
         }
-        drop(ghost);
         own.sort_unstable_by_key(|o| o.0);
         let at = |j: usize| {
             let (k, i) = (own[j].1 as usize, own[j].2 as usize);

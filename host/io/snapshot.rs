@@ -425,7 +425,6 @@ pub fn write_snapshot_shared(
     c: &dyn crate::dist::Collective,
     filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<[u64; 2], IoError> {
-    let agree = |mine: Result<(), IoError>| agreed(c, path, mine);
     // Check everything that can be checked before touching the disk.
     let checked = validate(path, snap).and_then(|scene| {
         let gas = snap.gas.as_ref().map(Columns::gas);
@@ -454,10 +453,7 @@ pub fn write_snapshot_shared(
         }
         Err(_) => Vec::new(),
     };
-    let (scene, gas, dust) = match agree(checked.as_ref().map(|_| ()).map_err(clone_err)) {
-        Ok(()) => checked.expect("agreed"),
-        Err(e) => return Err(e),
-    };
+    let (scene, gas, dust) = go_on(c, path, checked)?;
     let all: Vec<Vec<u64>> = (c.all_gather_bytes(bytemuck::cast_slice(&mine)).iter())
         .map(|b| {
             (b.chunks_exact(8))
@@ -490,8 +486,7 @@ pub fn write_snapshot_shared(
     } else {
         Ok(path.to_path_buf())
     };
-    agree(tmp.as_ref().map(|_| ()).map_err(clone_err))?;
-    let tmp = tmp.expect("agreed");
+    let tmp = go_on(c, path, tmp)?;
     let result = (|| {
         // create_excl: never write through something that appeared under the temporary name.
         let file = if me == 0 {
@@ -501,10 +496,9 @@ pub fn write_snapshot_shared(
                     write_header(&f, path, snap, &frame, &scene, &num_part)?;
                     Ok(f)
                 });
-            agree(made.as_ref().map(|_| ()).map_err(clone_err))?;
-            Some(made.expect("agreed"))
+            Some(go_on(c, path, made)?)
         } else {
-            agree(Ok(()))?;
+            go_on(c, path, Ok(()))?;
             None
         };
         let groups = [
@@ -521,7 +515,7 @@ pub fn write_snapshot_shared(
             Some(f) => (f.close().map_err(h5err(path, ""))).and_then(|()| commit_tmp(&tmp, path)),
             None => Ok(()),
         };
-        agree(closed)
+        go_on(c, path, closed)
     })();
     if result.is_err() && me == 0 {
         // Best effort: the original error matters more than a failed cleanup.
@@ -533,6 +527,20 @@ pub fn write_snapshot_shared(
 /// A copy of an error to agree on (the original is returned where it arose).
 fn clone_err(e: &IoError) -> IoError {
     IoError::invalid(e.path(), e.to_string())
+}
+
+/// This process's `mine` once every process of `c` has said whether it can go on
+/// (collective): its own error as it arose, else the first other process's, else its value.
+fn go_on<T>(
+    c: &dyn crate::dist::Collective,
+    path: &Path,
+    mine: Result<T, IoError>,
+) -> Result<T, IoError> {
+    let said = agreed(c, path, mine.as_ref().map(|_| ()).map_err(clone_err));
+    match (mine, said) {
+        (Err(e), _) | (Ok(_), Err(e)) => Err(e),
+        (Ok(t), Ok(())) => Ok(t),
+    }
 }
 
 fn write_header(
@@ -652,118 +660,58 @@ fn write_group(
 ) -> Result<(), IoError> {
     let obj = format!("/{name}");
     let g = file.map(|f| f.create_group(name).map_err(h5err(path, &obj)));
-    let g = || g.as_ref().map(|r| r.as_ref().map_err(clone_err));
-    // Each dataset agreed before the next: no process sends chunks process 0 stopped reading.
-    let put = |r: Result<(), IoError>| agreed(c, path, r);
-    put(put_dataset_shared(
-        g(),
-        COORDINATES,
-        cols.x.as_flattened(),
-        3,
+    let at = SharedGroup {
+        g: g.as_ref(),
         share,
         path,
         c,
         filter,
-    ))?;
-    put(put_dataset_shared(
-        g(),
-        VELOCITIES,
-        cols.v.as_flattened(),
-        3,
-        share,
-        path,
-        c,
-        filter,
-    ))?;
-    put(put_dataset_shared(
-        g(),
-        MASSES,
-        &cols.m,
-        1,
-        share,
-        path,
-        c,
-        filter,
-    ))?;
-    put(put_dataset_shared(
-        g(),
-        DENSITY,
-        &cols.rho,
-        1,
-        share,
-        path,
-        c,
-        filter,
-    ))?;
+    };
+    at.put(COORDINATES, cols.x.as_flattened(), 3)?;
+    at.put(VELOCITIES, cols.v.as_flattened(), 3)?;
+    at.put(MASSES, &cols.m, 1)?;
+    at.put(DENSITY, &cols.rho, 1)?;
     if let Some(e) = &cols.e {
-        put(put_dataset_shared(
-            g(),
-            INTERNAL_ENERGY,
-            e,
-            1,
-            share,
-            path,
-            c,
-            filter,
-        ))?;
+        at.put(INTERNAL_ENERGY, e, 1)?;
     }
     if let Some(p) = &cols.p {
-        put(put_dataset_shared(
-            g(),
-            PRESSURE,
-            p,
-            1,
-            share,
-            path,
-            c,
-            filter,
-        ))?;
+        at.put(PRESSURE, p, 1)?;
     }
-    put(put_dataset_shared(
-        g(),
-        SMOOTHING_LENGTH,
-        &cols.h,
-        1,
-        share,
-        path,
-        c,
-        filter,
-    ))?;
-    put(put_dataset_shared(
-        g(),
-        PARTICLE_IDS,
-        &cols.id,
-        1,
-        share,
-        path,
-        c,
-        filter,
-    ))?;
+    at.put(SMOOTHING_LENGTH, &cols.h, 1)?;
+    at.put(PARTICLE_IDS, &cols.id, 1)?;
     if let Some(f) = &cols.fraction {
-        put(put_dataset_shared(
-            g(),
-            FRACTION_INDEX,
-            f,
-            1,
-            share,
-            path,
-            c,
-            filter,
-        ))?;
+        at.put(FRACTION_INDEX, f, 1)?;
     }
     if let Some(t) = &cols.t_stop {
-        put(put_dataset_shared(
-            g(),
-            STOPPING_TIME,
-            t,
-            1,
-            share,
-            path,
-            c,
-            filter,
-        ))?;
+        at.put(STOPPING_TIME, t, 1)?;
     }
     Ok(())
+}
+
+/// A group written by share: process 0's group (or why it has none; `None` elsewhere), where
+/// each process's rows lie, and how the chunks are filtered.
+struct SharedGroup<'a> {
+    g: Option<&'a Result<Group, IoError>>,
+    share: &'a RowShare,
+    path: &'a Path,
+    c: &'a dyn crate::dist::Collective,
+    filter: &'a dyn super::chunks::ChunkFilter,
+}
+
+impl SharedGroup<'_> {
+    /// One dataset of this process's rows `data` (`width` values a row), agreed by every
+    /// process before the next: no process sends chunks process 0 stopped reading.
+    fn put<T: H5Type + Copy + Sync>(
+        &self,
+        name: &str,
+        data: &[T],
+        width: usize,
+    ) -> Result<(), IoError> {
+        let g = self.g.map(|r| r.as_ref().map_err(clone_err));
+        let (share, path, c) = (self.share, self.path, self.c);
+        let put = put_dataset_shared(g, name, data, width, share, path, c, self.filter);
+        agreed(c, path, put)
+    }
 }
 
 /// Every process's verdict on a step of a shared write: the first process's error on each.

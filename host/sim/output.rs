@@ -365,7 +365,7 @@ fn ball_core(
     let (rho, p) = (b.background.rho, b.background.p);
     let cs = phys.eos.sound_speed(rho, p);
     let eps: f64 = sc.fractions().iter().map(|f| f.eps).sum();
-    analysis::ball::core_check_over(c, state, (b.radius, rho, eps * rho, p, cs, phys.h))
+    analysis::ball::core_check(c, state, (b.radius, rho, eps * rho, p, cs, phys.h))
 }
 
 /// The ball's Lagrange–Jacobi terms while it runs (a checkpoint keeps them).
