@@ -186,6 +186,8 @@ pub mod motion;
 #[cfg(feature = "mpi")]
 pub mod ranks;
 pub mod records;
+#[cfg(test)]
+pub mod threads;
 
 /// What this process sent to other ranks and how long it waited in the exchanges, since it
 /// started (docs/scaling.md, "Measured"): the particle exchanges (migration, halo copies, the

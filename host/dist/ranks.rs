@@ -1020,17 +1020,22 @@ impl RankStepper {
         Ok(Some(ts))
     }
 
-    /// This rank's own particles as they stand (a copy: the resident engine's host copy less
-    /// its ghosts, or the rank's share).
-    pub fn own_state(&self) -> State {
-        match (&self.resident, self.owned_stale) {
-            (Some(r), true) => {
-                let mut own = r.local.clone();
-                own.retain_rows(&r.flags.iter().map(|&g| !g).collect::<Vec<_>>());
-                own
+    /// `f` of this rank's own particles as they stand, at time `t`, step `step`, read where they
+    /// lie (the resident engine's host copy drops its ghost rows until the next sync: a retake
+    /// of the next step starts from them, none flagged), and the ranks.
+    pub fn with_own<R>(&mut self, t: f64, step: u64, f: impl FnOnce(&State, &World) -> R) -> R {
+        let own = match (self.resident.as_mut(), self.owned_stale) {
+            (Some(res), true) => {
+                res.local
+                    .retain_rows(&res.flags.iter().map(|&g| !g).collect::<Vec<_>>());
+                res.flags = vec![false; res.local.len()];
+                &mut res.local
             }
-            _ => self.own.clone(),
-        }
+            _ => &mut self.own,
+        };
+        own.t = t;
+        own.step = step;
+        f(own, &self.world)
     }
 
     /// An output written by share: `write` gets this rank's own particles at time `t`, step
@@ -1048,27 +1053,24 @@ impl RankStepper {
         let Some(ts) = self.output_fields_here(t, step, &mut t0)? else {
             return Ok(None);
         };
-        let (res, world) = (
-            self.resident.as_mut().expect("fields computed"),
-            &self.world,
-        );
-        // The host copy (synced whole by the stopping times) keeps only the own rows from
-        // here to the next sync (a retake of the next step starts from them: no ghost is
-        // flagged), and the output reads them where they lie.
-        let keep: Vec<bool> = res.flags.iter().map(|&g| !g).collect();
+        let res = self.resident.as_ref().expect("fields computed");
+        // The stopping times of the own rows (`with_own` drops the ghosts' rows).
         let mut at = res.local.gas.ph.len();
         let ts: Vec<Vec<f64>> = (ts.into_iter().zip(&res.local.dust))
             .map(|(v, ph)| {
-                let k = &keep[at..at + ph.len()];
+                let g = &res.flags[at..at + ph.len()];
                 at += ph.len();
-                v.into_iter().zip(k).filter(|p| *p.1).map(|p| p.0).collect()
+                v.into_iter()
+                    .zip(g)
+                    .filter(|p| !*p.1)
+                    .map(|p| p.0)
+                    .collect()
             })
             .collect();
-        res.local.retain_rows(&keep);
-        res.flags = vec![false; res.local.len()];
+        let done = self.with_own(t, step, |own, world| write(own, &ts, world));
         self.timers
             .add(STAGE_OWN_OUTPUT, t0.elapsed().as_secs_f64());
-        Ok(Some(write(&res.local, &ts, world)))
+        Ok(Some(done))
     }
 
     /// Every rank's particles as one state on rank 0 for an output (`None` on the other

@@ -1,8 +1,9 @@
 //! Checkpoints: the whole particle state in memory order, bit for bit, plus the scene and the
 //! driver's progress, so that `dustsph resume` continues exactly as if never stopped.
+use super::chunks::RowShare;
 use super::snapshot::{
-    get_column, get_optional, get_scalar, get_shaped, get_string, get_vec3, h5err, put_dataset,
-    put_scalar,
+    get_column, get_optional, get_scalar, get_shaped, get_string, get_vec3, go_on, h5err,
+    put_scalar, SharedGroup,
 };
 use super::{commit_tmp, remove_stale, require_parent_dir, tmp_path, IoError, WithPath};
 use crate::particles::{Gas, Phase, State};
@@ -29,21 +30,6 @@ fn vlu(path: &Path, s: &str) -> Result<VarLenUnicode, IoError> {
         .map_err(|e| IoError::invalid(path, format!("text not storable: {e}")))
 }
 
-fn put_phase(file: &File, name: &str, ph: &Phase, path: &Path) -> Result<Group, IoError> {
-    let g = file.create_group(name).map_err(h5err(path, name))?;
-    let flat = |v: &[[f64; 3]]| -> Vec<f64> { v.iter().flatten().copied().collect() };
-    put_dataset(&g, "x", &flat(&ph.x), 3, path)?;
-    put_dataset(&g, "v", &flat(&ph.v), 3, path)?;
-    put_dataset(&g, "m", &ph.m, 1, path)?;
-    put_dataset(&g, "rho", &ph.rho, 1, path)?;
-    put_dataset(&g, "id", &ph.id, 1, path)?;
-    if let Some(f) = &ph.fixed {
-        let f: Vec<u8> = f.iter().map(|&b| b as u8).collect();
-        put_dataset(&g, "fixed", &f, 1, path)?;
-    }
-    Ok(g)
-}
-
 fn get_phase(file: &File, name: &str, path: &Path) -> Result<(Group, Phase), IoError> {
     let g = file.group(name).map_err(h5err(path, name))?;
     let ds = g.dataset("m").map_err(h5err(path, name))?;
@@ -60,106 +46,292 @@ fn get_phase(file: &File, name: &str, path: &Path) -> Result<(Group, Phase), IoE
     Ok((g, ph))
 }
 
-/// FNV-1a over every number and text of a checkpoint in a fixed order: a checkpoint whose
-/// arrays were cut short or altered no longer matches the digest stored in it.
-pub fn digest(state: &State, meta: &CheckpointMeta) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |bytes: &[u8]| {
+/// FNV-1a, fed the checkpoint's numbers and texts in their order.
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Fnv {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+
+    fn eat(&mut self, bytes: &[u8]) {
         for &b in bytes {
-            h ^= b as u64;
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
         }
-    };
-    let f = |v: &[f64], eat: &mut dyn FnMut(&[u8])| {
-        eat(&(v.len() as u64).to_le_bytes());
+    }
+}
+
+/// What a checkpoint holds besides its phases' base columns, in the digest's order: the gas's
+/// columns (name, values a row), each where present.
+const GAS_COLUMNS: [(&str, usize); 6] = [
+    ("p", 1),
+    ("c", 1),
+    ("e", 1),
+    ("h", 1),
+    ("omega", 1),
+    ("next_forces", 5),
+];
+
+/// FNV-1a over every number and text of a checkpoint in a fixed order: a checkpoint whose
+/// arrays were cut short or altered no longer matches the digest stored in it. Each column of
+/// floats is its length then its values; the IDs and the fixed flags their values alone.
+pub fn digest(state: &State, meta: &CheckpointMeta) -> u64 {
+    let mut h = Fnv::new();
+    let f = |v: &[f64], h: &mut Fnv| {
+        h.eat(&(v.len() as u64).to_le_bytes());
         for x in v {
-            eat(&x.to_bits().to_le_bytes());
+            h.eat(&x.to_bits().to_le_bytes());
         }
     };
-    let phase = |ph: &Phase, eat: &mut dyn FnMut(&[u8])| {
-        let flat = |v: &[[f64; 3]]| -> Vec<f64> { v.iter().flatten().copied().collect() };
-        f(&flat(&ph.x), eat);
-        f(&flat(&ph.v), eat);
-        f(&ph.m, eat);
-        f(&ph.rho, eat);
+    let phase = |ph: &Phase, h: &mut Fnv| {
+        f(ph.x.as_flattened(), h);
+        f(ph.v.as_flattened(), h);
+        f(&ph.m, h);
+        f(&ph.rho, h);
         for i in &ph.id {
-            eat(&i.to_le_bytes());
+            h.eat(&i.to_le_bytes());
         }
         if let Some(fx) = &ph.fixed {
-            eat(&fx.iter().map(|&b| b as u8).collect::<Vec<u8>>());
+            h.eat(&fx.iter().map(|&b| b as u8).collect::<Vec<u8>>());
         }
     };
-    eat(&state.t.to_bits().to_le_bytes());
-    eat(&state.step.to_le_bytes());
-    phase(&state.gas.ph, &mut eat);
-    f(&state.gas.p, &mut eat);
-    f(&state.gas.c, &mut eat);
-    for v in [&state.gas.e, &state.gas.h, &state.gas.omega]
-        .into_iter()
-        .flatten()
-    {
-        f(v, &mut eat);
-    }
-    if let Some(nf) = &state.gas.next_forces {
-        f(
-            &nf.iter().flatten().copied().collect::<Vec<f64>>(),
-            &mut eat,
-        );
+    h.eat(&state.t.to_bits().to_le_bytes());
+    h.eat(&state.step.to_le_bytes());
+    phase(&state.gas.ph, &mut h);
+    for (_, v) in gas_columns(&state.gas) {
+        f(&v, &mut h);
     }
     for d in &state.dust {
-        phase(d, &mut eat);
+        phase(d, &mut h);
     }
+    eat_meta(meta, &mut h);
+    h.0
+}
+
+/// The gas's columns of [`GAS_COLUMNS`] that it has, flattened.
+fn gas_columns(g: &Gas) -> Vec<(&'static str, std::borrow::Cow<'_, [f64]>)> {
+    use std::borrow::Cow::Borrowed;
+    let flat = g.next_forces.as_ref().map(|v| v.as_flattened());
+    [
+        Some(&g.p[..]),
+        Some(&g.c[..]),
+        g.e.as_deref(),
+        g.h.as_deref(),
+        g.omega.as_deref(),
+        flat,
+    ]
+    .into_iter()
+    .zip(GAS_COLUMNS)
+    .filter_map(|(v, (name, _))| v.map(|v| (name, Borrowed(v))))
+    .collect()
+}
+
+fn eat_meta(meta: &CheckpointMeta, h: &mut Fnv) {
     for t in [
         &meta.scene_text,
         &meta.scene_file,
         &meta.overrides_json,
         &meta.progress_json,
     ] {
-        eat(t.as_bytes());
-        eat(&[0]);
+        h.eat(t.as_bytes());
+        h.eat(&[0]);
     }
-    h
+}
+
+/// [`digest`] of a checkpoint's file as written (its `t` and `step` given), each column read
+/// back a block of rows at a time: no process holds the whole state to make it.
+fn digest_of_file(
+    file: &File,
+    (t, step, n_dust): (f64, u64, usize),
+    meta: &CheckpointMeta,
+    path: &Path,
+) -> Result<u64, IoError> {
+    const BLOCK: usize = 1 << 16;
+    let mut h = Fnv::new();
+    h.eat(&t.to_bits().to_le_bytes());
+    h.eat(&step.to_le_bytes());
+    // A column's bytes as stored, block by block (little-endian, as the digest eats them).
+    let column = |g: &Group, name: &str, prefix: bool, h: &mut Fnv| -> Result<(), IoError> {
+        let obj = format!("{}/{name}", g.name());
+        let ds = g.dataset(name).map_err(h5err(path, &obj))?;
+        let shape = ds.shape();
+        let rows = shape.first().copied().unwrap_or(0);
+        let width: usize = shape.iter().skip(1).product();
+        if prefix {
+            h.eat(&((rows * width) as u64).to_le_bytes());
+        }
+        let elem = ds.dtype().map_err(h5err(path, &obj))?.size();
+        for lo in (0..rows).step_by(BLOCK) {
+            let hi = (lo + BLOCK).min(rows);
+            let e = h5err(path, &obj);
+            match (elem, width) {
+                (8, 1) if name == "id" => {
+                    let v = ds.read_slice_1d::<u64, _>(lo..hi).map_err(e)?;
+                    h.eat(bytemuck::cast_slice(&v.to_vec()));
+                }
+                (8, 1) => {
+                    let v = ds.read_slice_1d::<f64, _>(lo..hi).map_err(e)?;
+                    h.eat(bytemuck::cast_slice(&v.to_vec()));
+                }
+                (8, _) => {
+                    let v = ds.read_slice_2d::<f64, _>((lo..hi, ..)).map_err(e)?;
+                    h.eat(bytemuck::cast_slice(&v.into_raw_vec_and_offset().0));
+                }
+                _ => h.eat(&ds.read_slice_1d::<u8, _>(lo..hi).map_err(e)?.to_vec()),
+            }
+        }
+        Ok(())
+    };
+    let phase = |g: &Group, h: &mut Fnv| -> Result<(), IoError> {
+        for name in ["x", "v", "m", "rho"] {
+            column(g, name, true, h)?;
+        }
+        column(g, "id", false, h)?;
+        if g.link_exists("fixed") {
+            column(g, "fixed", false, h)?;
+        }
+        Ok(())
+    };
+    let gas = file.group("gas").map_err(h5err(path, "/gas"))?;
+    phase(&gas, &mut h)?;
+    for (name, _) in GAS_COLUMNS {
+        if gas.link_exists(name) {
+            column(&gas, name, true, &mut h)?;
+        }
+    }
+    for k in 0..n_dust {
+        let name = format!("dust{k}");
+        let g = file.group(&name).map_err(h5err(path, &name))?;
+        phase(&g, &mut h)?;
+    }
+    eat_meta(meta, &mut h);
+    Ok(h.0)
 }
 
 /// Write `state` and `meta` to `path` atomically (temporary name, then rename).
 pub fn write_checkpoint(path: &Path, state: &State, meta: &CheckpointMeta) -> Result<(), IoError> {
-    require_parent_dir(path)?;
-    let tmp = tmp_path(path)?;
-    remove_stale(&tmp)?;
+    write_checkpoint_shared(path, state, meta, &crate::dist::Alone)
+}
+
+/// [`write_checkpoint`] of the particles every process of `c` holds a share of (`state`: this
+/// process's; collective): one file, each phase's rows process by process, process 0 writing
+/// it (each chunk filtered where its first row lies: [`super::chunks::write_rows_shared`]) and
+/// its digest, read back a block at a time over several processes. Every process returns the
+/// first process's error; no file is left then.
+pub fn write_checkpoint_shared(
+    path: &Path,
+    state: &State,
+    meta: &CheckpointMeta,
+    c: &dyn crate::dist::Collective,
+) -> Result<(), IoError> {
+    let me = c.rank() as usize;
+    // Which columns each phase has, and this process's rows of each.
+    let phases: Vec<&Phase> = std::iter::once(&state.gas.ph).chain(&state.dust).collect();
+    let gas_cols = gas_columns(&state.gas);
+    let mut mine: Vec<u64> = vec![state.dust.len() as u64];
+    mine.extend(phases.iter().map(|p| p.fixed.is_some() as u64));
+    mine.extend(GAS_COLUMNS.map(|(n, _)| gas_cols.iter().any(|g| g.0 == n) as u64));
+    let flags = mine.len();
+    mine.extend(phases.iter().map(|p| p.len() as u64));
+    let all: Vec<Vec<u64>> = (c.all_gather_bytes(bytemuck::cast_slice(&mine)).iter())
+        .map(|b| {
+            (b.chunks_exact(8))
+                .map(|w| u64::from_le_bytes(w.try_into().expect("8 bytes")))
+                .collect()
+        })
+        .collect();
+    if all.iter().any(|v| v[..flags] != mine[..flags]) {
+        return Err(IoError::invalid(
+            path,
+            "the processes hold different columns or dust fractions",
+        ));
+    }
+    let shares: Vec<RowShare> = (0..phases.len())
+        .map(|k| {
+            RowShare::of(
+                &all.iter().map(|v| vec![v[flags + k]]).collect::<Vec<_>>(),
+                me,
+            )
+        })
+        .collect();
+    let tmp = if me == 0 {
+        require_parent_dir(path).and_then(|()| tmp_path(path))
+    } else {
+        Ok(path.to_path_buf())
+    };
+    let tmp = go_on(c, path, tmp)?;
     let result = (|| {
-        let file = File::create_excl(&tmp).with_path(&tmp)?;
-        let root = file.as_group().map_err(h5err(path, "/"))?;
-        put_scalar(&root, "t", &state.t, path)?;
-        put_scalar(&root, "step", &state.step, path)?;
-        put_scalar(&root, "n_dust", &(state.dust.len() as u64), path)?;
-        put_scalar(&root, "scene_text", &vlu(path, &meta.scene_text)?, path)?;
-        put_scalar(&root, "scene_file", &vlu(path, &meta.scene_file)?, path)?;
-        put_scalar(&root, "overrides", &vlu(path, &meta.overrides_json)?, path)?;
-        put_scalar(&root, "progress", &vlu(path, &meta.progress_json)?, path)?;
-        put_scalar(&root, "checksum", &digest(state, meta), path)?;
-        let g = put_phase(&file, "gas", &state.gas.ph, path)?;
-        put_dataset(&g, "p", &state.gas.p, 1, path)?;
-        put_dataset(&g, "c", &state.gas.c, 1, path)?;
-        for (name, f) in [
-            ("e", &state.gas.e),
-            ("h", &state.gas.h),
-            ("omega", &state.gas.omega),
-        ] {
-            if let Some(f) = f {
-                put_dataset(&g, name, f, 1, path)?;
+        let file = if me == 0 {
+            let made = remove_stale(&tmp)
+                .and_then(|()| File::create_excl(&tmp).with_path(&tmp))
+                .and_then(|file| {
+                    let root = file.as_group().map_err(h5err(path, "/"))?;
+                    put_scalar(&root, "t", &state.t, path)?;
+                    put_scalar(&root, "step", &state.step, path)?;
+                    put_scalar(&root, "n_dust", &(state.dust.len() as u64), path)?;
+                    put_scalar(&root, "scene_text", &vlu(path, &meta.scene_text)?, path)?;
+                    put_scalar(&root, "scene_file", &vlu(path, &meta.scene_file)?, path)?;
+                    put_scalar(&root, "overrides", &vlu(path, &meta.overrides_json)?, path)?;
+                    put_scalar(&root, "progress", &vlu(path, &meta.progress_json)?, path)?;
+                    Ok(file)
+                });
+            Some(go_on(c, path, made)?)
+        } else {
+            go_on(c, path, Ok(()))?;
+            None
+        };
+        for (k, ph) in phases.iter().enumerate() {
+            let name = if k == 0 {
+                "gas".to_string()
+            } else {
+                format!("dust{}", k - 1)
+            };
+            let g = file
+                .as_ref()
+                .map(|f| f.create_group(&name).map_err(h5err(path, &name)));
+            let filter = &super::chunks::OnCores;
+            let at = SharedGroup {
+                g: g.as_ref(),
+                share: &shares[k],
+                path,
+                c,
+                filter,
+            };
+            at.put("x", ph.x.as_flattened(), 3)?;
+            at.put("v", ph.v.as_flattened(), 3)?;
+            at.put("m", &ph.m, 1)?;
+            at.put("rho", &ph.rho, 1)?;
+            at.put("id", &ph.id, 1)?;
+            if let Some(f) = &ph.fixed {
+                at.put("fixed", &f.iter().map(|&b| b as u8).collect::<Vec<u8>>(), 1)?;
+            }
+            if k == 0 {
+                for (name, v) in &gas_cols {
+                    let width = GAS_COLUMNS.iter().find(|g| g.0 == *name).map_or(1, |g| g.1);
+                    at.put(name, v, width)?;
+                }
             }
         }
-        if let Some(f) = &state.gas.next_forces {
-            let flat: Vec<f64> = f.iter().flatten().copied().collect();
-            put_dataset(&g, "next_forces", &flat, 5, path)?;
-        }
-        for (k, d) in state.dust.iter().enumerate() {
-            put_phase(&file, &format!("dust{k}"), d, path)?;
-        }
-        file.close().map_err(h5err(path, ""))
-    })()
-    .and_then(|()| commit_tmp(&tmp, path));
-    if result.is_err() {
+        // The digest: from memory on one process, else read back from the file.
+        let closed = match file {
+            Some(file) => {
+                let sum = match c.size() {
+                    1 => Ok(digest(state, meta)),
+                    _ => digest_of_file(&file, (state.t, state.step, state.dust.len()), meta, path),
+                };
+                sum.and_then(|sum| {
+                    let root = file.as_group().map_err(h5err(path, "/"))?;
+                    put_scalar(&root, "checksum", &sum, path)
+                })
+                .and_then(|()| file.close().map_err(h5err(path, "")))
+                .and_then(|()| commit_tmp(&tmp, path))
+            }
+            None => Ok(()),
+        };
+        go_on(c, path, closed)
+    })();
+    if result.is_err() && me == 0 {
         let _ = std::fs::remove_file(&tmp);
     }
     result
@@ -274,5 +446,85 @@ mod tests {
             std::fs::read_dir(dir.path()).unwrap().count() == 1,
             "no temporary left behind"
         );
+    }
+
+    /// A checkpoint written over 3 processes (threads; an empty share, a fraction held by
+    /// one process alone) reads back whole, its digest read back from the file equal to the
+    /// one made from the state in memory, each phase's rows the shares' end to end.
+    #[test]
+    fn a_checkpoint_written_by_share_reads_back_with_its_digest() {
+        let ph = |n: usize, seed: u64| Phase {
+            x: (0..n)
+                .map(|i| [i as f64 * 0.1 + seed as f64, -0.0, 1e-300])
+                .collect(),
+            v: (0..n)
+                .map(|i| [1.0 / (i as f64 + 3.0), 0.0, 1e300])
+                .collect(),
+            m: vec![0.1; n],
+            rho: (0..n).map(|i| 1.0 + i as f64 / 7.0).collect(),
+            id: (0..n as u64).map(|i| seed << 32 | i).collect(),
+            fixed: None,
+        };
+        let cut = |p: &Phase, lo: usize, hi: usize| {
+            let mut q = p.clone();
+            q.retain_rows(&(0..p.len()).map(|i| i >= lo && i < hi).collect::<Vec<_>>());
+            q
+        };
+        let n = 100_000;
+        let whole = State {
+            t: 0.5,
+            step: 7,
+            gas: Gas {
+                ph: ph(n, 0),
+                p: (0..n).map(|i| i as f64).collect(),
+                c: vec![1.1; n],
+                e: None,
+                h: Some(vec![0.01; n]),
+                omega: Some(vec![1.0; n]),
+                next_forces: Some((0..n).map(|i| [i as f64, 1.0, 2.0, 3.0, 4.0]).collect()),
+            },
+            dust: vec![ph(70_000, 1), ph(3, 2)],
+        };
+        let meta = CheckpointMeta {
+            scene_text: "[scene]".into(),
+            scene_file: "x.toml".into(),
+            overrides_json: "[]".into(),
+            progress_json: "{}".into(),
+        };
+        let cuts = [[0, 40_000, 40_000, n], [0, 1, 50_000, 70_000], [0, 0, 3, 3]];
+        let share = |q: usize| {
+            let mut g = whole.gas.clone();
+            let keep: Vec<bool> = (0..n)
+                .map(|i| i >= cuts[0][q] && i < cuts[0][q + 1])
+                .collect();
+            g.retain_rows(&keep);
+            State {
+                t: whole.t,
+                step: whole.step,
+                gas: g,
+                dust: (1..3)
+                    .map(|k| cut(&whole.dust[k - 1], cuts[k][q], cuts[k][q + 1]))
+                    .collect(),
+            }
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join(CHECKPOINT_NAME);
+        std::thread::scope(|s| {
+            let handles: Vec<_> = (crate::dist::threads::Threads::group(3)
+                .into_iter()
+                .enumerate())
+            .map(|(q, c)| {
+                let (mine, p, meta) = (share(q), &p, &meta);
+                s.spawn(move || write_checkpoint_shared(p, &mine, meta, &c).unwrap())
+            })
+            .collect();
+            handles.into_iter().for_each(|h| h.join().unwrap());
+        });
+        let (back, m2) = read_checkpoint(&p).unwrap();
+        assert_eq!(back, whole);
+        assert_eq!(m2, meta);
+        let file = File::open(&p).unwrap();
+        let sum = digest_of_file(&file, (0.5, 7, 2), &meta, &p).unwrap();
+        assert_eq!(sum, digest(&whole, &meta));
     }
 }

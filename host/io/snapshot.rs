@@ -525,13 +525,13 @@ pub fn write_snapshot_shared(
 }
 
 /// A copy of an error to agree on (the original is returned where it arose).
-fn clone_err(e: &IoError) -> IoError {
+pub(crate) fn clone_err(e: &IoError) -> IoError {
     IoError::invalid(e.path(), e.to_string())
 }
 
 /// This process's `mine` once every process of `c` has said whether it can go on
 /// (collective): its own error as it arose, else the first other process's, else its value.
-fn go_on<T>(
+pub(crate) fn go_on<T>(
     c: &dyn crate::dist::Collective,
     path: &Path,
     mine: Result<T, IoError>,
@@ -690,18 +690,18 @@ fn write_group(
 
 /// A group written by share: process 0's group (or why it has none; `None` elsewhere), where
 /// each process's rows lie, and how the chunks are filtered.
-struct SharedGroup<'a> {
-    g: Option<&'a Result<Group, IoError>>,
-    share: &'a RowShare,
-    path: &'a Path,
-    c: &'a dyn crate::dist::Collective,
-    filter: &'a dyn super::chunks::ChunkFilter,
+pub(crate) struct SharedGroup<'a> {
+    pub g: Option<&'a Result<Group, IoError>>,
+    pub share: &'a RowShare,
+    pub path: &'a Path,
+    pub c: &'a dyn crate::dist::Collective,
+    pub filter: &'a dyn super::chunks::ChunkFilter,
 }
 
 impl SharedGroup<'_> {
     /// One dataset of this process's rows `data` (`width` values a row), agreed by every
     /// process before the next: no process sends chunks process 0 stopped reading.
-    fn put<T: H5Type + Copy + Sync>(
+    pub(crate) fn put<T: H5Type + Copy + Sync>(
         &self,
         name: &str,
         data: &[T],
@@ -727,6 +727,7 @@ fn agreed(
 
 /// Writes `data` as an N (width 1) or N×width dataset, chunked and compressed unless empty
 /// (the filters run on every core: [`super::chunks`]).
+#[cfg(test)]
 pub(crate) fn put_dataset<T: H5Type + Copy + Sync>(
     g: &Group,
     name: &str,

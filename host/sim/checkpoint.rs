@@ -49,7 +49,6 @@ impl Checkpointer for RunCheckpoints {
         sim: &mut Simulation,
         parts: Vec<(&'static str, serde_json::Value)>,
     ) -> Result<(), RunError> {
-        sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
         let part = |name: &str| {
             parts
                 .iter()
@@ -73,15 +72,27 @@ impl Checkpointer for RunCheckpoints {
             overrides_json: serde_json::to_string(&self.loaded.overrides).map_err(io_err)?,
             progress_json: serde_json::to_string(&progress).map_err(io_err)?,
         };
-        let written = if sim.is_root() {
-            io::checkpoint::write_checkpoint(
-                &self.dir.join(io::checkpoint::CHECKPOINT_NAME),
-                &sim.state,
-                &meta,
-            )
-            .map_err(|e| RunError::Io(e.to_string()))
-        } else {
-            Ok(())
+        let path = self.dir.join(io::checkpoint::CHECKPOINT_NAME);
+        let io_err = |e: io::IoError| RunError::Io(e.to_string());
+        // Over ranks whose outputs are written by share, each rank writes its own particles
+        // into the one file; elsewhere rank 0 writes the whole state, gathered.
+        #[cfg(feature = "mpi")]
+        let shared = (sim.stepper).with_own(&sim.state, |own, w| {
+            io::checkpoint::write_checkpoint_shared(&path, own, &meta, w).map_err(io_err)
+        });
+        #[cfg(not(feature = "mpi"))]
+        let shared: Option<Result<(), RunError>> = None;
+        let written = match shared {
+            Some(w) => w,
+            None => {
+                sim.sync().map_err(|e| RunError::Step(e.to_string()))?;
+                match sim.is_root() {
+                    true => {
+                        io::checkpoint::write_checkpoint(&path, &sim.state, &meta).map_err(io_err)
+                    }
+                    false => Ok(()),
+                }
+            }
         };
         if sim.any(written.is_err()) {
             written.clone()?;

@@ -88,14 +88,28 @@ impl Stepper {
     /// the outputs are written by share, of every rank's own particles.
     pub fn totals(&mut self, state: &State) -> crate::sim::diagnostics::Totals {
         use crate::sim::diagnostics::Totals;
+        #[cfg(feature = "mpi")]
+        if let Some(t) = self.with_own(state, |own, w| Totals::of(own).reduce(w)) {
+            return t;
+        }
+        Totals::of(state)
+    }
+
+    /// Where the outputs are written by share: `f` of this rank's own particles as they stand
+    /// (at `state`'s time and step) and the ranks (collective where `f` is); `None` elsewhere.
+    #[cfg(feature = "mpi")]
+    pub fn with_own<R>(
+        &mut self,
+        state: &State,
+        f: impl FnOnce(&State, &crate::dist::comm::World) -> R,
+    ) -> Option<R> {
         match self {
-            #[cfg(feature = "mpi")]
             Stepper::Ranks {
                 ranks,
                 by_share: true,
                 ..
-            } => Totals::of(&ranks.own_state()).reduce(&ranks.world),
-            _ => Totals::of(state),
+            } => Some(ranks.with_own(state.t, state.step, f)),
+            _ => None,
         }
     }
 

@@ -629,107 +629,6 @@ fn reader_rejects_counts_that_disagree_with_the_data() {
     assert!(err.to_string().contains("/PartType0/"), "{err}");
 }
 
-/// Processes as threads: every collective sends each thread's part to every thread (pair
-/// channels, in call order) and reads every thread's in rank order; the stream to process 0
-/// has channels of its own.
-struct Threads {
-    rank: usize,
-    to: Vec<std::sync::mpsc::Sender<Vec<u8>>>,
-    from: Vec<std::sync::mpsc::Receiver<Vec<u8>>>,
-    root: std::sync::mpsc::Sender<Vec<u8>>,
-    streams: Vec<std::sync::mpsc::Receiver<Vec<u8>>>,
-}
-
-impl Threads {
-    fn group(n: usize) -> Vec<Threads> {
-        use std::sync::mpsc::channel;
-        let mut tx: Vec<Vec<_>> = (0..n).map(|_| Vec::new()).collect();
-        let mut rx: Vec<Vec<_>> = (0..n).map(|_| Vec::new()).collect();
-        for (a, to) in tx.iter_mut().enumerate() {
-            for from in rx.iter_mut() {
-                let (t, r) = channel();
-                to.push(t);
-                from.push((a, r));
-            }
-        }
-        let (stx, srx): (Vec<_>, Vec<_>) = (0..n).map(|_| channel()).unzip();
-        let mut srx = Some(srx);
-        (tx.into_iter().zip(rx).zip(stx).enumerate())
-            .map(|(rank, ((to, mut from), root))| {
-                from.sort_by_key(|f| f.0);
-                Threads {
-                    rank,
-                    to,
-                    from: from.into_iter().map(|f| f.1).collect(),
-                    root,
-                    streams: if rank == 0 {
-                        srx.take().unwrap()
-                    } else {
-                        Vec::new()
-                    },
-                }
-            })
-            .collect()
-    }
-
-    fn all(&self, mine: &[u8]) -> Vec<Vec<u8>> {
-        for t in &self.to {
-            t.send(mine.to_vec()).unwrap();
-        }
-        self.from.iter().map(|r| r.recv().unwrap()).collect()
-    }
-
-    fn fold(&self, v: &mut [f64], f: fn(f64, f64) -> f64) {
-        let all = self.all(bytemuck::cast_slice(v));
-        for (i, x) in v.iter_mut().enumerate() {
-            *x = (all.iter())
-                .map(|b| bytemuck::pod_read_unaligned::<f64>(&b[8 * i..8 * i + 8]))
-                .reduce(f)
-                .unwrap();
-        }
-    }
-}
-
-impl crate::dist::Collective for Threads {
-    fn rank(&self) -> u32 {
-        self.rank as u32
-    }
-    fn size(&self) -> u32 {
-        self.to.len() as u32
-    }
-    fn max_f64(&self, v: &mut [f64]) {
-        self.fold(v, f64::max)
-    }
-    fn sum_f64(&self, v: &mut [f64]) {
-        self.fold(v, |a, b| a + b)
-    }
-    fn sum_u64(&self, v: &mut [u64]) {
-        let all = self.all(bytemuck::cast_slice(v));
-        for (i, x) in v.iter_mut().enumerate() {
-            *x = (all.iter())
-                .map(|b| bytemuck::pod_read_unaligned::<u64>(&b[8 * i..8 * i + 8]))
-                .sum();
-        }
-    }
-    fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
-        self.all(mine)
-    }
-    fn exchange_bytes(&self, send: &[u8], counts: &[usize]) -> Result<Vec<u8>, String> {
-        let mut at = 0;
-        for (t, &n) in self.to.iter().zip(counts) {
-            t.send(send[at..at + n].to_vec()).unwrap();
-            at += n;
-        }
-        Ok(self.from.iter().flat_map(|r| r.recv().unwrap()).collect())
-    }
-    fn send_to_root(&self, bytes: &[u8]) {
-        self.root.send(bytes.to_vec()).unwrap();
-    }
-    fn receive_from(&self, from: u32) -> Vec<u8> {
-        self.streams[from as usize].recv().unwrap()
-    }
-}
-
 /// Each process's share of a phase: rows `lo..hi` of it.
 fn rows<'a>(v: &PhaseView<'a>, lo: usize, hi: usize) -> PhaseView<'a> {
     PhaseView {
@@ -773,23 +672,25 @@ fn a_snapshot_written_by_share_reads_back_as_the_whole_written_alone() {
     ];
     let shared = dir.path().join("shared.h5");
     let got: Vec<Result<[u64; 2], String>> = std::thread::scope(|s| {
-        let handles: Vec<_> = (Threads::group(3).into_iter().enumerate())
-            .map(|(q, c)| {
-                let (whole, shared) = (&whole, &shared);
-                s.spawn(move || {
-                    let g = whole.gas.as_ref().unwrap();
-                    let mine = snap(
-                        Some(rows(g, cuts[0][q], cuts[0][q + 1])),
-                        vec![
-                            rows(&whole.dust[0], cuts[1][q], cuts[1][q + 1]),
-                            rows(&whole.dust[1], cuts[2][q], cuts[2][q + 1]),
-                        ],
-                    );
-                    write_snapshot_shared(shared, &mine, &c, &crate::io::chunks::OnCores)
-                        .map_err(|e| e.to_string())
-                })
+        let handles: Vec<_> = (crate::dist::threads::Threads::group(3)
+            .into_iter()
+            .enumerate())
+        .map(|(q, c)| {
+            let (whole, shared) = (&whole, &shared);
+            s.spawn(move || {
+                let g = whole.gas.as_ref().unwrap();
+                let mine = snap(
+                    Some(rows(g, cuts[0][q], cuts[0][q + 1])),
+                    vec![
+                        rows(&whole.dust[0], cuts[1][q], cuts[1][q + 1]),
+                        rows(&whole.dust[1], cuts[2][q], cuts[2][q + 1]),
+                    ],
+                );
+                write_snapshot_shared(shared, &mine, &c, &crate::io::chunks::OnCores)
+                    .map_err(|e| e.to_string())
             })
-            .collect();
+        })
+        .collect();
         handles.into_iter().map(|h| h.join().unwrap()).collect()
     });
     for r in &got {
@@ -814,20 +715,22 @@ fn a_write_by_share_refused_on_one_process_leaves_no_file_on_any() {
     let d0 = Phase::new(100, 2);
     let path = dir.path().join("s.h5");
     let got: Vec<String> = std::thread::scope(|s| {
-        let handles: Vec<_> = (Threads::group(2).into_iter().enumerate())
-            .map(|(q, c)| {
-                let (d0, path) = (&d0, &path);
-                s.spawn(move || {
-                    let mine = snap(
-                        None,
-                        vec![rows(&d0.view(0.1, false, q == 0), 50 * q, 50 * q + 50)],
-                    );
-                    write_snapshot_shared(path, &mine, &c, &crate::io::chunks::OnCores)
-                        .unwrap_err()
-                        .to_string()
-                })
+        let handles: Vec<_> = (crate::dist::threads::Threads::group(2)
+            .into_iter()
+            .enumerate())
+        .map(|(q, c)| {
+            let (d0, path) = (&d0, &path);
+            s.spawn(move || {
+                let mine = snap(
+                    None,
+                    vec![rows(&d0.view(0.1, false, q == 0), 50 * q, 50 * q + 50)],
+                );
+                write_snapshot_shared(path, &mine, &c, &crate::io::chunks::OnCores)
+                    .unwrap_err()
+                    .to_string()
             })
-            .collect();
+        })
+        .collect();
         handles.into_iter().map(|h| h.join().unwrap()).collect()
     });
     assert_eq!(got[0], got[1]);
