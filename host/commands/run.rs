@@ -175,8 +175,8 @@ impl Run {
     }
 
     /// Over ranks, no rank keeps the whole state: each steps its share and writes it into each
-    /// output (rank 0 gathers the whole for an output only on the settling column, the deep
-    /// halo and at a checkpoint).
+    /// output and checkpoint (rank 0 gathers the whole for an output only on the settling
+    /// column and the deep halo).
     fn shed_whole_state(&mut self) {
         self.sim.shed_gathered();
     }
