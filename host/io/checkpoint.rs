@@ -2,10 +2,10 @@
 //! driver's progress, so that `dustsph resume` continues exactly as if never stopped.
 use super::chunks::RowShare;
 use super::snapshot::{
-    get_column, get_optional, get_scalar, get_shaped, get_string, get_vec3, go_on, h5err,
-    put_scalar, SharedGroup,
+    create_shared, get_column, get_optional, get_scalar, get_shaped, get_string, get_vec3, go_on,
+    h5err, put_scalar, same_columns, SharedGroup,
 };
-use super::{commit_tmp, remove_stale, require_parent_dir, tmp_path, IoError, WithPath};
+use super::{commit_tmp, IoError, WithPath};
 use crate::particles::{Gas, Phase, State};
 use hdf5::types::VarLenUnicode;
 use hdf5::{File, Group};
@@ -234,19 +234,7 @@ pub fn write_checkpoint_shared(
     mine.extend(GAS_COLUMNS.map(|(n, _)| gas_cols.iter().any(|g| g.0 == n) as u64));
     let flags = mine.len();
     mine.extend(phases.iter().map(|p| p.len() as u64));
-    let all: Vec<Vec<u64>> = (c.all_gather_bytes(bytemuck::cast_slice(&mine)).iter())
-        .map(|b| {
-            (b.chunks_exact(8))
-                .map(|w| u64::from_le_bytes(w.try_into().expect("8 bytes")))
-                .collect()
-        })
-        .collect();
-    if all.iter().any(|v| v[..flags] != mine[..flags]) {
-        return Err(IoError::invalid(
-            path,
-            "the processes hold different columns or dust fractions",
-        ));
-    }
+    let all = same_columns(c, path, &mine, flags)?;
     let shares: Vec<RowShare> = (0..phases.len())
         .map(|k| {
             RowShare::of(
@@ -255,32 +243,18 @@ pub fn write_checkpoint_shared(
             )
         })
         .collect();
-    let tmp = if me == 0 {
-        require_parent_dir(path).and_then(|()| tmp_path(path))
-    } else {
-        Ok(path.to_path_buf())
+    let begin = |file: &File| {
+        let root = file.as_group().map_err(h5err(path, "/"))?;
+        put_scalar(&root, "t", &state.t, path)?;
+        put_scalar(&root, "step", &state.step, path)?;
+        put_scalar(&root, "n_dust", &(state.dust.len() as u64), path)?;
+        put_scalar(&root, "scene_text", &vlu(path, &meta.scene_text)?, path)?;
+        put_scalar(&root, "scene_file", &vlu(path, &meta.scene_file)?, path)?;
+        put_scalar(&root, "overrides", &vlu(path, &meta.overrides_json)?, path)?;
+        put_scalar(&root, "progress", &vlu(path, &meta.progress_json)?, path)
     };
-    let tmp = go_on(c, path, tmp)?;
+    let (tmp, file) = create_shared(c, path, begin)?;
     let result = (|| {
-        let file = if me == 0 {
-            let made = remove_stale(&tmp)
-                .and_then(|()| File::create_excl(&tmp).with_path(&tmp))
-                .and_then(|file| {
-                    let root = file.as_group().map_err(h5err(path, "/"))?;
-                    put_scalar(&root, "t", &state.t, path)?;
-                    put_scalar(&root, "step", &state.step, path)?;
-                    put_scalar(&root, "n_dust", &(state.dust.len() as u64), path)?;
-                    put_scalar(&root, "scene_text", &vlu(path, &meta.scene_text)?, path)?;
-                    put_scalar(&root, "scene_file", &vlu(path, &meta.scene_file)?, path)?;
-                    put_scalar(&root, "overrides", &vlu(path, &meta.overrides_json)?, path)?;
-                    put_scalar(&root, "progress", &vlu(path, &meta.progress_json)?, path)?;
-                    Ok(file)
-                });
-            Some(go_on(c, path, made)?)
-        } else {
-            go_on(c, path, Ok(()))?;
-            None
-        };
         for (k, ph) in phases.iter().enumerate() {
             let name = if k == 0 {
                 "gas".to_string()

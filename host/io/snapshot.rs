@@ -454,19 +454,7 @@ pub fn write_snapshot_shared(
         Err(_) => Vec::new(),
     };
     let (scene, gas, dust) = go_on(c, path, checked)?;
-    let all: Vec<Vec<u64>> = (c.all_gather_bytes(bytemuck::cast_slice(&mine)).iter())
-        .map(|b| {
-            (b.chunks_exact(8))
-                .map(|w| u64::from_le_bytes(w.try_into().expect("8 bytes")))
-                .collect()
-        })
-        .collect();
-    if all.iter().any(|v| v[..6] != mine[..6]) {
-        return Err(IoError::invalid(
-            path,
-            "the processes hold different columns or dust fractions",
-        ));
-    }
+    let all = same_columns(c, path, &mine, 6)?;
     let me = c.rank() as usize;
     let gas_share = RowShare::of(&all.iter().map(|v| vec![v[6]]).collect::<Vec<_>>(), me);
     let dust_share = RowShare::of(&all.iter().map(|v| v[7..].to_vec()).collect::<Vec<_>>(), me);
@@ -481,26 +469,9 @@ pub fn write_snapshot_shared(
     let mut num_part = [0u64; 6];
     num_part[GAS_TYPE] = if gas.is_some() { gas_share.total } else { 0 };
     num_part[DUST_TYPE] = if dust.is_some() { dust_share.total } else { 0 };
-    let tmp = if me == 0 {
-        require_parent_dir(path).and_then(|()| tmp_path(path))
-    } else {
-        Ok(path.to_path_buf())
-    };
-    let tmp = go_on(c, path, tmp)?;
+    let header = |f: &File| write_header(f, path, snap, &frame, &scene, &num_part);
+    let (tmp, file) = create_shared(c, path, header)?;
     let result = (|| {
-        // create_excl: never write through something that appeared under the temporary name.
-        let file = if me == 0 {
-            let made = remove_stale(&tmp)
-                .and_then(|()| File::create_excl(&tmp).with_path(&tmp))
-                .and_then(|f| {
-                    write_header(&f, path, snap, &frame, &scene, &num_part)?;
-                    Ok(f)
-                });
-            Some(go_on(c, path, made)?)
-        } else {
-            go_on(c, path, Ok(()))?;
-            None
-        };
         let groups = [
             (GAS_GROUP, gas.as_ref(), &gas_share),
             (DUST_GROUP, dust.as_ref(), &dust_share),
@@ -522,6 +493,57 @@ pub fn write_snapshot_shared(
         let _ = fs::remove_file(&tmp);
     }
     result.map(|()| [num_part[GAS_TYPE], num_part[DUST_TYPE]])
+}
+
+/// Every process's `mine` (counts), in rank order, once every process has checked that its
+/// first `same` entries (which columns it has) are everyone's (collective).
+pub(crate) fn same_columns(
+    c: &dyn crate::dist::Collective,
+    path: &Path,
+    mine: &[u64],
+    same: usize,
+) -> Result<Vec<Vec<u64>>, IoError> {
+    let all: Vec<Vec<u64>> = (c.all_gather_bytes(bytemuck::cast_slice(mine)).iter())
+        .map(|b| {
+            (b.chunks_exact(8))
+                .map(|w| u64::from_le_bytes(w.try_into().expect("8 bytes")))
+                .collect()
+        })
+        .collect();
+    if all.iter().any(|v| v[..same] != mine[..same]) {
+        return Err(IoError::invalid(
+            path,
+            "the processes hold different columns or dust fractions",
+        ));
+    }
+    Ok(all)
+}
+
+/// A file written by share: on process 0 a new file under a temporary name beside `path`
+/// (`create_excl`: never through something that appeared under that name), begun by `begin`;
+/// the temporary name, and the file on process 0 (collective: every process goes on, or none).
+pub(crate) fn create_shared(
+    c: &dyn crate::dist::Collective,
+    path: &Path,
+    begin: impl FnOnce(&File) -> Result<(), IoError>,
+) -> Result<(std::path::PathBuf, Option<File>), IoError> {
+    if c.rank() != 0 {
+        go_on(c, path, Ok(()))?;
+        go_on(c, path, Ok(()))?;
+        return Ok((path.to_path_buf(), None));
+    }
+    let tmp = go_on(
+        c,
+        path,
+        require_parent_dir(path).and_then(|()| tmp_path(path)),
+    )?;
+    let made = remove_stale(&tmp)
+        .and_then(|()| File::create_excl(&tmp).with_path(&tmp))
+        .and_then(|f| begin(&f).map(|()| f));
+    if made.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    Ok((tmp, Some(go_on(c, path, made)?)))
 }
 
 /// A copy of an error to agree on (the original is returned where it arose).
