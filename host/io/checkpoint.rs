@@ -1,5 +1,6 @@
-//! Checkpoints: the whole particle state in memory order, bit for bit, plus the scene and the
-//! driver's progress, so that `dustsph resume` continues exactly as if never stopped.
+//! Checkpoints: the whole particle state in memory order (over MPI ranks each phase rank by
+//! rank, each written by its rank), bit for bit, plus the scene and the driver's progress, so
+//! that `dustsph resume` continues exactly as if never stopped.
 use super::chunks::RowShare;
 use super::snapshot::{
     create_shared, get_column, get_optional, get_scalar, get_shaped, get_string, get_vec3, go_on,
