@@ -21,8 +21,8 @@ pub use output_dir::{
     owned_or_temporary, prepare_dir, prepare_output_dir, snapshot_name, write_json_atomic,
 };
 pub use snapshot::{
-    read_snapshot, write_snapshot, write_snapshot_shared, write_snapshot_with, PhaseData,
-    PhaseView, SceneSource, SnapshotData, SnapshotView,
+    read_snapshot, write_snapshot, write_snapshot_shared, PhaseData, PhaseView, SceneSource,
+    SnapshotData, SnapshotView,
 };
 pub use xdmf::{write_xdmf, write_xdmf_series, write_xdmf_view, write_xdmf_view_rows};
 

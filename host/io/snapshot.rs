@@ -399,17 +399,8 @@ struct SceneTexts {
 /// (e.g. ".snapshot_0003.h5.tmp"), flush/close, then rename. No half-written file ever carries
 /// the final name.
 pub fn write_snapshot(path: &Path, snap: &SnapshotView) -> Result<(), IoError> {
-    write_snapshot_with(path, snap, &super::chunks::OnCores)
-}
-
-/// [`write_snapshot`], the datasets' chunks filtered by `filter` (over MPI ranks, while rank 0
-/// writes the whole state, on every rank: `dist::farm`).
-pub fn write_snapshot_with(
-    path: &Path,
-    snap: &SnapshotView,
-    filter: &dyn super::chunks::ChunkFilter,
-) -> Result<(), IoError> {
-    write_snapshot_shared(path, snap, &crate::dist::Alone, filter).map(|_| ())
+    let (c, filter) = (&crate::dist::Alone, &super::chunks::OnCores);
+    write_snapshot_shared(path, snap, c, filter).map(|_| ())
 }
 
 /// The snapshot of particles every process of `c` holds a share of (collective; `snap`: this
