@@ -101,6 +101,9 @@ pub struct Cells {
     /// Occupied cells: (Morton key, coordinates), sorted by key.
     pub order: Vec<(u64, [u32; 3])>,
     pub total: u64,
+    /// The measured cost per cell (row-major, summed over ranks), where the cut follows it
+    /// rather than the counts ([`Cells::with_cost`]).
+    pub cost: Option<Vec<f64>>,
 }
 
 impl Cells {
@@ -132,6 +135,26 @@ impl Cells {
             count,
             order,
             total,
+            cost: None,
+        }
+    }
+
+    /// The same cells, cut into ranges of equal `cost` (one per cell, row-major) instead of
+    /// equal counts.
+    pub fn with_cost(self, cost: Vec<f64>) -> Cells {
+        assert_eq!(cost.len(), self.count.len(), "one cost per cell");
+        Cells {
+            cost: Some(cost),
+            ..self
+        }
+    }
+
+    /// What the cut shares out in cell `i` (row-major): its cost where measured, else its
+    /// particles.
+    fn load(&self, i: usize) -> f64 {
+        match &self.cost {
+            Some(c) => c[i],
+            None => self.count[i] as f64,
         }
     }
 }
@@ -163,20 +186,21 @@ const NOBODY: u32 = u32::MAX;
 pub const CUT_SLACK: f64 = 0.02;
 
 /// Where each rank k ≥ 1 starts in the key-ordered cells: at the boundary nearest the equal
-/// share k·N/R (the first cell whose particles before it reach k·N/R), or, within
-/// [`CUT_SLACK`] of a share of it, at the boundary between the coarsest blocks of the curve
-/// there (the highest bit in which the keys on either side differ), nearest first.
+/// share k·L/R of the load L (the particles, or their measured cost: [`Cells::with_cost`];
+/// the first cell whose load before it reaches k·L/R), or, within [`CUT_SLACK`] of a share of
+/// it, at the boundary between the coarsest blocks of the curve there (the highest bit in
+/// which the keys on either side differ), nearest first.
 pub fn cut_points(cells: &Cells, ranks: u64) -> Vec<usize> {
     let n = cells.order.len();
-    // The particles before each cell along the curve.
+    // The load before each cell along the curve.
     let mut before = Vec::with_capacity(n + 1);
-    let mut run = 0u64;
+    let mut run = 0.0;
     for &(_, c) in &cells.order {
         before.push(run);
-        run += cells.count[cells.cbox.index(c)] as u64;
+        run += cells.load(cells.cbox.index(c));
     }
     before.push(run);
-    let share = cells.total as f64 / ranks as f64;
+    let share = run / ranks as f64;
     // No rank starts at either end for a coarser boundary (an empty rank).
     let level = |j: usize| -> u32 {
         if j == 0 || j == n {
@@ -187,10 +211,14 @@ pub fn cut_points(cells: &Cells, ranks: u64) -> Vec<usize> {
     let mut starts = Vec::with_capacity(ranks as usize);
     let mut last = 0;
     for k in 1..ranks {
-        let target = (k * cells.total).div_ceil(ranks);
+        let target = match cells.cost {
+            // Whole particles: the integer share, as one process rounds it.
+            None => (k * cells.total).div_ceil(ranks) as f64,
+            Some(_) => k as f64 * share,
+        };
         let equal = before.partition_point(|&b| b < target);
-        let lo = before.partition_point(|&b| (b as f64) < target as f64 - CUT_SLACK * share);
-        let hi = before.partition_point(|&b| b as f64 <= target as f64 + CUT_SLACK * share);
+        let lo = before.partition_point(|&b| b < target - CUT_SLACK * share);
+        let hi = before.partition_point(|&b| b <= target + CUT_SLACK * share);
         let best = (lo.max(last)..hi.max(lo.max(last)))
             .chain(std::iter::once(equal.max(last)))
             .max_by_key(|&j| (level(j), std::cmp::Reverse(j.abs_diff(equal))))
@@ -421,6 +449,36 @@ mod tests {
         let p = Partition::of(&uniform(16, share / 5), 2);
         let (a, b) = (p.owned[0] as f64, p.owned[1] as f64);
         assert!((a - b).abs() < 0.01 * (a + b), "{:?}", p.owned);
+    }
+
+    /// Cut by cost, a cube whose particles in z < 4 cost three times the others' is cut into
+    /// four ranges of equal cost (within a cell layer's cost), not equal counts: the ranks in
+    /// the costly layers own fewer particles. Equal costs cut as equal counts do.
+    #[test]
+    fn a_cut_by_cost_shares_out_the_cost_not_the_particles() {
+        let cells = cube_of(16, false);
+        let cost_of = |z: usize| if z < 4 { 3.0 } else { 1.0 };
+        let cost: Vec<f64> = (0..cells.count.len())
+            .map(|i| cells.count[i] as f64 * cost_of(i / (16 * 16)))
+            .collect();
+        let by_cost = Partition::of(&cells.clone().with_cost(cost.clone()), 4);
+        let mut load = [0.0; 4];
+        for (i, &o) in by_cost.owner.iter().enumerate() {
+            load[o as usize] += cost[i];
+        }
+        let share = cost.iter().sum::<f64>() / 4.0;
+        let layer = 8.0 * 256.0 * 3.0;
+        for l in load {
+            assert!((l - share).abs() <= layer, "{load:?} against {share}");
+        }
+        assert!(
+            by_cost.owned[0] < by_cost.owned[3],
+            "{:?}: the costly layers' rank owns as many particles",
+            by_cost.owned
+        );
+        let even = (cells.count.iter()).map(|&c| c as f64).collect();
+        let by_count = Partition::of(&cells.clone().with_cost(even), 4);
+        assert_eq!(by_count.owner, Partition::of(&cells, 4).owner);
     }
 
     /// A halo two cells deep: the halves receive two face layers each (four when periodic,

@@ -15,8 +15,15 @@ pub const CELLS_PER_REACH: f64 = 2.0;
 /// The Morton cut of this step, the same on every rank (collective): global bounds (the period
 /// on periodic axes) and per-cell counts of every rank's positions `xs`, in cells
 /// `reach / CELLS_PER_REACH` wide, with a halo ring of cells that holds every particle within
-/// `reach` of a rank's own.
-pub fn cut(world: &World, xs: &[[f64; 3]], domain: &crate::grid::Domain, reach: f64) -> Partition {
+/// `reach` of a rank's own. With `cost` (the same kind on every rank: this rank's measured
+/// cost per particle) the ranges hold equal costs instead of equal counts.
+pub fn cut(
+    world: &World,
+    xs: &[[f64; 3]],
+    domain: &crate::grid::Domain,
+    reach: f64,
+    cost: Option<f64>,
+) -> Partition {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for x in xs {
@@ -46,7 +53,15 @@ pub fn cut(world: &World, xs: &[[f64; 3]], domain: &crate::grid::Domain, reach: 
         counts[cbox.index(cbox.cell_of(x))] += 1;
     }
     world.sum_u64(&mut counts);
-    let cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
+    let mut cells = Cells::from_counts(counts.iter().map(|&c| c as u32).collect(), cbox);
+    if let Some(w) = cost {
+        let mut load = vec![0.0; cbox.len()];
+        for &x in xs {
+            load[cbox.index(cbox.cell_of(x))] += w;
+        }
+        world.sum_f64(&mut load);
+        cells = cells.with_cost(load);
+    }
     Partition::with_ring(&cells, world.size(), ring)
 }
 

@@ -90,6 +90,15 @@ const MAX_LAYER_TRIES: usize = 8;
 /// 50 MB more per rank, and no faster within the runs' spread, docs/scaling.md.)
 const GHOST_COST: f64 = 0.5;
 
+/// The ranks' work per step may exceed its mean by this much before the next cut shares out
+/// their measured cost per particle instead ([`RankStepper::judge_balance`]);
+/// `DUSTSPH_REBALANCE_AT` sets another (0: at every build measured; `inf`: never).
+const REBALANCE_AT: f64 = 0.05;
+
+/// Steps of work measured before the ranks' balance is judged (the cuts between keep the last
+/// cost): fewer are dominated by this machine's noise.
+const REBALANCE_STEPS: u64 = 4;
+
 /// The stages of a run over ranks beside the engine's (summary.json `stage_seconds`).
 const STAGE_BUILD: &str = "ranks: halo built (cut, migration, halo, engine on the rank's share)";
 const STAGE_MOTION: &str =
@@ -169,6 +178,16 @@ pub struct RankStepper {
     /// from the engine dropped for a rebuilt halo: the next engine, on the same layer, takes
     /// them instead of computing them again (a disc rebuilds its halo about every step).
     carried_norms: Option<std::collections::HashMap<(u64, u64), f64>>,
+    /// This rank's seconds of work in the steps since the last build (its steps' time less
+    /// its time in MPI, where it waits for the others), and those steps.
+    busy: f64,
+    busy_steps: u64,
+    /// This rank's measured cost per particle over the ranks' mean, which the cuts share out
+    /// once the ranks' work differed by more than `rebalance_at` (`None`: equal counts).
+    cost: Option<f64>,
+    rebalance_at: f64,
+    /// Thin halos built on a cut by the measured cost.
+    rebalances: u64,
 }
 
 impl Drop for RankStepper {
@@ -257,6 +276,17 @@ impl RankStepper {
         verbose: bool,
     ) -> Result<RankStepper, String> {
         let (me, ranks) = (world.rank(), world.size());
+        let rebalance_at = match std::env::var("DUSTSPH_REBALANCE_AT") {
+            Err(_) => REBALANCE_AT,
+            Ok(v) => match v.trim().parse::<f64>() {
+                Ok(x) if x >= 0.0 => x,
+                _ => {
+                    return Err(format!(
+                        "DUSTSPH_REBALANCE_AT = {v:?}: expected a number ≥ 0 (or inf)"
+                    ))
+                }
+            },
+        };
         // The shape of the state (phases, energy, fixed particles), without its particles.
         let template = full.shape();
         // `full` is left without particles: a share read from a file is this rank's as it
@@ -321,6 +351,11 @@ impl RankStepper {
             fail: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(-1)),
             trace: std::env::var_os("DUSTSPH_HALO_TRACE").is_some(),
             carried_norms: None,
+            busy: 0.0,
+            busy_steps: 0,
+            cost: None,
+            rebalance_at,
+            rebalances: 0,
         })
     }
 
@@ -439,8 +474,14 @@ impl RankStepper {
         let halo = if self.thin {
             format!(
                 "a thin halo refreshed between the step's passes, at most {:.2} × a rank's own \
-                 particles, built {} times in {} steps",
-                self.halo_ratio, self.builds, self.steps
+                 particles, built {} times in {} steps{}",
+                self.halo_ratio,
+                self.builds,
+                self.steps,
+                match self.rebalances {
+                    0 => String::new(),
+                    n => format!(", {n} of them on a cut by the ranks' measured cost"),
+                }
             )
         } else {
             format!(
@@ -674,6 +715,7 @@ impl RankStepper {
         let res = self.resident.as_mut().expect("built above");
         res.local.t = t;
         res.local.step = step;
+        let blocked = super::comm::traffic().blocked_seconds();
         let t_step = std::time::Instant::now();
         let (_, global, drag) =
             Self::global_limits(world, &self.phys, Some(&mut res.eng), true, step)?;
@@ -681,6 +723,7 @@ impl RankStepper {
         let r = take_planned(e, local, drv, (&global, drag), (t, step, t_target));
         let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
         let stepped = t_step.elapsed().as_secs_f64();
+        let busy = stepped - (super::comm::traffic().blocked_seconds() - blocked);
         let t0 = std::time::Instant::now();
         let t_new = local.t;
         // The motion since the halo was built, and the largest h, over every rank; each own
@@ -739,8 +782,19 @@ impl RankStepper {
         res.moved = moved;
         res.steps += 1;
         self.timers.add(STAGE_MOTION, t0.elapsed().as_secs_f64());
-        // Rebuild before the next step where its motion could use up the margin.
-        if need + 2.0 * d > res.reach {
+        // Rebuild before the next step where its motion could use up the margin, or where the
+        // ranks' work has grown uneven enough to pay for a new cut.
+        let outrun = need + 2.0 * d > res.reach;
+        let horizon = res.steps.max(REBALANCE_STEPS) as f64;
+        let build_seconds = res.build_seconds;
+        self.busy += busy;
+        self.busy_steps += 1;
+        let rebalance = self.busy_steps >= REBALANCE_STEPS
+            && self.judge_balance(horizon, build_seconds)
+            && !outrun;
+        if outrun || rebalance {
+            let world = &self.world;
+            let res = self.resident.as_mut().expect("stepped on it");
             let norms = (res.eng.layer_norms()).unwrap_or_else(|x| abort_job(world, step, &x));
             self.carried_norms = norms.map(|n| by_key(&res.local, &n));
             self.drop_resident();
@@ -891,6 +945,56 @@ impl RankStepper {
     /// step's chain of passes, and a fixed shell). `None` when the thin halo cannot serve (a
     /// rank holds no gas: the ghosts' refresh is collective inside the step, and every rank
     /// must step an engine). Collective.
+    /// How many particles this rank owns (its host copy less its ghosts after a step).
+    fn own_len(&self) -> usize {
+        match (&self.resident, self.owned_stale) {
+            (Some(r), true) => r.flags.iter().filter(|&&g| !g).count(),
+            _ => self.own.len(),
+        }
+    }
+
+    /// Whether the ranks' work per step since the last judgement (their steps' time less their
+    /// time in MPI, where they wait for each other; [`REBALANCE_STEPS`] or more) is uneven
+    /// enough to rebuild the halo on a cut by cost now (collective): where the busiest rank's
+    /// exceeds the mean by more than `rebalance_at`, the next cut shares out each rank's work
+    /// per owned particle over the ranks' mean (kept until the next imbalance: it holds the
+    /// cut where it balanced the ranks), and the halo is rebuilt at once where the wait it
+    /// saves over `horizon` steps exceeds a build's `build_seconds` (docs/scaling.md, "Cut").
+    fn judge_balance(&mut self, horizon: f64, build_seconds: f64) -> bool {
+        let world = &self.world;
+        let n = self.own_len() as f64;
+        let per_step = self.busy / self.busy_steps as f64;
+        (self.busy, self.busy_steps) = (0.0, 0);
+        let mut sums = [per_step, n];
+        world.sum_f64(&mut sums);
+        let mut most = [per_step, build_seconds];
+        world.max_f64(&mut most);
+        let mean = sums[0] / world.size() as f64;
+        let uneven = mean > 0.0 && most[0] > (1.0 + self.rebalance_at) * mean;
+        let worth = (most[0] - mean) * horizon > most[1];
+        if self.trace && world.rank() == 0 {
+            eprintln!(
+                "halo: the busiest rank's work {:.4e} s a step against the mean {mean:.4e} s{}",
+                most[0],
+                match (uneven, worth) {
+                    (true, true) => ": cut by the measured cost now",
+                    (true, false) => ": cut by the measured cost at the next build",
+                    _ => "",
+                }
+            );
+        }
+        if !uneven {
+            return false;
+        }
+        // An empty rank has no cost per particle of its own: the mean's.
+        let mean_per_particle = sums[0] / sums[1].max(1.0);
+        self.cost = Some(match n > 0.0 {
+            true => (per_step / n) / mean_per_particle,
+            false => 1.0,
+        });
+        worth
+    }
+
     fn local_layer(&mut self, thin: bool) -> Result<Option<LocalLayer>, String> {
         let world = &self.world;
         let domain = self.phys.domain;
@@ -908,7 +1012,8 @@ impl RankStepper {
             (self.depth * support, (self.depth + 1.0) * support)
         };
         let xs: Vec<[f64; 3]> = positions(&self.own).collect();
-        let part = cut(world, &xs, &domain, reach);
+        let part = cut(world, &xs, &domain, reach, self.cost);
+        self.rebalances += (thin && self.cost.is_some()) as u64;
         drop(xs);
         migrate_own(world, &part, &mut self.own)?;
         let own = &self.own;

@@ -88,7 +88,7 @@ pub fn run(
 
     // Global bounds (periodic axes: the period), then the same cells and cut everywhere.
     let xs: Vec<[f64; 3]> = mine.iter().map(pos).collect();
-    let part = cut(world, &xs, &su.domain, reach);
+    let part = cut(world, &xs, &su.domain, reach, None);
 
     // Migration to the owners.
     let t0 = Instant::now();
