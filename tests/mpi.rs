@@ -532,6 +532,7 @@ fn same_numbers(want: &serde_json::Value, got: &serde_json::Value, what: &str) {
 /// A checkpoint written by a run over 3 ranks (stopped after 20 steps) resumes on 2 ranks and
 /// on one process, and both end where an uninterrupted one-process run ends: every particle of
 /// the last snapshot within 1e-12 of the field's scale (the Phantom slab: leapfrog, variable h).
+/// Each of the 2 ranks reads its share of the checkpoint's rows; one altered row stops both.
 #[test]
 fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
     let tmp = tempfile::tempdir().unwrap();
@@ -580,6 +581,8 @@ fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
         } else {
             let mut c = Command::new("mpirun");
             c.args(["--allow-run-as-root", "--oversubscribe", "-n", "2", bin]);
+            // Each rank reads its share of each phase's rows, in blocks of 64.
+            c.env("DUSTSPH_ROW_BLOCK", "64");
             c
         };
         cmd.arg("resume").arg(&dir).arg("-q");
@@ -589,6 +592,41 @@ fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
         assert_eq!(t, t1);
         assert_same(&reference, &got, vscale, &format!("resumed on {ranks}"));
     }
+    // A mass altered in the last row, which rank 1 reads: rank 0's digest of the file finds
+    // it, and no rank resumes (exit 2, the directory as it was).
+    let ck = three.join("checkpoint.h5");
+    {
+        let f = hdf5::File::open_rw(&ck).unwrap();
+        let ds = f.dataset("gas/m").unwrap();
+        let mut m: Vec<f64> = ds.read_raw().unwrap();
+        *m.last_mut().unwrap() *= 1.0 + 1e-15;
+        ds.write_raw(&m).unwrap();
+    }
+    let listing = |d: &std::path::Path| {
+        let mut v: Vec<(String, Vec<u8>)> = (std::fs::read_dir(d).unwrap().flatten())
+            .map(|e| {
+                let name = e.file_name().to_string_lossy().to_string();
+                (name, std::fs::read(e.path()).unwrap())
+            })
+            .collect();
+        v.sort();
+        v
+    };
+    let before = listing(&three);
+    let mut cmd = Command::new("mpirun");
+    cmd.args(["--allow-run-as-root", "--oversubscribe", "-n", "2", bin])
+        .env("DUSTSPH_ROW_BLOCK", "64")
+        .arg("resume")
+        .arg(&three)
+        .arg("-q");
+    let o = finish(cmd, "resume of an altered checkpoint");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("checksum mismatch"), "{err}");
+    assert!(
+        listing(&three) == before,
+        "a refused resume changed the directory"
+    );
 }
 
 /// Killing one rank mid-run stops the job (mpirun says which rank died) and the snapshots

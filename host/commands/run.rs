@@ -198,8 +198,9 @@ impl Run {
         ))
     }
 
-    /// [`Run::resume`] as one of several MPI ranks: every rank reads the checkpoint (one
-    /// written by any number of ranks, or by one process) and steps its share from there.
+    /// [`Run::resume`] as one of several MPI ranks: each rank reads its share of the
+    /// checkpoint's rows (one written by any number of ranks, or by one process; rank 0 checks
+    /// its digest block by block) and steps from there: no rank reads every particle.
     #[cfg(feature = "mpi")]
     pub fn resume_over_ranks(
         dir: &Path,
@@ -207,15 +208,16 @@ impl Run {
         device: DeviceChoice,
         world: crate::dist::comm::World,
     ) -> Result<Run, RunError> {
-        let root = world.rank() == 0;
-        let (state, loaded, progress) = checkpoint::read(dir)?;
+        let (state, loaded, progress) = checkpoint::read_on(dir, &world)?;
         let layout = progress.layout;
-        let (phys, mut state) = start::prepare_resumed(&loaded, state, layout.as_ref(), root)?;
+        // No warnings: a rank's share says nothing of the whole (one process's resume from a
+        // checkpoint with its layout warns of nothing either).
+        let (phys, mut state) = start::prepare_resumed(&loaded, state, layout.as_ref(), false)?;
         let start = Start {
             device,
             verbose,
             check_first: false,
-            share: false,
+            share: true,
         };
         let stepper = over_ranks(world, &loaded, &phys, &mut state, start)?;
         let mut r = Self::resumed(&loaded, dir, phys, state, stepper, progress, verbose);

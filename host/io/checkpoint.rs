@@ -3,13 +3,14 @@
 //! that `dustsph resume` continues exactly as if never stopped.
 use super::chunks::RowShare;
 use super::snapshot::{
-    create_shared, get_column, get_optional, get_scalar, get_shaped, get_string, get_vec3, go_on,
-    h5err, put_scalar, same_columns, SharedGroup,
+    create_shared, get_rows, get_scalar, get_string, go_on, h5err, put_scalar, same_columns,
+    SharedGroup,
 };
 use super::{commit_tmp, IoError, WithPath};
 use crate::particles::{Gas, Phase, State};
 use hdf5::types::VarLenUnicode;
 use hdf5::{File, Group};
+use std::ops::Range;
 use std::path::Path;
 
 /// File name of the checkpoint inside an output directory.
@@ -31,20 +32,34 @@ fn vlu(path: &Path, s: &str) -> Result<VarLenUnicode, IoError> {
         .map_err(|e| IoError::invalid(path, format!("text not storable: {e}")))
 }
 
-fn get_phase(file: &File, name: &str, path: &Path) -> Result<(Group, Phase), IoError> {
+/// A phase's group, this process's rows of it (`share` of its rows' count) and that count.
+fn get_phase(
+    file: &File,
+    name: &str,
+    share: &dyn Fn(usize) -> Range<usize>,
+    path: &Path,
+) -> Result<(Group, Phase, usize), IoError> {
     let g = file.group(name).map_err(h5err(path, name))?;
     let ds = g.dataset("m").map_err(h5err(path, name))?;
     let n = ds.shape().first().copied().unwrap_or(0);
-    let fixed: Option<Vec<u8>> = get_optional(&g, "fixed", n, path)?;
+    let rows = share(n);
+    let vec3 = |c: &str| -> Result<Vec<[f64; 3]>, IoError> {
+        let flat: Vec<f64> = get_rows(&g, c, &[n, 3], rows.clone(), path)?;
+        Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+    };
+    let fixed: Option<Vec<u8>> = match g.link_exists("fixed") {
+        true => Some(get_rows(&g, "fixed", &[n], rows.clone(), path)?),
+        false => None,
+    };
     let ph = Phase {
-        x: get_vec3(&g, "x", n, path)?,
-        v: get_vec3(&g, "v", n, path)?,
-        m: get_column(&g, "m", n, path)?,
-        rho: get_column(&g, "rho", n, path)?,
-        id: get_shaped(&g, "id", &[n], path)?,
+        x: vec3("x")?,
+        v: vec3("v")?,
+        m: get_rows(&g, "m", &[n], rows.clone(), path)?,
+        rho: get_rows(&g, "rho", &[n], rows.clone(), path)?,
+        id: get_rows(&g, "id", &[n], rows.clone(), path)?,
         fixed: fixed.map(|f| f.into_iter().map(|b| b != 0).collect()),
     };
-    Ok((g, ph))
+    Ok((g, ph, n))
 }
 
 /// FNV-1a, fed the checkpoint's numbers and texts in their order.
@@ -312,65 +327,117 @@ pub fn write_checkpoint_shared(
     result
 }
 
-/// Read a checkpoint written by [`write_checkpoint`].
+/// Read a checkpoint written by [`write_checkpoint`] or [`write_checkpoint_shared`].
 pub fn read_checkpoint(path: &Path) -> Result<(State, CheckpointMeta), IoError> {
-    std::fs::metadata(path).with_path(path)?;
-    let file = File::open(path).map_err(h5err(path, ""))?;
-    let root = file.as_group().map_err(h5err(path, "/"))?;
-    let n_dust: u64 = get_scalar(&root, "n_dust", path)?;
-    let (g, gas_ph) = get_phase(&file, "gas", path)?;
-    let n = gas_ph.len();
-    let gas = Gas {
-        p: get_column(&g, "p", n, path)?,
-        c: get_column(&g, "c", n, path)?,
-        e: get_optional(&g, "e", n, path)?,
-        h: get_optional(&g, "h", n, path)?,
-        omega: get_optional(&g, "omega", n, path)?,
-        next_forces: if g.link_exists("next_forces") {
-            let flat: Vec<f64> = get_shaped(&g, "next_forces", &[n, 5], path)?;
-            Some(
-                flat.chunks_exact(5)
-                    .map(|c| [c[0], c[1], c[2], c[3], c[4]])
-                    .collect(),
+    read_checkpoint_on(path, &crate::dist::Alone).map(|r| (r.state, r.meta))
+}
+
+/// A checkpoint as one of several processes reads it.
+pub struct CheckpointShare {
+    /// This process's share of the particles: of each phase a contiguous block of its rows
+    /// ([`crate::dist::share_rows`]); every particle on one process.
+    pub state: State,
+    pub meta: CheckpointMeta,
+    /// Every process's particles together: the gas's, then each dust fraction's.
+    pub counts: Vec<usize>,
+}
+
+/// [`read_checkpoint`] as one of the processes of `c` (collective): each reads its share of
+/// each phase's rows (written by any number of processes, or by one), and process 0 checks the
+/// digest, reading the file back a block of rows at a time, so no process holds every
+/// particle; one process checks it from memory. Every process returns the first error of
+/// any.
+pub fn read_checkpoint_on(
+    path: &Path,
+    c: &dyn crate::dist::Collective,
+) -> Result<CheckpointShare, IoError> {
+    let (rank, size) = (c.rank(), c.size());
+    let block = super::ics::row_block();
+    let share = move |n: usize| {
+        let (lo, hi) = crate::dist::share_rows(n, block, rank, size);
+        lo..hi
+    };
+    let read = (|| {
+        std::fs::metadata(path).with_path(path)?;
+        let file = File::open(path).map_err(h5err(path, ""))?;
+        let root = file.as_group().map_err(h5err(path, "/"))?;
+        let n_dust: u64 = get_scalar(&root, "n_dust", path)?;
+        let (g, gas_ph, n) = get_phase(&file, "gas", &share, path)?;
+        let rows = share(n);
+        let optional = |name: &str| -> Result<Option<Vec<f64>>, IoError> {
+            match g.link_exists(name) {
+                true => get_rows(&g, name, &[n], rows.clone(), path).map(Some),
+                false => Ok(None),
+            }
+        };
+        let gas = Gas {
+            p: get_rows(&g, "p", &[n], rows.clone(), path)?,
+            c: get_rows(&g, "c", &[n], rows.clone(), path)?,
+            e: optional("e")?,
+            h: optional("h")?,
+            omega: optional("omega")?,
+            next_forces: if g.link_exists("next_forces") {
+                let flat: Vec<f64> = get_rows(&g, "next_forces", &[n, 5], rows.clone(), path)?;
+                Some(
+                    flat.chunks_exact(5)
+                        .map(|c| [c[0], c[1], c[2], c[3], c[4]])
+                        .collect(),
+                )
+            } else {
+                None
+            },
+            ph: gas_ph,
+        };
+        let mut counts = vec![n];
+        let mut dust = Vec::new();
+        for k in 0..n_dust {
+            let (_, ph, n) = get_phase(&file, &format!("dust{k}"), &share, path)?;
+            counts.push(n);
+            dust.push(ph);
+        }
+        let state = State {
+            t: get_scalar(&root, "t", path)?,
+            step: get_scalar(&root, "step", path)?,
+            gas,
+            dust,
+        };
+        let meta = CheckpointMeta {
+            scene_text: get_string(&root, "scene_text", path)?,
+            scene_file: get_string(&root, "scene_file", path)?,
+            overrides_json: get_string(&root, "overrides", path)?,
+            progress_json: get_string(&root, "progress", path)?,
+        };
+        // A checkpoint is whole only if its digest matches what it holds.
+        let stored: u64 = get_scalar(&root, "checksum", path).map_err(|_| {
+            IoError::invalid(
+                path,
+                "no checksum: not a whole dustsph checkpoint (or one written before checksums)",
             )
-        } else {
-            None
-        },
-        ph: gas_ph,
-    };
-    let dust = (0..n_dust)
-        .map(|k| get_phase(&file, &format!("dust{k}"), path).map(|(_, p)| p))
-        .collect::<Result<Vec<_>, _>>()?;
-    let state = State {
-        t: get_scalar(&root, "t", path)?,
-        step: get_scalar(&root, "step", path)?,
-        gas,
-        dust,
-    };
-    let meta = CheckpointMeta {
-        scene_text: get_string(&root, "scene_text", path)?,
-        scene_file: get_string(&root, "scene_file", path)?,
-        overrides_json: get_string(&root, "overrides", path)?,
-        progress_json: get_string(&root, "progress", path)?,
-    };
-    // A checkpoint is whole only if its digest matches what it holds.
-    let stored: u64 = get_scalar(&root, "checksum", path).map_err(|_| {
-        IoError::invalid(
-            path,
-            "no checksum: not a whole dustsph checkpoint (or one written before checksums)",
-        )
-    })?;
-    let now = digest(&state, &meta);
-    if stored != now {
-        return Err(IoError::invalid(
-            path,
-            format!(
-                "checksum mismatch (stored {stored:016x}, contents {now:016x}): the checkpoint \
-                 was altered or is incomplete"
-            ),
-        ));
-    }
-    Ok((state, meta))
+        })?;
+        let now = match (size, rank) {
+            (1, _) => Some(digest(&state, &meta)),
+            (_, 0) => {
+                let at = (state.t, state.step, n_dust as usize);
+                Some(digest_of_file(&file, at, &meta, path)?)
+            }
+            _ => None,
+        };
+        if let Some(now) = now.filter(|&now| now != stored) {
+            return Err(IoError::invalid(
+                path,
+                format!(
+                    "checksum mismatch (stored {stored:016x}, contents {now:016x}): the \
+                     checkpoint was altered or is incomplete"
+                ),
+            ));
+        }
+        Ok(CheckpointShare {
+            state,
+            meta,
+            counts,
+        })
+    })();
+    go_on(c, path, read)
 }
 
 #[cfg(test)]
@@ -427,7 +494,7 @@ mod tests {
     /// one process alone) reads back whole, its digest read back from the file equal to the
     /// one made from the state in memory, each phase's rows the shares' end to end.
     #[test]
-    fn a_checkpoint_written_by_share_reads_back_with_its_digest() {
+    fn a_checkpoint_written_by_share_reads_back_whole_and_by_share_with_its_digest() {
         let ph = |n: usize, seed: u64| Phase {
             x: (0..n)
                 .map(|i| [i as f64 * 0.1 + seed as f64, -0.0, 1e-300])
@@ -501,5 +568,46 @@ mod tests {
         let file = File::open(&p).unwrap();
         let sum = digest_of_file(&file, (0.5, 7, 2), &meta, &p).unwrap();
         assert_eq!(sum, digest(&whole, &meta));
+        drop(file);
+        // Read back by share over 3 processes: each its block of each phase's rows, together
+        // the whole, and the counts of the whole on each.
+        let read = std::thread::scope(|s| {
+            let handles: Vec<_> = (crate::dist::threads::Threads::group(3).into_iter())
+                .map(|c| {
+                    let p = &p;
+                    s.spawn(move || read_checkpoint_on(p, &c).unwrap())
+                })
+                .collect();
+            let shares: Vec<CheckpointShare> =
+                handles.into_iter().map(|h| h.join().unwrap()).collect();
+            shares
+        });
+        let block = super::super::ics::row_block();
+        let join = |a: &mut Phase, b: &Phase| {
+            a.x.extend(&b.x);
+            a.v.extend(&b.v);
+            a.m.extend(&b.m);
+            a.rho.extend(&b.rho);
+            a.id.extend(&b.id);
+        };
+        let mut joined = read[0].state.clone();
+        for (q, r) in read.iter().enumerate() {
+            assert_eq!(r.counts, vec![n, 70_000, 3]);
+            assert_eq!(r.meta, meta);
+            let (lo, hi) = crate::dist::share_rows(n, block, q as u32, 3);
+            assert_eq!(r.state.gas.ph.len(), hi - lo, "process {q}");
+            if q > 0 {
+                join(&mut joined.gas.ph, &r.state.gas.ph);
+                for (k, d) in r.state.dust.iter().enumerate() {
+                    join(&mut joined.dust[k], d);
+                }
+            }
+        }
+        assert_eq!(joined.gas.ph, whole.gas.ph);
+        assert_eq!(joined.dust, whole.dust);
+        assert_eq!(
+            read[2].state.gas.p,
+            whole.gas.p[whole.gas.p.len() - read[2].state.gas.p.len()..]
+        );
     }
 }

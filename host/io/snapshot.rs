@@ -1042,6 +1042,18 @@ pub(crate) fn get_shaped<T: H5Type>(
     shape: &[usize],
     path: &Path,
 ) -> Result<Vec<T>, IoError> {
+    get_rows(g, name, shape, 0..shape.first().copied().unwrap_or(0), path)
+}
+
+/// Rows `rows` of a dataset whose shape must be exactly `shape`, flattened row-major (a
+/// process's share of a file written by several).
+pub(crate) fn get_rows<T: H5Type>(
+    g: &Group,
+    name: &str,
+    shape: &[usize],
+    rows: std::ops::Range<usize>,
+    path: &Path,
+) -> Result<Vec<T>, IoError> {
     let obj = format!("{}/{name}", g.name());
     let ds = g.dataset(name).map_err(h5err(path, &obj))?;
     let found = ds.shape();
@@ -1051,7 +1063,17 @@ pub(crate) fn get_shaped<T: H5Type>(
             format!("{obj}: shape {found:?}, expected {shape:?} from the header counts"),
         ));
     }
-    ds.read_raw().map_err(h5err(path, &obj))
+    let whole = 0..shape.first().copied().unwrap_or(0);
+    let read = if rows == whole {
+        ds.read_raw()
+    } else if rows.is_empty() {
+        Ok(Vec::new())
+    } else if shape.len() == 1 {
+        (ds.read_slice_1d::<T, _>(rows)).map(|a| a.into_raw_vec_and_offset().0)
+    } else {
+        (ds.read_slice_2d::<T, _>((rows, ..))).map(|a| a.into_raw_vec_and_offset().0)
+    };
+    read.map_err(h5err(path, &obj))
 }
 
 pub(crate) fn get_column<T: H5Type>(

@@ -106,9 +106,22 @@ impl Checkpointer for RunCheckpoints {
 /// A checkpoint read back: its state, its scene as run, its progress. Everything wrong with it
 /// is input (resume exits 2 and changes nothing).
 pub fn read(dir: &Path) -> Result<(State, LoadedScene, Progress), RunError> {
+    read_on(dir, &crate::dist::Alone)
+}
+
+/// [`read`] as one of the processes of `c` (collective): the state is this process's share of
+/// the checkpoint's rows ([`io::checkpoint::read_checkpoint_on`]), and every process returns
+/// the same verdict.
+pub fn read_on(
+    dir: &Path,
+    c: &dyn crate::dist::Collective,
+) -> Result<(State, LoadedScene, Progress), RunError> {
     let ck = dir.join(io::checkpoint::CHECKPOINT_NAME);
-    let (state, meta) =
-        io::checkpoint::read_checkpoint(&ck).map_err(|e| RunError::Input(e.to_string()))?;
+    let io::checkpoint::CheckpointShare {
+        state,
+        meta,
+        counts,
+    } = io::checkpoint::read_checkpoint_on(&ck, c).map_err(|e| RunError::Input(e.to_string()))?;
     let bad = |e: String| RunError::Input(format!("{}: {e}", ck.display()));
     let overrides: Vec<String> =
         serde_json::from_str(&meta.overrides_json).map_err(|e| bad(e.to_string()))?;
@@ -122,7 +135,7 @@ pub fn read(dir: &Path) -> Result<(State, LoadedScene, Progress), RunError> {
     })?;
     verify_resume(
         dir,
-        &state,
+        (&state, &counts, c),
         &loaded,
         &progress.outputs,
         &progress.diagnostics.accreted,
@@ -137,9 +150,11 @@ pub fn read(dir: &Path) -> Result<(State, LoadedScene, Progress), RunError> {
 /// same particle counts no later than the checkpoint, and no other snapshot would be
 /// overwritten. Particles the star accreted (its record in `accreted`) count as the run's: the
 /// set-up's counts are the state's plus those, and a snapshot holds between the two.
+/// `state` is this process's share of the checkpoint, `whole` every process's counts (the
+/// gas's, then each fraction's); collective over `c`.
 fn verify_resume(
     dir: &Path,
-    state: &State,
+    (state, whole, c): (&State, &[usize], &dyn crate::dist::Collective),
     loaded: &LoadedScene,
     outputs: &OutputRecord,
     accreted: &super::accretion::Accreted,
@@ -148,7 +163,7 @@ fn verify_resume(
     let counts = |s: &State| -> (usize, Vec<usize>) {
         (s.gas.ph.len(), s.dust.iter().map(|d| d.len()).collect())
     };
-    let have = counts(state);
+    let have = (whole[0], whole[1..].to_vec());
     let taken_dust = |k: usize| accreted.dust_particles.get(k).copied().unwrap_or(0);
     let with_accreted = (
         have.0 + accreted.gas_particles,
@@ -174,11 +189,12 @@ fn verify_resume(
     }
     let dim = scene.dim() as usize;
     let phases = std::iter::once(&state.gas.ph).chain(&state.dust);
-    if dim < 3
+    let mut off_axis = [(dim < 3
         && phases
             .flat_map(|p| &p.x)
-            .any(|x| x[dim..].iter().any(|c| *c != 0.0))
-    {
+            .any(|x| x[dim..].iter().any(|c| *c != 0.0))) as u8 as f64];
+    c.max_f64(&mut off_axis);
+    if off_axis[0] > 0.0 {
         return Err(format!(
             "its particles are not {dim}-dimensional as its scene (scene.dim = {dim}) says"
         ));
