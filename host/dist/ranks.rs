@@ -275,7 +275,7 @@ impl RankStepper {
         device: DeviceChoice,
         verbose: bool,
     ) -> Result<RankStepper, String> {
-        let (me, ranks) = (world.rank(), world.size());
+        let me = world.rank();
         let rebalance_at = match std::env::var("DUSTSPH_REBALANCE_AT") {
             Err(_) => REBALANCE_AT,
             Ok(v) => match v.trim().parse::<f64>() {
@@ -295,9 +295,8 @@ impl RankStepper {
         let share = if shared {
             std::mem::replace(full, template.clone())
         } else {
-            let mine = records_where(full, |_, (phase, id)| {
-                (id.wrapping_add(phase) % ranks as u64) as u32 == me
-            });
+            let keep = crate::setup::Keep::of(&world);
+            let mine = records_where(full, |_, (phase, id)| keep.mine(phase, id));
             *full = template.clone();
             state_of(&mine, &template)
         };

@@ -3,7 +3,14 @@
 //! same points, so every IDIC cell starts with the ball's ε.
 use super::*;
 
-pub(super) fn build(scene: &Scene, b: &crate::scene::BallCfg) -> Result<Setup, SetupError> {
+/// The ball's particles, of those `keep` says this process's (every one alone): the lattice's
+/// sites are enumerated twice (counted, then set up), so that no process holds more than its
+/// share; one process's ids and order are those of a set-up alone.
+pub(super) fn build(
+    scene: &Scene,
+    b: &crate::scene::BallCfg,
+    keep: Keep,
+) -> Result<Setup, SetupError> {
     let dim = scene.dim();
     let rho = b.background.rho;
     let dx = 1.0 / scene.sph.n as f64;
@@ -25,35 +32,47 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BallCfg) -> Result<Setup, S
     )?;
     let nmax = nmax_f as i64;
     let r2 = b.radius * b.radius;
-    let span = |used: bool| if used { -nmax..=nmax } else { 0..=0 };
-    let mut x = Vec::new();
-    for k in span(dim >= 3) {
-        for j in span(dim >= 2) {
-            for i in span(true) {
-                let q = [i as f64 * dx, j as f64 * dx, k as f64 * dx];
-                if q[0] * q[0] + q[1] * q[1] + q[2] * q[2] <= r2 {
-                    x.push(q);
-                }
+    let span = move |used: bool| if used { -nmax..=nmax } else { 0..=0 };
+    let sites = || {
+        (span(dim >= 3).flat_map(move |k| {
+            span(dim >= 2).flat_map(move |j| {
+                span(true).map(move |i| [i as f64 * dx, j as f64 * dx, k as f64 * dx])
+            })
+        }))
+        .filter(move |q| q[0] * q[0] + q[1] * q[1] + q[2] * q[2] <= r2)
+    };
+    let n = sites().count() as u64;
+    // m = ρΔ^d makes the interior SPH density exactly ρ on the lattice; the total mass then
+    // differs from ρ·V_ball by the lattice's volume error (0.02% at the seed's Δ = 2/78).
+    // Each fraction k sits on the gas's sites with ε_k of its mass and density, ids after the
+    // gas's and the earlier fractions' ([`co_located_dust`]).
+    let m = rho * (dx.powi(dim as i32));
+    let eps: Vec<f64> = std::iter::once(1.0)
+        .chain(scene.fractions().iter().map(|f| f.eps))
+        .collect();
+    let mut phases: Vec<Phase> = eps.iter().map(|_| Phase::default()).collect();
+    for (i, q) in sites().enumerate() {
+        for (p, ph) in phases.iter_mut().enumerate() {
+            let id = p as u64 * n + i as u64;
+            if keep.mine(p as u64, id) {
+                let (mp, rp) = match p {
+                    0 => (m, rho),
+                    _ => (eps[p] * m, eps[p] * rho),
+                };
+                ph.x.push(q);
+                ph.v.push([0.0; 3]);
+                ph.m.push(mp);
+                ph.rho.push(rp);
+                ph.id.push(id);
             }
         }
     }
-    let n = x.len();
-    // m = ρΔ^d makes the interior SPH density exactly ρ on the lattice; the total mass then
-    // differs from ρ·V_ball by the lattice's volume error (0.02% at the seed's Δ = 2/78).
-    let vol = dx.powi(dim as i32);
-    let gas = Phase {
-        x,
-        v: vec![[0.0; 3]; n],
-        m: vec![rho * vol; n],
-        rho: vec![rho; n],
-        id: (0..n as u64).collect(),
-        fixed: None,
-    };
-    let e = internal_energy(scene, b.background).map(|e| vec![e; n]);
-    let dust = co_located_dust(scene, &gas, |_| [0.0; 3]);
-    Ok(Setup::at_start(
+    let mut phases = phases.into_iter();
+    let gas = phases.next().expect("the gas");
+    let e = internal_energy(scene, b.background).map(|e| vec![e; gas.len()]);
+    let mut su = Setup::at_start(
         gas_phase(gas, e),
-        dust,
+        phases.collect(),
         h,
         Domain {
             dim,
@@ -61,5 +80,69 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BallCfg) -> Result<Setup, S
         },
         dx,
         2.0 * b.radius,
-    ))
+    );
+    su.share = keep.shared();
+    Ok(su)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Set up by share over 3 processes, the ball's shares are disjoint, each its `Keep`'s
+    /// particles and about a third of every phase, and together the ball set up alone, id by
+    /// id (two fractions).
+    #[test]
+    fn the_ball_set_up_by_share_is_the_ball_set_up_alone_shared_out() {
+        let overrides = [
+            "sph.n=10".to_string(),
+            "dust.fractions=[{s_rho=1e-3,eps=0.5},{s_rho=2e-3,eps=0.25}]".to_string(),
+        ];
+        let loaded = crate::scene::load_shipped("configs/dusty_ball.toml", &overrides).unwrap();
+        let crate::scene::ProblemCfg::Dustyball(b) = &loaded.scene.problem else {
+            panic!("the ball's scene");
+        };
+        let alone = build(&loaded.scene, b, Keep::of(&crate::dist::Alone)).unwrap();
+        assert!(!alone.share);
+        let records = |st: &State| {
+            let mut v: Vec<(u64, u64, [u64; 8])> = Vec::new();
+            for (p, ph) in std::iter::once(&st.gas.ph).chain(&st.dust).enumerate() {
+                for i in 0..ph.len() {
+                    let x = ph.x[i].map(f64::to_bits);
+                    let rest = [ph.v[i][0], ph.m[i], ph.rho[i]].map(f64::to_bits);
+                    let bits = [x[0], x[1], x[2], rest[0], rest[1], rest[2], 0, 0];
+                    v.push((p as u64, ph.id[i], bits));
+                }
+            }
+            v
+        };
+        let mut joined = Vec::new();
+        for c in crate::dist::threads::Threads::group(3) {
+            let keep = Keep::of(&c);
+            let su = build(&loaded.scene, b, keep).unwrap();
+            assert!(su.share);
+            let mine = records(&su.state);
+            assert!(mine.iter().all(|r| keep.mine(r.0, r.1)));
+            for (p, ph) in std::iter::once(&su.state.gas.ph)
+                .chain(&su.state.dust)
+                .enumerate()
+            {
+                let whole = if p == 0 {
+                    alone.state.gas.ph.len()
+                } else {
+                    alone.state.dust[p - 1].len()
+                };
+                assert!(ph.len().abs_diff(whole / 3) <= 1, "phase {p}");
+            }
+            assert_eq!(
+                su.state.gas.e.as_ref().map(Vec::len),
+                Some(su.state.gas.ph.len())
+            );
+            joined.extend(mine);
+        }
+        let mut whole = records(&alone.state);
+        whole.sort();
+        joined.sort();
+        assert_eq!(joined, whole);
+    }
 }

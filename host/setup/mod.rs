@@ -162,6 +162,35 @@ pub(crate) fn check_size(
     }
 }
 
+/// Which particles a process sets up of a scene shared over the processes of a collective:
+/// over several, those whose id + phase (0 gas, k + 1 fraction k) ≡ its rank (mod their
+/// number), the share each rank starts from until the first cut moves the particles to their
+/// owners; alone, every one.
+#[derive(Debug, Clone, Copy)]
+pub struct Keep {
+    rank: u64,
+    size: u64,
+}
+
+impl Keep {
+    pub fn of(c: &dyn crate::dist::Collective) -> Keep {
+        Keep {
+            rank: c.rank() as u64,
+            size: c.size().max(1) as u64,
+        }
+    }
+
+    /// Whether particle `id` of phase `phase` is this process's.
+    pub fn mine(&self, phase: u64, id: u64) -> bool {
+        id.wrapping_add(phase) % self.size == self.rank
+    }
+
+    /// Whether this process sets up less than every particle.
+    pub fn shared(&self) -> bool {
+        self.size > 1
+    }
+}
+
 /// A set-up error names the scene key at fault.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SetupError {
@@ -181,8 +210,9 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
 }
 
 /// [`build`] as one of the processes in `c`: initial conditions from a file are read by
-/// share (each process its own rows, [`Setup::share`]); a lattice is set up whole on each
-/// (collective; every process gets the same error).
+/// share (each process its own rows, [`Setup::share`]), the ball set up by share (each
+/// process its [`Keep`]); other lattices are set up whole on each (collective; every process
+/// gets the same error).
 pub fn build_on(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
     let su = build_problem(scene, c)?;
     // A point mass's pull has no periodic image: it needs open axes.
@@ -203,7 +233,7 @@ fn build_problem(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup
         ProblemCfg::Dustybox(b) => dustybox::build(scene, b),
         ProblemCfg::Dustywave(w) => dustywave::build(scene, w),
         ProblemCfg::Dustyshock(s) => dustyshock::build(scene, s),
-        ProblemCfg::Dustyball(b) => dustyball::build(scene, b),
+        ProblemCfg::Dustyball(b) => dustyball::build(scene, b, Keep::of(c)),
         ProblemCfg::Dustysettle(c) => dustysettle::build(scene, c),
         ProblemCfg::File(f) => file::build(scene, f, c),
         ProblemCfg::Dustydisc(d) => dustydisc::build(scene, d),
