@@ -2,7 +2,14 @@
 use super::*;
 use crate::scene::Lattice;
 
-pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, SetupError> {
+/// The box's particles, of those `keep` says are this process's (every one alone): each
+/// phase's positions are laid out whole, one phase at a time, and only this process's
+/// particles are made of them.
+pub(super) fn build(
+    scene: &Scene,
+    b: &crate::scene::BoxCfg,
+    keep: Keep,
+) -> Result<Setup, SetupError> {
     let dim = scene.dim();
     let rho = b.background.rho;
     let n_f = (scene.sph.n as f64 * b.length).round().max(2.0);
@@ -52,25 +59,33 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
     let order = (b.lattice, b.jitter, b.seed);
     let mut notes = Vec::new();
     let x0 = x;
-    let gas = Phase {
-        x: arrange(x0.clone(), dim, &len, dx, h, order, 0, scene, &mut notes)?,
-        v: vec![[b.v_gas, 0.0, 0.0]; n],
-        m: vec![rho * vol; n],
-        rho: vec![rho; n],
-        id: (0..n as u64).collect(),
-        fixed: None,
-    };
-    let e = internal_energy(scene, b.background).map(|e| vec![e; n]);
-    let mut dust = co_located_dust(scene, &gas, |k| [b.u_dust[k], 0.0, 0.0]);
-    // dust_shift: the dust lattice offset by that many spacings along every axis (wrapped).
-    for (k, d) in dust.iter_mut().enumerate() {
+    let m = rho * vol;
+    let gas = phase_kept(
+        arrange(x0.clone(), dim, &len, dx, h, order, 0, scene, &mut notes)?,
+        (0, 0),
+        keep,
+        |_| ([b.v_gas, 0.0, 0.0], m, rho),
+    );
+    let e = internal_energy(scene, b.background).map(|e| vec![e; gas.len()]);
+    // Each fraction k on the lattice (offset by dust_shift spacings along every axis,
+    // wrapped) with ε_k of the gas's mass and density, ids after the gas's and the earlier
+    // fractions' ([`co_located_dust`]).
+    let mut dust = Vec::new();
+    for (k, f) in scene.fractions().iter().enumerate() {
         let mut x = x0.clone();
         for p in &mut x {
             for (c, l) in p.iter_mut().zip(&len).take(dim as usize) {
                 *c = (*c + b.dust_shift * dx).rem_euclid(*l);
             }
         }
-        d.x = arrange(x, dim, &len, dx, h, order, k as u64 + 1, scene, &mut notes)?;
+        let x = arrange(x, dim, &len, dx, h, order, k as u64 + 1, scene, &mut notes)?;
+        let at = |_| ([b.u_dust[k], 0.0, 0.0], f.eps * m, f.eps * rho);
+        dust.push(phase_kept(
+            x,
+            (k as u64 + 1, (k as u64 + 1) * n as u64),
+            keep,
+            at,
+        ));
     }
     let mut periodic = [None; 3];
     for (p, l) in periodic.iter_mut().zip(len).take(dim as usize) {
@@ -85,5 +100,6 @@ pub(super) fn build(scene: &Scene, b: &crate::scene::BoxCfg) -> Result<Setup, Se
         b.length,
     );
     su.notes = notes;
+    su.share = keep.shared();
     Ok(su)
 }

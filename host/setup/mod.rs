@@ -210,9 +210,9 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
 }
 
 /// [`build`] as one of the processes in `c`: initial conditions from a file are read by
-/// share (each process its own rows, [`Setup::share`]), the ball set up by share (each
-/// process its [`Keep`]); other lattices are set up whole on each (collective; every process
-/// gets the same error).
+/// share (each process its own rows, [`Setup::share`]), the ball and the box set up by share
+/// (each process its [`Keep`]); other scenes are set up whole on each (collective; every
+/// process gets the same error).
 pub fn build_on(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
     let su = build_problem(scene, c)?;
     // A point mass's pull has no periodic image: it needs open axes.
@@ -230,7 +230,7 @@ pub fn build_on(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup,
 
 fn build_problem(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
     match &scene.problem {
-        ProblemCfg::Dustybox(b) => dustybox::build(scene, b),
+        ProblemCfg::Dustybox(b) => dustybox::build(scene, b, Keep::of(c)),
         ProblemCfg::Dustywave(w) => dustywave::build(scene, w),
         ProblemCfg::Dustyshock(s) => dustyshock::build(scene, s),
         ProblemCfg::Dustyball(b) => dustyball::build(scene, b, Keep::of(c)),
@@ -303,6 +303,30 @@ pub(crate) fn co_located_dust(
         .collect()
 }
 
+/// The particles of one phase (`phase`: 0 gas, k + 1 fraction k) whose particle i sits at
+/// `x[i]` with id `first + i`, of those `keep` says are this process's: `at(i)` gives each its
+/// velocity, mass and density.
+pub(crate) fn phase_kept(
+    x: Vec<[f64; 3]>,
+    (phase, first): (u64, u64),
+    keep: Keep,
+    at: impl Fn(usize) -> ([f64; 3], f64, f64),
+) -> Phase {
+    let mut ph = Phase::default();
+    for (i, q) in x.into_iter().enumerate() {
+        let id = first + i as u64;
+        if keep.mine(phase, id) {
+            let (v, m, rho) = at(i);
+            ph.x.push(q);
+            ph.v.push(v);
+            ph.m.push(m);
+            ph.rho.push(rho);
+            ph.id.push(id);
+        }
+    }
+    ph
+}
+
 /// Uniform lattice of `n_axis` points per axis in [0, length)^dim at cell centres.
 pub(crate) fn lattice(dim: u32, n_axis: usize, length: f64) -> Vec<[f64; 3]> {
     let dx = length / n_axis as f64;
@@ -318,4 +342,75 @@ pub(crate) fn lattice(dim: u32, n_axis: usize, length: f64) -> Vec<[f64; 3]> {
         }
     }
     x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each particle as (phase, id, the bits of its position, x-velocity, mass, density).
+    fn records(st: &State) -> Vec<(u64, u64, [u64; 6])> {
+        let mut v = Vec::new();
+        for (p, ph) in std::iter::once(&st.gas.ph).chain(&st.dust).enumerate() {
+            for i in 0..ph.len() {
+                let [a, b, c] = ph.x[i].map(f64::to_bits);
+                let [d, e, f] = [ph.v[i][0], ph.m[i], ph.rho[i]].map(f64::to_bits);
+                v.push((p as u64, ph.id[i], [a, b, c, d, e, f]));
+            }
+        }
+        v
+    }
+
+    /// The scene `name` set up by share over 3 processes: each share holds its `Keep`'s
+    /// particles and about a third of every phase, and the shares together are the scene set
+    /// up alone, id by id, bit for bit.
+    fn set_up_by_share_is_set_up_alone(name: &str, overrides: &[&str]) {
+        let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+        let loaded = crate::scene::load_shipped(name, &overrides).unwrap();
+        let alone = build(&loaded.scene).unwrap();
+        assert!(!alone.share);
+        let mut joined = Vec::new();
+        for c in crate::dist::threads::Threads::group(3) {
+            let keep = Keep::of(&c);
+            let su = build_on(&loaded.scene, &c).unwrap();
+            assert!(su.share, "{name}");
+            let mine = records(&su.state);
+            assert!(mine.iter().all(|r| keep.mine(r.0, r.1)), "{name}");
+            let shares = std::iter::once(&su.state.gas.ph).chain(&su.state.dust);
+            let wholes = std::iter::once(&alone.state.gas.ph).chain(&alone.state.dust);
+            for (p, (ph, whole)) in shares.zip(wholes).enumerate() {
+                assert!(ph.len().abs_diff(whole.len() / 3) <= 1, "{name} phase {p}");
+            }
+            let e = su.state.gas.e.as_ref().map(Vec::len);
+            assert_eq!(e.is_some(), alone.state.gas.e.is_some(), "{name}");
+            assert!(e.is_none_or(|n| n == su.state.gas.ph.len()), "{name}");
+            joined.extend(mine);
+        }
+        let mut whole = records(&alone.state);
+        whole.sort();
+        joined.sort();
+        assert!(joined == whole, "{name}: the shares are not the whole");
+    }
+
+    #[test]
+    fn the_ball_and_the_box_set_up_by_share_are_each_set_up_alone_shared_out() {
+        let two = "dust.fractions=[{s_rho=1e-3,eps=0.5},{s_rho=2e-3,eps=0.25}]";
+        set_up_by_share_is_set_up_alone("configs/dusty_ball.toml", &["sph.n=10", two]);
+        set_up_by_share_is_set_up_alone(
+            "configs/dustybox.toml",
+            &["scene.dim=3", "sph.n=12", "sph.hfact=1.2"],
+        );
+        // A glass for each phase, the dust shifted and jittered.
+        set_up_by_share_is_set_up_alone(
+            "configs/dustybox.toml",
+            &[
+                "scene.dim=2",
+                "sph.n=12",
+                "sph.hfact=1.2",
+                "dustybox.lattice=\"glass\"",
+                "dustybox.dust_shift=0.5",
+                "dustybox.jitter=0.1",
+            ],
+        );
+    }
 }
