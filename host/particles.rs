@@ -23,6 +23,18 @@ impl Phase {
         self.x.is_empty()
     }
 
+    /// Give back the arrays' spare capacity (a phase grown particle by particle).
+    pub fn shrink_to_fit(&mut self) {
+        self.x.shrink_to_fit();
+        self.v.shrink_to_fit();
+        self.m.shrink_to_fit();
+        self.rho.shrink_to_fit();
+        self.id.shrink_to_fit();
+        if let Some(f) = &mut self.fixed {
+            f.shrink_to_fit();
+        }
+    }
+
     #[inline(always)]
     pub fn is_fixed(&self, i: usize) -> bool {
         self.fixed.as_ref().is_some_and(|f| f[i])

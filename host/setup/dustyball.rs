@@ -67,6 +67,7 @@ pub(super) fn build(
             }
         }
     }
+    phases.iter_mut().for_each(Phase::shrink_to_fit);
     let mut phases = phases.into_iter();
     let gas = phases.next().expect("the gas");
     let e = internal_energy(scene, b.background).map(|e| vec![e; gas.len()]);

@@ -324,6 +324,7 @@ pub(crate) fn phase_kept(
             ph.id.push(id);
         }
     }
+    ph.shrink_to_fit();
     ph
 }
 

@@ -176,9 +176,18 @@ fn verify_resume(
     // A run from a file is not set up again (the file may have moved): its counts are held to
     // its own snapshots below.
     if !matches!(scene.problem, crate::scene::ProblemCfg::File(_)) {
-        let su =
-            crate::setup::build(scene).map_err(|e| format!("its scene cannot be set up: {e}"))?;
-        let want = counts(&su.state);
+        // Set up by share where the scene allows (each process its share, counted together).
+        let su = crate::setup::build_on(scene, c)
+            .map_err(|e| format!("its scene cannot be set up: {e}"))?;
+        let mut want = counts(&su.state);
+        if su.share {
+            let mut n: Vec<u64> = std::iter::once(want.0)
+                .chain(want.1.iter().copied())
+                .map(|n| n as u64)
+                .collect();
+            c.sum_u64(&mut n);
+            want = (n[0] as usize, n[1..].iter().map(|&n| n as usize).collect());
+        }
         if want != with_accreted {
             return Err(format!(
                 "its particles (gas {}, dust {:?}, with {} gas and {:?} dust accreted) do not \
