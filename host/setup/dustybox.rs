@@ -64,7 +64,7 @@ pub(super) fn build(
         arrange(x0.clone(), dim, &len, dx, h, order, 0, scene, &mut notes)?,
         (0, 0),
         keep,
-        |_| ([b.v_gas, 0.0, 0.0], m, rho),
+        |_, _| ([b.v_gas, 0.0, 0.0], m, rho),
     );
     let e = internal_energy(scene, b.background).map(|e| vec![e; gas.len()]);
     // Each fraction k on the lattice (offset by dust_shift spacings along every axis,
@@ -79,7 +79,7 @@ pub(super) fn build(
             }
         }
         let x = arrange(x, dim, &len, dx, h, order, k as u64 + 1, scene, &mut notes)?;
-        let at = |_| ([b.u_dust[k], 0.0, 0.0], f.eps * m, f.eps * rho);
+        let at = |_, _| ([b.u_dust[k], 0.0, 0.0], f.eps * m, f.eps * rho);
         dust.push(phase_kept(
             x,
             (k as u64 + 1, (k as u64 + 1) * n as u64),

@@ -142,7 +142,10 @@ fn stretch(x0: &[[f64; 3]], length: f64, rho0: f64, amp: f64, rho_hat: C, k: f64
         .collect()
 }
 
-pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
+/// The wave's particles, of those `keep` says are this process's (every one alone): each
+/// phase's positions are laid out whole, one phase at a time, and only this process's
+/// particles are made of them.
+pub(super) fn build(scene: &Scene, w: &WaveCfg, keep: Keep) -> Result<Setup, SetupError> {
     let dim = scene.dim();
     let n_f = (scene.sph.n as f64 * w.length).round().max(2.0);
     let rows = (w.layers as f64).powi(dim as i32 - 1);
@@ -181,31 +184,24 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
     let order = (w.lattice, w.jitter, w.seed);
     let xg = arrange(x0.clone(), dim, &len, dx, h, order, 0, scene, &mut notes)?;
     let x = stretch(&xg, w.length, lw.rho_g0, a, y.rho_g, k);
-    let v: Vec<[f64; 3]> = x
-        .iter()
-        .map(|p| [field(0.0, a, y.v_g, k, p[0]), 0.0, 0.0])
-        .collect();
+    drop(xg);
+    // Equal masses giving the background density exactly: m = ρ0 V / N. The exact initial
+    // density (summation replaces it; the continuity equation starts from it).
+    let cell_volume = if dim == 1 { dx } else { volume / np as f64 };
+    let gas = phase_kept(x, (0, 0), keep, |_, p| {
+        let v = [field(0.0, a, y.v_g, k, p[0]), 0.0, 0.0];
+        (
+            v,
+            lw.rho_g0 * cell_volume,
+            field(lw.rho_g0, a, y.rho_g, k, p[0]),
+        )
+    });
     let e = match (lw.gas, y.e) {
         (WaveGas::Adiabatic { gamma, p0 }, Some(eh)) => {
             let e0 = p0 / ((gamma - 1.0) * lw.rho_g0);
-            Some(x.iter().map(|p| field(e0, a, eh, k, p[0])).collect())
+            Some(gas.x.iter().map(|p| field(e0, a, eh, k, p[0])).collect())
         }
         _ => None,
-    };
-    // Equal masses giving the background density exactly: m = ρ0 V / N.
-    let cell_volume = if dim == 1 { dx } else { volume / np as f64 };
-    // The exact initial density (summation replaces it; the continuity equation starts from it).
-    let rho = x
-        .iter()
-        .map(|p| field(lw.rho_g0, a, y.rho_g, k, p[0]))
-        .collect();
-    let gas = Phase {
-        x,
-        v,
-        m: vec![lw.rho_g0 * cell_volume; np],
-        rho,
-        id: (0..np as u64).collect(),
-        fixed: None,
     };
     let npu = np as u64;
     let x0_dust: Vec<[f64; 3]> = x0
@@ -231,26 +227,14 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
             scene,
             &mut notes,
         )?;
-        dust.push({
-            let rho0 = lw.rho_d0[kf];
-            let x = stretch(&x0, w.length, rho0, a, y.rho_d[kf], k);
-            let v = x
-                .iter()
-                .map(|p| [field(0.0, a, y.v_d[kf], k, p[0]), 0.0, 0.0])
-                .collect();
-            let rho = x
-                .iter()
-                .map(|p| field(rho0, a, y.rho_d[kf], k, p[0]))
-                .collect();
-            Phase {
-                x,
-                v,
-                m: vec![rho0 * cell_volume; np],
-                rho,
-                id: ((kf as u64 + 1) * npu..(kf as u64 + 2) * npu).collect(),
-                fixed: None,
-            }
-        });
+        let rho0 = lw.rho_d0[kf];
+        let x = stretch(&x0, w.length, rho0, a, y.rho_d[kf], k);
+        drop(x0);
+        let first = (kf as u64 + 1) * npu;
+        dust.push(phase_kept(x, (kf as u64 + 1, first), keep, |_, p| {
+            let v = [field(0.0, a, y.v_d[kf], k, p[0]), 0.0, 0.0];
+            (v, rho0 * cell_volume, field(rho0, a, y.rho_d[kf], k, p[0]))
+        }));
     }
     let mut periodic = [None; 3];
     for (p, &l) in periodic.iter_mut().zip(&len).take(dim as usize) {
@@ -265,6 +249,7 @@ pub(super) fn build(scene: &Scene, w: &WaveCfg) -> Result<Setup, SetupError> {
         w.length,
     );
     su.notes = notes;
+    su.share = keep.shared();
     Ok(su)
 }
 

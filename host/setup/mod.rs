@@ -210,9 +210,9 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
 }
 
 /// [`build`] as one of the processes in `c`: initial conditions from a file are read by
-/// share (each process its own rows, [`Setup::share`]), the ball and the box set up by share
-/// (each process its [`Keep`]); other scenes are set up whole on each (collective; every
-/// process gets the same error).
+/// share (each process its own rows, [`Setup::share`]), the ball, the box and the wave set up
+/// by share (each process its [`Keep`]); other scenes are set up whole on each (collective;
+/// every process gets the same error).
 pub fn build_on(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
     let su = build_problem(scene, c)?;
     // A point mass's pull has no periodic image: it needs open axes.
@@ -231,7 +231,7 @@ pub fn build_on(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup,
 fn build_problem(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
     match &scene.problem {
         ProblemCfg::Dustybox(b) => dustybox::build(scene, b, Keep::of(c)),
-        ProblemCfg::Dustywave(w) => dustywave::build(scene, w),
+        ProblemCfg::Dustywave(w) => dustywave::build(scene, w, Keep::of(c)),
         ProblemCfg::Dustyshock(s) => dustyshock::build(scene, s),
         ProblemCfg::Dustyball(b) => dustyball::build(scene, b, Keep::of(c)),
         ProblemCfg::Dustysettle(c) => dustysettle::build(scene, c),
@@ -304,19 +304,19 @@ pub(crate) fn co_located_dust(
 }
 
 /// The particles of one phase (`phase`: 0 gas, k + 1 fraction k) whose particle i sits at
-/// `x[i]` with id `first + i`, of those `keep` says are this process's: `at(i)` gives each its
-/// velocity, mass and density.
+/// `x[i]` with id `first + i`, of those `keep` says are this process's: `at(i, x[i])` gives
+/// each its velocity, mass and density.
 pub(crate) fn phase_kept(
     x: Vec<[f64; 3]>,
     (phase, first): (u64, u64),
     keep: Keep,
-    at: impl Fn(usize) -> ([f64; 3], f64, f64),
+    at: impl Fn(usize, [f64; 3]) -> ([f64; 3], f64, f64),
 ) -> Phase {
     let mut ph = Phase::default();
     for (i, q) in x.into_iter().enumerate() {
         let id = first + i as u64;
         if keep.mine(phase, id) {
-            let (v, m, rho) = at(i);
+            let (v, m, rho) = at(i, q);
             ph.x.push(q);
             ph.v.push(v);
             ph.m.push(m);
@@ -394,7 +394,7 @@ mod tests {
     }
 
     #[test]
-    fn the_ball_and_the_box_set_up_by_share_are_each_set_up_alone_shared_out() {
+    fn the_ball_the_box_and_the_wave_set_up_by_share_are_each_set_up_alone_shared_out() {
         let two = "dust.fractions=[{s_rho=1e-3,eps=0.5},{s_rho=2e-3,eps=0.25}]";
         set_up_by_share_is_set_up_alone("configs/dusty_ball.toml", &["sph.n=10", two]);
         set_up_by_share_is_set_up_alone(
@@ -411,6 +411,19 @@ mod tests {
                 "dustybox.lattice=\"glass\"",
                 "dustybox.dust_shift=0.5",
                 "dustybox.jitter=0.1",
+            ],
+        );
+        // The Phantom slab (close-packed, adiabatic: each particle its energy) and a 2D wave
+        // on glasses, the dust shifted.
+        set_up_by_share_is_set_up_alone("configs/dustywave_phantom.toml", &["sph.n=16"]);
+        set_up_by_share_is_set_up_alone(
+            "configs/dustywave.toml",
+            &[
+                "scene.dim=2",
+                "sph.n=16",
+                "dustywave.lattice=\"glass\"",
+                "dustywave.dust_shift=0.5",
+                "dustywave.layers=16",
             ],
         );
     }
