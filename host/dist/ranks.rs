@@ -92,7 +92,7 @@ const GHOST_COST: f64 = 0.5;
 
 /// The ranks' work per step may exceed its mean by this much before the next cut shares out
 /// their measured cost per particle instead ([`RankStepper::judge_balance`]);
-/// `DUSTSPH_REBALANCE_AT` sets another (0: at every build measured; `inf`: never).
+/// `DUSTSPH_REBALANCE_AT` sets another (0: at every judgement; `inf`: never).
 const REBALANCE_AT: f64 = 0.05;
 
 /// Steps of work measured before the ranks' balance is judged (the cuts between keep the last
@@ -178,8 +178,8 @@ pub struct RankStepper {
     /// from the engine dropped for a rebuilt halo: the next engine, on the same layer, takes
     /// them instead of computing them again (a disc rebuilds its halo about every step).
     carried_norms: Option<std::collections::HashMap<(u64, u64), f64>>,
-    /// This rank's seconds of work in the steps since the last build (its steps' time less
-    /// its time in MPI, where it waits for the others), and those steps.
+    /// This rank's seconds of work in the steps since the ranks' balance was last judged (its
+    /// steps' time less its time in MPI, where it waits for the others), and those steps.
     busy: f64,
     busy_steps: u64,
     /// This rank's measured cost per particle over the ranks' mean, which the cuts share out
@@ -938,12 +938,6 @@ impl RankStepper {
         Ok((forces, global, drag[0]))
     }
 
-    /// This rank's particles for a step: its own migrated by this step's cut, in place (only
-    /// those that leave travel, as records), and the halo (thin: every neighbour and IDIC
-    /// cell-mate of an owned particle, now and after the step's drift, the margin; deep: the
-    /// step's chain of passes, and a fixed shell). `None` when the thin halo cannot serve (a
-    /// rank holds no gas: the ghosts' refresh is collective inside the step, and every rank
-    /// must step an engine). Collective.
     /// How many particles this rank owns (its host copy less its ghosts after a step).
     fn own_len(&self) -> usize {
         match (&self.resident, self.owned_stale) {
@@ -994,6 +988,12 @@ impl RankStepper {
         worth
     }
 
+    /// This rank's particles for a step: its own migrated by this step's cut, in place (only
+    /// those that leave travel, as records), and the halo (thin: every neighbour and IDIC
+    /// cell-mate of an owned particle, now and after the step's drift, the margin; deep: the
+    /// step's chain of passes, and a fixed shell). `None` when the thin halo cannot serve (a
+    /// rank holds no gas: the ghosts' refresh is collective inside the step, and every rank
+    /// must step an engine). Collective.
     fn local_layer(&mut self, thin: bool) -> Result<Option<LocalLayer>, String> {
         let world = &self.world;
         let domain = self.phys.domain;

@@ -1,6 +1,7 @@
 //! Checkpoints: the whole particle state in memory order (over MPI ranks each phase rank by
-//! rank, each written by its rank), bit for bit, plus the scene and the driver's progress, so
-//! that `dustsph resume` continues exactly as if never stopped.
+//! rank, each written by its rank, and read back a block of rows a rank), bit for bit, plus
+//! the scene and the driver's progress, so that `dustsph resume` continues exactly as if never
+//! stopped.
 use super::chunks::RowShare;
 use super::snapshot::{
     create_shared, get_rows, get_scalar, get_string, go_on, h5err, put_scalar, same_columns,
