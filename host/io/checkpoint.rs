@@ -4,8 +4,8 @@
 //! stopped.
 use super::chunks::RowShare;
 use super::snapshot::{
-    create_shared, get_rows, get_scalar, get_string, go_on, h5err, put_scalar, same_columns,
-    SharedGroup,
+    create_shared, get_rows, get_scalar, get_string, get_vec3_rows, go_on, h5err, put_scalar,
+    same_columns, SharedGroup,
 };
 use super::{commit_tmp, IoError, WithPath};
 use crate::particles::{Gas, Phase, State};
@@ -44,10 +44,7 @@ fn get_phase(
     let ds = g.dataset("m").map_err(h5err(path, name))?;
     let n = ds.shape().first().copied().unwrap_or(0);
     let rows = share(n);
-    let vec3 = |c: &str| -> Result<Vec<[f64; 3]>, IoError> {
-        let flat: Vec<f64> = get_rows(&g, c, &[n, 3], rows.clone(), path)?;
-        Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
-    };
+    let vec3 = |c: &str| get_vec3_rows(&g, c, n, rows.clone(), path);
     let fixed: Option<Vec<u8>> = match g.link_exists("fixed") {
         true => Some(get_rows(&g, "fixed", &[n], rows.clone(), path)?),
         false => None,

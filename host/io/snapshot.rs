@@ -1104,7 +1104,18 @@ pub(crate) fn get_vec3(
     n: usize,
     path: &Path,
 ) -> Result<Vec<[f64; 3]>, IoError> {
-    let flat: Vec<f64> = get_shaped(g, name, &[n, 3], path)?;
+    get_vec3_rows(g, name, n, 0..n, path)
+}
+
+/// Rows `rows` of an n × 3 dataset, as vectors.
+pub(crate) fn get_vec3_rows(
+    g: &Group,
+    name: &str,
+    n: usize,
+    rows: std::ops::Range<usize>,
+    path: &Path,
+) -> Result<Vec<[f64; 3]>, IoError> {
+    let flat: Vec<f64> = get_rows(g, name, &[n, 3], rows, path)?;
     Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
 }
 
