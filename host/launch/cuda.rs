@@ -153,6 +153,10 @@ impl Launcher for Cuda {
         false
     }
 
+    fn deposit_chunks(&self) -> usize {
+        0
+    }
+
     fn sync_hook(&self) -> Option<crate::step::timers::SyncHook> {
         let stream = self.stream.clone();
         // An error here is the stream's: the next launch or copy reports it.

@@ -52,6 +52,12 @@ pub trait Launcher {
     fn lists_by_default(&self) -> bool {
         true
     }
+    /// Into how many chunks of particles, each one thread's in order, the kernel coupling's
+    /// deposit rows are transposed (`th::DepositRowsArgs::chunk`); 0: one thread per particle
+    /// with atomic cursors and a sort of each row (the GPU's form). The rows come out the same.
+    fn deposit_chunks(&self) -> usize {
+        4 * ::rayon::current_num_threads()
+    }
     /// A wait for the work issued so far, for stage timers (none where launches return only
     /// when done, as on the CPU).
     fn sync_hook(&self) -> Option<crate::step::timers::SyncHook> {

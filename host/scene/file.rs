@@ -368,6 +368,19 @@ pub struct NumericsSection {
     /// pass of the gas: `auto` (on with the CPU launcher; the GPU kernels are built without lists),
     /// `on`, `off`. Results are bit-identical either way (docs/performance.md).
     pub neighbour_list: Option<ListChoice>,
+    /// How the kernel coupling's deposit rows are made from its return rows once per layer:
+    /// `auto` (`chunks` on the CPU, `atomic` on the GPU), `chunks` (each thread a chunk of
+    /// particles in order), `atomic` (a thread per particle, atomic cursors, each row sorted).
+    /// The rows, and so the results, are bit-identical either way (docs/method.md §K).
+    pub deposit_rows: Option<DepositRows>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum DepositRows {
+    Auto,
+    Chunks,
+    Atomic,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq, clap::ValueEnum)]

@@ -7,9 +7,9 @@
 //! [`Scene::to_toml`] writes the model as TOML (the summary's `scene_model`, the snapshots'
 //! `SceneModel` attribute), with the scene file's key names where the file has the key.
 use super::file::{
-    Coupling, DensityMethod, DepositForm, Dispersion, DragMethod, DustStart, EosKind, EpsteinForm,
-    GradientMethod, Integrator, Lattice, LawKind, ListChoice, PositionUpdate, Precision, Problem,
-    RadiusKind, WaveMode,
+    Coupling, DensityMethod, DepositForm, DepositRows, Dispersion, DragMethod, DustStart, EosKind,
+    EpsteinForm, GradientMethod, Integrator, Lattice, LawKind, ListChoice, PositionUpdate,
+    Precision, Problem, RadiusKind, WaveMode,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -393,6 +393,7 @@ pub enum OutputSchedule {
 pub struct Numerics {
     pub precision: Precision,
     pub neighbour_list: ListChoice,
+    pub deposit_rows: DepositRows,
 }
 
 /// The problem's own parameters (`[dustybox]`, `[dustywave]`, …), selected by `scene.problem`.

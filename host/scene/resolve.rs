@@ -221,22 +221,31 @@ impl Scene {
             );
         }
         let external = external(f.external.as_ref(), f.scene.dim)?;
-        let idic = Idic {
-            cell,
-            coupling: idic_file.and_then(|i| i.coupling).unwrap_or(Coupling::Cell),
-            deposit: idic_file
-                .and_then(|i| i.deposit)
-                .unwrap_or(DepositForm::Gather),
-            dispersion: idic_file
-                .and_then(|i| i.dispersion)
-                .unwrap_or(Dispersion::Kept),
-        };
         let drag = Drag {
             method: f
                 .drag
                 .as_ref()
                 .and_then(|d| d.method)
                 .unwrap_or(DragMethod::Idic),
+        };
+        // The kernel coupling is right wherever the dust sits (method.md §K); the explicit
+        // baseline is defined on the source report's cells.
+        let default_coupling = if drag.method == DragMethod::Explicit {
+            Coupling::Cell
+        } else {
+            Coupling::Kernel
+        };
+        let idic = Idic {
+            cell,
+            coupling: idic_file
+                .and_then(|i| i.coupling)
+                .unwrap_or(default_coupling),
+            deposit: idic_file
+                .and_then(|i| i.deposit)
+                .unwrap_or(DepositForm::Gather),
+            dispersion: idic_file
+                .and_then(|i| i.dispersion)
+                .unwrap_or(Dispersion::Kept),
         };
         coupling(&idic, &drag, dust.is_some())?;
         if idic.dispersion == Dispersion::Damped && dust.as_ref().is_some_and(|d| d.heating) {
@@ -266,6 +275,9 @@ impl Scene {
                 neighbour_list: numerics
                     .and_then(|n| n.neighbour_list)
                     .unwrap_or(ListChoice::Auto),
+                deposit_rows: numerics
+                    .and_then(|n| n.deposit_rows)
+                    .unwrap_or(DepositRows::Auto),
             },
             problem,
         })

@@ -101,16 +101,31 @@ fn start_resolved(
 }
 
 /// Refuse, before any device allocation, a run whose particles would not fit in the GPU's free
-/// memory ([`engine::DEVICE_BYTES_PER_PARTICLE`], measured); `auto` then runs on the CPU.
-fn check_device_memory(dev: &Cuda, state: &State, f32: bool) -> Result<(), StepError> {
+/// memory ([`engine::device_bytes_estimate`], measured); `auto` then runs on the CPU.
+fn check_device_memory(
+    dev: &Cuda,
+    phys: &Physics,
+    state: &State,
+    f32: bool,
+) -> Result<(), StepError> {
     let n = state.gas.ph.x.len() + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
     let per = engine::DEVICE_BYTES_PER_PARTICLE[f32 as usize];
-    let need = n as f64 * per;
+    let pairs = engine::coupling_pairs_estimate(phys, state);
+    let need = engine::device_bytes_estimate(phys, state, f32);
     let free = dev.memory_free()? as f64;
     if need > free {
+        let coupling = if pairs > 0.0 {
+            format!(
+                " and about {pairs:.2e} kernel-coupling pairs at {} B each",
+                engine::COUPLING_BYTES_PER_PAIR[f32 as usize]
+            )
+        } else {
+            String::new()
+        };
         return Err(StepError::Unsupported(format!(
-            "{n} particles need about {:.1} GB of GPU memory ({per} B each, {}), more than the \
-             {:.1} GB free on {}; lower sph.n, use numerics.precision = \"f32\", or run on the CPU",
+            "{n} particles need about {:.1} GB of GPU memory ({per} B each{coupling}, {}), more \
+             than the {:.1} GB free on {}; lower sph.n, use numerics.precision = \"f32\", or run \
+             on the CPU",
             need / 1e9,
             if f32 { "f32" } else { "f64" },
             free / 1e9,
@@ -193,7 +208,7 @@ impl Backend {
     ) -> Result<Backend, StepError> {
         Self::refuse_on_cuda(&phys)?;
         let f32 = phys.precision == Precision::F32;
-        check_device_memory(&dev, state, f32)?;
+        check_device_memory(&dev, &phys, state, f32)?;
         Ok(if f32 {
             Backend::CudaF32(Box::new(Engine::with_layer(phys, state, dev, layer)?))
         } else {

@@ -67,6 +67,8 @@ pub struct Physics {
     pub precision: Precision,
     /// Neighbour lists for the gas's passes (`numerics.neighbour_list`).
     pub neighbour_list: crate::scene::ListChoice,
+    /// How the kernel coupling's deposit rows are transposed (`numerics.deposit_rows`).
+    pub deposit_rows: crate::scene::DepositRows,
 }
 
 impl Physics {
@@ -105,6 +107,7 @@ impl Physics {
             integrator: scene.time.integrator,
             precision: scene.numerics.precision,
             neighbour_list: scene.numerics.neighbour_list,
+            deposit_rows: scene.numerics.deposit_rows,
         }
     }
 
@@ -141,6 +144,7 @@ impl Physics {
             integrator: Integrator::FirstOrder,
             precision: Precision::F64,
             neighbour_list: crate::scene::ListChoice::Auto,
+            deposit_rows: crate::scene::DepositRows::Auto,
         }
     }
 

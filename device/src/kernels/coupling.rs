@@ -17,7 +17,8 @@ pub fn kernel_of<R: Real>(k: &[KernelAt<R>], b: usize) -> KernelAt<R> {
 }
 
 /// The raw coupling weights of a particle at x: `f(a, W(|x − x_a|, h_a))` for every free gas
-/// particle a within reach. Their sum is the normaliser S of [`gas_weight_sum_at`].
+/// particle a within reach, in the neighbour walk's order. Their sum is the particle's
+/// normaliser S (0: no gas within reach, the particle does not couple).
 #[inline(always)]
 pub fn coupling_row_at<R: Real>(
     gas: &Sorted<'_, R>,
@@ -34,20 +35,6 @@ pub fn coupling_row_at<R: Real>(
             }
         }
     });
-}
-
-/// S(x) = Σ_b W(|x − x_b|, h_b) over the free gas particles b: the normaliser of the weights
-/// of a particle at x (0: no gas within reach, the particle does not couple).
-#[inline(always)]
-pub fn gas_weight_sum_at<R: Real>(
-    gas: &Sorted<'_, R>,
-    k: &[KernelAt<R>],
-    gas_fixed: &[bool],
-    x: Centre,
-) -> R {
-    let mut s = R::ZERO;
-    coupling_row_at(gas, k, gas_fixed, x, |_, w| s += w);
-    s
 }
 
 /// What one phase deposits on gas particle a: Σ w m, Σ w m ṽ, and the mass-weighted sums of
@@ -71,41 +58,15 @@ impl<R: Real> Deposit<R> {
     }
 }
 
-/// The weights w_ja = W(r_ja, h_a)/S_j of the particles j of one phase (positions `q.x`,
-/// normalisers `s`) around the gas particle at `xa` with kernel `ka`: `f(j, w_ja)` in the
-/// neighbour walk's order. Particles with `s = 0` or fixed ones have none.
+/// Deposit of one phase on a gas particle from its stored row ([`crate::threads::PairBufs`]):
+/// the depositing particles `idx` and their weights `w` (w_qa = W(r_qa, h_a)/S_q), with masses
+/// `m`, velocities `vel(q)`, densities `rho`, sqrt(p/ρ) `cs(q)`.
 #[inline(always)]
-pub fn deposit_row_at<R: Real>(
-    q: &Sorted<'_, R>,
-    s: &[R],
-    fixed: &[bool],
-    xa: Centre,
-    ka: &KernelAt<R>,
-    mut f: impl FnMut(usize, R),
-) {
-    q.walk_at(xa, |j, _, r2| {
-        if is_fixed(fixed, j) || s[j] <= R::ZERO {
-            return;
-        }
-        let w = ka.w(r2.sqrt()) / s[j];
-        if w > R::ZERO {
-            f(j, w);
-        }
-    });
-}
-
-/// Deposit of one phase on the gas particle at `xa` ([`deposit_row_at`]'s weights): masses,
-/// velocities `vel(j)`, densities `rho`, sqrt(p/ρ) `cs(j)`.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub fn deposit_at<R: Real>(
-    q: &Sorted<'_, R>,
-    s: &[R],
+pub fn deposit_rows<R: Real>(
+    idx: &[u32],
+    w: &[R],
     m: &[R],
     rho: &[R],
-    fixed: &[bool],
-    xa: Centre,
-    ka: &KernelAt<R>,
     vel: impl Fn(usize) -> Vec3<R>,
     cs: impl Fn(usize) -> R,
 ) -> Deposit<R> {
@@ -115,9 +76,10 @@ pub fn deposit_at<R: Real>(
         rho: R::ZERO,
         cs: R::ZERO,
     };
-    deposit_row_at(q, s, fixed, xa, ka, |j, w| {
-        d.add(w * m[j], vel(j), rho[j], cs(j))
-    });
+    for (&q, &w) in idx.iter().zip(w) {
+        let q = q as usize;
+        d.add(w * m[q], vel(q), rho[q], cs(q));
+    }
     d
 }
 
@@ -197,14 +159,13 @@ pub fn kernel_increments<R: Real>(
     out
 }
 
-/// Σ_a w_qa Δ_a for the particle q at `x` with normaliser `s` (0 when `s` = 0): the share of
-/// the gas particles' increments `delta(a)` (new − old mean) that q receives.
+/// Σ_a w_qa Δ_a for a particle q from its stored row (gas particles `idx`, raw kernel values
+/// `w` = W(r_qa, h_a)) and its normaliser `s` (0 when `s` = 0): the share of the gas particles'
+/// increments `delta(a)` (new − old mean) that q receives.
 #[inline(always)]
-pub fn gather_increment_at<R: Real>(
-    gas: &Sorted<'_, R>,
-    k: &[KernelAt<R>],
-    gas_fixed: &[bool],
-    x: Centre,
+pub fn gather_rows<R: Real>(
+    idx: &[u32],
+    w: &[R],
     s: R,
     delta: impl Fn(usize) -> Vec3<R>,
 ) -> Vec3<R> {
@@ -212,8 +173,8 @@ pub fn gather_increment_at<R: Real>(
     if s <= R::ZERO {
         return acc;
     }
-    coupling_row_at(gas, k, gas_fixed, x, |a, w| {
-        acc = axpy(acc, w / s, delta(a))
-    });
+    for (&a, &w) in idx.iter().zip(w) {
+        acc = axpy(acc, w / s, delta(a as usize));
+    }
     acc
 }

@@ -59,6 +59,60 @@ pub unsafe fn dust_accel_limit<R: Real>(t: usize, a: &DustLimitArgs<R>) {
     }
 }
 
+/// The kernel coupling's pairs of one layer (docs/method.md §K, "The pairs, once per layer"):
+/// found once, when the positions change, and summed over by every drag pass of the layer.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct PairBufs<R> {
+    /// The return rows: per gas particle q (row q) and dust particle j (row n_gas + j), the gas
+    /// particles a with W(r_qa, h_a) > 0 in the neighbour walk's order, `cap` slots per row at
+    /// row·cap, with W itself (the row's sum is the normaliser S_q).
+    pub ret_idx: *mut u32,
+    pub ret_w: *mut R,
+    /// Per row its length; above `cap` the row is incomplete (the host then widens `cap` and
+    /// finds the pairs again: [`PairBufs::ret_max`]).
+    pub ret_cnt: *mut u32,
+    pub cap: u32,
+    /// The longest row (atomic max).
+    pub ret_max: *mut u32,
+    /// The deposit rows: per gas particle a and phase slot s (0 gas, 1 + k fraction k), row
+    /// a(1 + nf) + s spans dep_off[row]..dep_off[row + 1] of `dep_idx` (the depositing gas or
+    /// dust particle) and `dep_w` (w_qa = W(r_qa, h_a)/S_q), in ascending particle order: the
+    /// return rows transposed ([`coupling_deposit_count`], [`coupling_deposit_fill`],
+    /// [`coupling_deposit_sort`]).
+    pub dep_off: *mut u32,
+    /// Per deposit row, the fill's cursor (zeroed before the fill).
+    pub dep_cur: *mut u32,
+    pub dep_idx: *mut u32,
+    pub dep_w: *mut R,
+}
+
+impl<R: Real> PairBufs<R> {
+    /// Return row `row` (gas particle, or n_gas + dust particle): gas indices and W.
+    #[inline(always)]
+    unsafe fn ret(&self, row: usize) -> (&[u32], &[R]) {
+        let cap = self.cap as usize;
+        let n = (*self.ret_cnt.add(row) as usize).min(cap);
+        (
+            sl(self.ret_idx.add(row * cap), n),
+            sl(self.ret_w.add(row * cap), n),
+        )
+    }
+    /// Deposit row of phase slot `slot` on gas particle a (`stride` = 1 + nf).
+    #[inline(always)]
+    unsafe fn dep(&self, a: usize, slot: usize, stride: usize) -> (&[u32], &[R]) {
+        let row = a * stride + slot;
+        let (lo, hi) = (
+            *self.dep_off.add(row) as usize,
+            *self.dep_off.add(row + 1) as usize,
+        );
+        (
+            sl(self.dep_idx.add(lo), hi - lo),
+            sl(self.dep_w.add(lo), hi - lo),
+        )
+    }
+}
+
 /// Per-particle buffers of the kernel coupling.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
@@ -85,6 +139,8 @@ pub struct CouplingBufs<R> {
     /// Per gas particle, 1 where its solve and heat are left to its owner: over MPI ranks a
     /// ghost, whose values the refresh after the pass brings (docs/scaling.md); null: none.
     pub gas_skip: *const u8,
+    /// The pairs of this layer.
+    pub pairs: PairBufs<R>,
 }
 
 /// Whether gas particle t's solve and heat are left to its owner ([`CouplingBufs::gas_skip`]).
@@ -111,39 +167,239 @@ unsafe fn with_gas_kernels<R: Real, T>(
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
-pub struct NormArgs<R> {
+pub struct PairRowsArgs<R> {
     pub gas: PhaseBufs<R>,
-    /// The phase whose normalisers are computed (the gas itself, or the dust).
+    /// The phase whose rows and normalisers are found (the gas itself, or the dust).
     pub ph: PhaseBufs<R>,
+    /// The phase's first return row (0 for the gas, n_gas for the dust).
+    pub row0: u32,
     pub s: *mut R,
+    /// 1 where a particle's S comes from its owner (over MPI ranks, a ghost: 0 here until the
+    /// refresh; its row is found all the same, for the deposits on the gas it reaches); null:
+    /// none.
+    pub ghost: *const u8,
     /// As [`CouplingBufs::kernel_at`].
     pub kernel_at: *const KernelAt<R>,
     /// 1 where a particle's S of this layer is already in `s` (over MPI ranks, carried from
     /// the engine its halo was rebuilt from); null: none.
     pub keep: *const u8,
+    pub pairs: PairBufs<R>,
     pub p: Params<R>,
 }
 
-/// S_t = Σ_b W(r_tb, h) over the free gas, for particle t of `ph` (0 when fixed).
-pub unsafe fn coupling_norm<R: Real>(t: usize, a: &NormArgs<R>) {
+/// Particle t of `ph`: its return row (the free gas particles b with W(r_tb, h_b) > 0, in the
+/// neighbour walk's order) and S_t = Σ_b W(r_tb, h_b), summed in that order (0 when fixed).
+pub unsafe fn coupling_rows<R: Real>(t: usize, a: &PairRowsArgs<R>) {
     let ph = &a.ph;
-    if t >= ph.len() || (!a.keep.is_null() && *a.keep.add(t) != 0) {
+    if t >= ph.len() {
         return;
     }
-    let s = if kernels::is_fixed(ph.fixed(), t) {
-        R::ZERO
-    } else {
-        with_gas_kernels(a.kernel_at, a.gas.len(), &a.p, |k| {
-            // The gas's own normalisers replay its neighbour list.
+    let pr = &a.pairs;
+    let row = a.row0 as usize + t;
+    let cap = pr.cap as usize;
+    let (mut k, mut s) = (0usize, R::ZERO);
+    if !kernels::is_fixed(ph.fixed(), t) {
+        let idx = sl_mut(pr.ret_idx.add(row * cap), cap);
+        let w = sl_mut(pr.ret_w.add(row * cap), cap);
+        with_gas_kernels(a.kernel_at, a.gas.len(), &a.p, |kk| {
+            // The gas's own rows replay its neighbour list.
             let at = if core::ptr::eq(ph.x, a.gas.x) {
                 Centre::Own(t)
             } else {
                 Centre::Point(ph.x()[t])
             };
-            kernels::gas_weight_sum_at(&a.gas.sorted(&a.p, 0), k, a.gas.fixed(), at)
-        })
+            kernels::coupling_row_at(&a.gas.sorted(&a.p, 0), kk, a.gas.fixed(), at, |b, wb| {
+                if k < cap {
+                    idx[k] = b as u32;
+                    w[k] = wb;
+                }
+                k += 1;
+                s += wb;
+            })
+        });
+    }
+    *pr.ret_cnt.add(row) = k as u32;
+    let m = AtomicU32::from_ptr(pr.ret_max);
+    if m.load(Ordering::Relaxed) < k as u32 {
+        m.fetch_max(k as u32, Ordering::Relaxed);
+    }
+    if !a.keep.is_null() && *a.keep.add(t) != 0 {
+        return;
+    }
+    let ghost = !a.ghost.is_null() && *a.ghost.add(t) != 0;
+    *a.s.add(t) = if ghost { R::ZERO } else { s };
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct DepositRowsArgs<R> {
+    pub gas: PhaseBufs<R>,
+    pub dust: PhaseBufs<R>,
+    pub cb: CouplingBufs<R>,
+    /// 0: one thread per particle (gas, then dust), the rows' cursors atomic and each row
+    /// sorted after ([`coupling_deposit_sort`]; the GPU's form). Else each thread takes a chunk
+    /// of this many particles, in order, with counters of its own in `counts` (chunk · rows +
+    /// row): no atomics, and each row comes out in ascending order (the CPU's form, where
+    /// atomics cost the transposition half its time).
+    pub chunk: u32,
+    pub counts: *mut u32,
+    pub p: Params<R>,
+}
+
+impl<R: Real> DepositRowsArgs<R> {
+    /// Deposit rows: one per gas particle and phase slot.
+    #[inline(always)]
+    fn rows(&self) -> usize {
+        self.gas.len() * (1 + self.p.nf as usize)
+    }
+    /// The particles (return rows) of thread t: itself, or its chunk.
+    #[inline(always)]
+    fn particles(&self, t: usize) -> core::ops::Range<usize> {
+        let n = self.gas.len() + self.dust.len();
+        if self.chunk == 0 {
+            t..(t + 1).min(n)
+        } else {
+            let c = self.chunk as usize;
+            (t * c).min(n)..((t + 1) * c).min(n)
+        }
+    }
+}
+
+/// The deposits particle q (return row q: gas q, or dust q − n_gas) makes: `f(deposit row,
+/// w_qa)` for each gas particle a of its return row, w_qa = W(r_qa, h_a)/S_q (none when fixed
+/// or uncoupled).
+#[inline(always)]
+unsafe fn for_deposits<R: Real>(q: usize, a: &DepositRowsArgs<R>, mut f: impl FnMut(usize, R)) {
+    let ng = a.gas.len();
+    let (ph, t, is_gas) = if q < ng {
+        (&a.gas, q, true)
+    } else {
+        (&a.dust, q - ng, false)
     };
-    *a.s.add(t) = s;
+    if kernels::is_fixed(ph.fixed(), t) {
+        return;
+    }
+    let cb = &a.cb;
+    let s = if is_gas {
+        *cb.s_gas.add(t)
+    } else {
+        *cb.s_dust.add(t)
+    };
+    if s <= R::ZERO {
+        return;
+    }
+    let slot = if is_gas { 0 } else { 1 + ph.group_of(t) };
+    let stride = 1 + a.p.nf as usize;
+    let (idx, w) = cb.pairs.ret(q);
+    for (&g, &wg) in idx.iter().zip(w) {
+        let w = wg / s;
+        if w > R::ZERO {
+            f(g as usize * stride + slot, w);
+        }
+    }
+}
+
+/// The deposit rows' lengths: each particle of thread t counts itself into the row of each
+/// gas particle it deposits on: atomically into `dep_off` (zeroed before; scanned after), or
+/// into its chunk's own counters.
+pub unsafe fn coupling_deposit_count<R: Real>(t: usize, a: &DepositRowsArgs<R>) {
+    let rows = a.rows();
+    for q in a.particles(t) {
+        if a.chunk == 0 {
+            let off = a.cb.pairs.dep_off;
+            for_deposits(q, a, |row, _| {
+                atomic_add_u32(off.add(row), 1);
+            });
+        } else {
+            let cnt = a.counts.add(t * rows);
+            for_deposits(q, a, |row, _| *cnt.add(row) += 1);
+        }
+    }
+}
+
+/// Chunked form, thread t = deposit row t: its length, the sum of the chunks' counts, into
+/// `dep_off` (then scanned).
+pub unsafe fn coupling_deposit_total<R: Real>(t: usize, a: &DepositRowsArgs<R>) {
+    let rows = a.rows();
+    if t >= rows {
+        return;
+    }
+    let chunks = (a.gas.len() + a.dust.len()).div_ceil(a.chunk as usize);
+    let mut n = 0;
+    for c in 0..chunks {
+        n += *a.counts.add(c * rows + t);
+    }
+    *a.cb.pairs.dep_off.add(t) = n;
+}
+
+/// Chunked form, thread t = deposit row t, after the scan: each chunk's counter becomes where
+/// its first entry in the row goes (the chunks in order).
+pub unsafe fn coupling_deposit_starts<R: Real>(t: usize, a: &DepositRowsArgs<R>) {
+    let rows = a.rows();
+    if t >= rows {
+        return;
+    }
+    let chunks = (a.gas.len() + a.dust.len()).div_ceil(a.chunk as usize);
+    let mut at = *a.cb.pairs.dep_off.add(t);
+    for c in 0..chunks {
+        let n = *a.counts.add(c * rows + t);
+        *a.counts.add(c * rows + t) = at;
+        at += n;
+    }
+}
+
+/// The deposit rows filled: each particle of thread t writes itself and its weight into the
+/// row of each gas particle it deposits on, at the slot its chunk's counter holds, or that the
+/// row's atomic cursor hands out (then [`coupling_deposit_sort`] orders each row).
+pub unsafe fn coupling_deposit_fill<R: Real>(t: usize, a: &DepositRowsArgs<R>) {
+    let pr = &a.cb.pairs;
+    let rows = a.rows();
+    let ng = a.gas.len();
+    for q in a.particles(t) {
+        // The row holds one phase: its own index.
+        let own = if q < ng { q } else { q - ng };
+        let put = |at: usize, w: R| {
+            *pr.dep_idx.add(at) = own as u32;
+            *pr.dep_w.add(at) = w;
+        };
+        if a.chunk == 0 {
+            for_deposits(q, a, |row, w| {
+                let at = *pr.dep_off.add(row) + atomic_add_u32(pr.dep_cur.add(row), 1);
+                put(at as usize, w);
+            });
+        } else {
+            let next = a.counts.add(t * rows);
+            for_deposits(q, a, |row, w| {
+                let at = *next.add(row);
+                *next.add(row) = at + 1;
+                put(at as usize, w);
+            });
+        }
+    }
+}
+
+/// Deposit row t in ascending particle order (an insertion sort: rows hold tens of pairs), so
+/// that its sums do not depend on the threads' order: the same bits on every launcher and
+/// thread count, and as the chunked form.
+pub unsafe fn coupling_deposit_sort<R: Real>(t: usize, a: &DepositRowsArgs<R>) {
+    if t >= a.rows() {
+        return;
+    }
+    let pr = &a.cb.pairs;
+    let (lo, hi) = (*pr.dep_off.add(t) as usize, *pr.dep_off.add(t + 1) as usize);
+    let idx = sl_mut(pr.dep_idx.add(lo), hi - lo);
+    let w = sl_mut(pr.dep_w.add(lo), hi - lo);
+    for i in 1..idx.len() {
+        let (q, wq) = (idx[i], w[i]);
+        let mut j = i;
+        while j > 0 && idx[j - 1] > q {
+            idx[j] = idx[j - 1];
+            w[j] = w[j - 1];
+            j -= 1;
+        }
+        idx[j] = q;
+        w[j] = wq;
+    }
 }
 
 #[repr(C)]
@@ -158,8 +414,8 @@ pub struct CoupleArgs<R> {
     pub p: Params<R>,
 }
 
-/// Gas particle t: the deposits of the gas and of every fraction on it (gathered by walking
-/// their cells), the implicit solve, and the increments of its means (and its t_k*).
+/// Gas particle t: the deposits of the gas and of every fraction on it (summed over its deposit
+/// rows), the implicit solve, and the increments of its means (and its t_k*).
 pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
     let g = &a.gas;
     if t >= g.len() {
@@ -171,34 +427,21 @@ pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
     if kernels::is_fixed(g.fixed(), t) || gas_skipped(&a.cb, t) {
         return coupling_finish(t, a, &kernels::Deposit::default(), &dust_dep);
     }
-    let k = with_gas_kernels(a.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
-    let xa = g.x()[t];
-    let gas_dep = kernels::deposit_at(
-        &g.sorted(p, 0),
-        sl(a.cb.s_gas, g.len()),
+    let pr = &a.cb.pairs;
+    let (idx, w) = pr.dep(t, 0, 1 + nf);
+    let gas_dep = kernels::deposit_rows(
+        idx,
+        w,
         g.m(),
         g.rho(),
-        g.fixed(),
-        Centre::Own(t),
-        &k,
         |b| gas_base_velocity(a, b),
         |b| gas_sound(a, b),
     );
     let d = &a.dust;
-    let s_dust = sl(a.cb.s_dust, d.len());
     let u = d.v();
     for (f, dep) in dust_dep.iter_mut().enumerate().take(nf) {
-        *dep = kernels::deposit_at(
-            &d.sorted(p, f),
-            s_dust,
-            d.m(),
-            d.rho(),
-            d.fixed(),
-            Centre::Point(xa),
-            &k,
-            |j| u[j],
-            |_| R::ZERO,
-        );
+        let (idx, w) = pr.dep(t, 1 + f, 1 + nf);
+        *dep = kernels::deposit_rows(idx, w, d.m(), d.rho(), |j| u[j], |_| R::ZERO);
     }
     coupling_finish(t, a, &gas_dep, &dust_dep);
 }
@@ -295,7 +538,7 @@ pub struct ScatterDepositArgs<R> {
 }
 
 /// Scatter form of the deposits (the design card's atomicAdd): particle t adds its share to
-/// each gas particle within reach. The sums' order is the hardware's: not bit-reproducible.
+/// each gas particle of its return row. The sums' order is the hardware's: not bit-reproducible.
 pub unsafe fn coupling_scatter<R: Real>(t: usize, a: &ScatterDepositArgs<R>) {
     let ph = &a.ph;
     if t >= ph.len() || kernels::is_fixed(ph.fixed(), t) {
@@ -319,23 +562,18 @@ pub unsafe fn coupling_scatter<R: Real>(t: usize, a: &ScatterDepositArgs<R>) {
     };
     let (m, rho) = (*ph.m.add(t), *ph.rho.add(t));
     let stride = 1 + p.nf as usize;
-    with_gas_kernels(c.cb.kernel_at, c.gas.len(), p, |k| {
-        let at = if gas {
-            Centre::Own(t)
-        } else {
-            Centre::Point(ph.x()[t])
-        };
-        kernels::coupling_row_at(&c.gas.sorted(p, 0), k, c.gas.fixed(), at, |g, w| {
-            let wm = w / s * m;
-            let o = a.sums.add((g * stride + slot) * DEPOSIT_SLOTS);
-            atomic_add_f64(o, wm.to_f64());
-            for (d, v) in vel.iter().enumerate() {
-                atomic_add_f64(o.add(1 + d), (wm * *v).to_f64());
-            }
-            atomic_add_f64(o.add(4), (wm * rho).to_f64());
-            atomic_add_f64(o.add(5), (wm * cs).to_f64());
-        })
-    });
+    let row = if gas { t } else { c.gas.len() + t };
+    let (idx, ws) = c.cb.pairs.ret(row);
+    for (&g, &w) in idx.iter().zip(ws) {
+        let wm = w / s * m;
+        let o = a.sums.add((g as usize * stride + slot) * DEPOSIT_SLOTS);
+        atomic_add_f64(o, wm.to_f64());
+        for (d, v) in vel.iter().enumerate() {
+            atomic_add_f64(o.add(1 + d), (wm * *v).to_f64());
+        }
+        atomic_add_f64(o.add(4), (wm * rho).to_f64());
+        atomic_add_f64(o.add(5), (wm * cs).to_f64());
+    }
 }
 
 /// The solve of gas particle t from the scatter form's sums.
@@ -384,6 +622,13 @@ pub struct ReturnArgs<R> {
     pub p: Params<R>,
 }
 
+/// Return row of particle t of `a.ph` (gas t, or n_gas + dust t).
+#[inline(always)]
+unsafe fn ret_row<R: Real>(t: usize, a: &ReturnArgs<R>) -> (&[u32], &[R]) {
+    let row = if a.is_gas != 0 { t } else { a.gas.len() + t };
+    a.cb.pairs.ret(row)
+}
+
 /// Particle t of `ph` gets its base velocity plus Σ_a w_ta Δ_a.
 pub unsafe fn coupling_return<R: Real>(t: usize, a: &ReturnArgs<R>) {
     let ph = &a.ph;
@@ -393,26 +638,20 @@ pub unsafe fn coupling_return<R: Real>(t: usize, a: &ReturnArgs<R>) {
     let p = &a.p;
     let nf = p.nf as usize;
     let v = *ph.v.add(t);
-    let (base, s, f) = if a.is_gas != 0 {
+    let is_gas = a.is_gas != 0;
+    let (base, s, f) = if is_gas {
         let acc = crate::add(*a.acc.add(t), p.ext_gas);
         (crate::axpy(v, p.tau, acc), *a.cb.s_gas.add(t), 0)
     } else {
         (v, *a.cb.s_dust.add(t), ph.group_of(t))
     };
-    let is_gas = a.is_gas != 0;
-    let at = if is_gas {
-        Centre::Own(t)
-    } else {
-        Centre::Point(ph.x()[t])
-    };
-    let inc = with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
-        kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), at, s, |g| {
-            if is_gas {
-                *a.cb.dv.add(g)
-            } else {
-                *a.cb.du.add(g * nf + f)
-            }
-        })
+    let (idx, w) = ret_row(t, a);
+    let inc = kernels::gather_rows(idx, w, s, |g| {
+        if is_gas {
+            *a.cb.dv.add(g)
+        } else {
+            *a.cb.du.add(g * nf + f)
+        }
     });
     let new = crate::add(base, inc);
     if !a.loss.is_null() {
@@ -437,14 +676,10 @@ pub unsafe fn coupling_damp<R: Real>(t: usize, a: &ReturnArgs<R>) {
     let p = &a.p;
     let nf = p.nf as usize;
     let is_gas = a.is_gas != 0;
-    let (s, f, at) = if is_gas {
-        (*a.cb.s_gas.add(t), 0, Centre::Own(t))
+    let (s, f) = if is_gas {
+        (*a.cb.s_gas.add(t), 0)
     } else {
-        (
-            *a.cb.s_dust.add(t),
-            ph.group_of(t),
-            Centre::Point(ph.x()[t]),
-        )
+        (*a.cb.s_dust.add(t), ph.group_of(t))
     };
     let v = ph.v.add(t);
     if s <= R::ZERO {
@@ -455,26 +690,20 @@ pub unsafe fn coupling_damp<R: Real>(t: usize, a: &ReturnArgs<R>) {
         }
         return;
     }
-    let gather = |value: &dyn Fn(usize) -> Vec3<R>| {
-        with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
-            kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), at, s, value)
-        })
-    };
+    let (idx, ws) = ret_row(t, a);
     if is_gas {
-        let smooth = gather(&|c| *a.cb.v_new.add(c));
+        let smooth = kernels::gather_rows(idx, ws, s, |c| *a.cb.v_new.add(c));
         *a.cb.gas_dev.add(t) = crate::sub(*v, smooth);
         return;
     }
-    // One walk for the target and the stopping time the particle feels.
+    // One sweep for the target and the stopping time the particle feels.
     let (mut target, mut t_stop) = ([R::ZERO; 3], R::ZERO);
-    with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
-        kernels::coupling_row_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), at, |g, w| {
-            let w = w / s;
-            let aim = crate::add(*a.cb.u_new.add(g * nf + f), *a.cb.gas_dev.add(g));
-            target = crate::axpy(target, w, aim);
-            t_stop += w * *a.cb.t_stop.add(g * nf + f);
-        })
-    });
+    for (&g, &w) in idx.iter().zip(ws) {
+        let (g, w) = (g as usize, w / s);
+        let aim = crate::add(*a.cb.u_new.add(g * nf + f), *a.cb.gas_dev.add(g));
+        target = crate::axpy(target, w, aim);
+        t_stop += w * *a.cb.t_stop.add(g * nf + f);
+    }
     let beta = p.tau / t_stop;
     let share = if beta.is_finite() && beta > R::ZERO {
         beta / (R::ONE + beta)
@@ -495,23 +724,13 @@ pub unsafe fn coupling_react<R: Real>(t: usize, a: &CoupleArgs<R>) {
         return;
     }
     let p = &a.p;
-    let k = with_gas_kernels(a.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
-    let xa = g.x()[t];
+    let nf = p.nf as usize;
     let d = &a.dust;
-    let s_dust = sl(a.cb.s_dust, d.len());
     let mut gained = [R::ZERO; 3];
-    for f in 0..p.nf as usize {
-        let dep = kernels::deposit_at(
-            &d.sorted(p, f),
-            s_dust,
-            d.m(),
-            d.rho(),
-            d.fixed(),
-            Centre::Point(xa),
-            &k,
-            |j| *a.cb.react.add(j),
-            |_| R::ZERO,
-        );
+    for f in 0..nf {
+        let (idx, w) = a.cb.pairs.dep(t, 1 + f, 1 + nf);
+        let dep =
+            kernels::deposit_rows(idx, w, d.m(), d.rho(), |j| *a.cb.react.add(j), |_| R::ZERO);
         gained = crate::add(gained, dep.mom);
     }
     let v = g.v.add(t);
@@ -524,19 +743,16 @@ pub unsafe fn coupling_tstop<R: Real>(t: usize, a: &ReturnArgs<R>) {
     if t >= ph.len() {
         return;
     }
-    let p = &a.p;
-    let nf = p.nf as usize;
+    let nf = a.p.nf as usize;
     let s = *a.cb.s_dust.add(t);
     let out = if s <= R::ZERO {
         R::from_f64(f64::INFINITY)
     } else {
         let f = ph.group_of(t);
-        with_gas_kernels(a.cb.kernel_at, a.gas.len(), p, |k| {
-            let at = Centre::Point(ph.x()[t]);
-            kernels::gather_increment_at(&a.gas.sorted(p, 0), k, a.gas.fixed(), at, s, |g| {
-                [*a.cb.t_stop.add(g * nf + f), R::ZERO, R::ZERO]
-            })[0]
-        })
+        let (idx, w) = ret_row(t, a);
+        kernels::gather_rows(idx, w, s, |g| {
+            [*a.cb.t_stop.add(g * nf + f), R::ZERO, R::ZERO]
+        })[0]
     };
     *a.out.add(t) = out;
 }
@@ -566,35 +782,17 @@ pub unsafe fn coupling_heat<R: Real>(t: usize, a: &CouplingHeatArgs<R>) {
         *a.heat.add(t) = R::ZERO;
         return;
     }
-    let ka = with_gas_kernels(c.cb.kernel_at, g.len(), p, |k| kernels::kernel_of(k, t));
-    let xa = g.x()[t];
+    let stride = 1 + p.nf as usize;
     let zero = [R::ZERO; 3];
-    let mut q = kernels::deposit_at(
-        &g.sorted(p, 0),
-        sl(c.cb.s_gas, g.len()),
-        sl(a.loss_gas, g.len()),
-        g.rho(),
-        g.fixed(),
-        Centre::Own(t),
-        &ka,
-        |_| zero,
-        |_| R::ZERO,
-    )
-    .mass;
+    let pr = &c.cb.pairs;
+    let (idx, w) = pr.dep(t, 0, stride);
+    let loss_gas = sl(a.loss_gas, g.len());
+    let mut q = kernels::deposit_rows(idx, w, loss_gas, g.rho(), |_| zero, |_| R::ZERO).mass;
     let d = &c.dust;
+    let loss_dust = sl(a.loss_dust, d.len());
     for f in 0..p.nf as usize {
-        q += kernels::deposit_at(
-            &d.sorted(p, f),
-            sl(c.cb.s_dust, d.len()),
-            sl(a.loss_dust, d.len()),
-            d.rho(),
-            d.fixed(),
-            Centre::Point(xa),
-            &ka,
-            |_| zero,
-            |_| R::ZERO,
-        )
-        .mass;
+        let (idx, w) = pr.dep(t, 1 + f, stride);
+        q += kernels::deposit_rows(idx, w, loss_dust, d.rho(), |_| zero, |_| R::ZERO).mass;
     }
     *a.heat.add(t) = q / *g.m.add(t);
 }

@@ -491,6 +491,61 @@ pub(super) struct CouplingBuffers<L: Launcher, R: Float> {
     pub(super) damping: Option<[Buf<L, [R; 3]>; 4]>,
     /// Variable h: the weights use each gas particle's kernel (the engine's `sm.kernel_at`).
     pub(super) per_particle_kernels: bool,
+    /// The pairs of this layer (`th::PairBufs`).
+    pub(super) pairs: PairBuffers<L, R>,
+}
+
+/// The kernel coupling's pairs of one layer (`th::PairBufs`, docs/method.md §K): the return
+/// rows, `cap` slots per particle (gas, then dust), and the deposit rows, compact.
+pub(super) struct PairBuffers<L: Launcher, R: Float> {
+    pub(super) ret_idx: Buf<L, u32>,
+    pub(super) ret_w: Buf<L, R>,
+    pub(super) ret_cnt: Buf<L, u32>,
+    /// Slots per return row: 0 until the first layer's rows are counted, then 9/8 of the
+    /// longest row seen (in steps of 8).
+    pub(super) cap: usize,
+    pub(super) ret_max: Buf<L, u32>,
+    pub(super) dep_off: Buf<L, u32>,
+    pub(super) dep_cur: Buf<L, u32>,
+    pub(super) dep_idx: Buf<L, u32>,
+    pub(super) dep_w: Buf<L, R>,
+    /// The chunked transposition's counters (`th::DepositRowsArgs::counts`).
+    pub(super) dep_counts: Buf<L, u32>,
+    /// The deposit rows belong to the current return rows (built once per layer, after the
+    /// normalisers' refresh).
+    pub(super) deposits_fresh: bool,
+}
+
+impl<L: Launcher, R: Float> PairBuffers<L, R> {
+    fn new(d: &Device<L>, ng: usize, nd: usize) -> Result<Self, GpuError> {
+        Ok(PairBuffers {
+            ret_idx: d.buf(1)?,
+            ret_w: d.buf(1)?,
+            ret_cnt: d.buf((ng + nd).max(1))?,
+            cap: 0,
+            ret_max: d.buf(1)?,
+            dep_off: d.buf(1)?,
+            dep_cur: d.buf(1)?,
+            dep_idx: d.buf(1)?,
+            dep_w: d.buf(1)?,
+            dep_counts: d.buf(1)?,
+            deposits_fresh: false,
+        })
+    }
+
+    pub(super) fn bufs(&self, d: &Device<L>) -> th::PairBufs<R> {
+        th::PairBufs {
+            ret_idx: d.ptr(&self.ret_idx),
+            ret_w: d.ptr(&self.ret_w),
+            ret_cnt: d.ptr(&self.ret_cnt),
+            cap: self.cap as u32,
+            ret_max: d.ptr(&self.ret_max),
+            dep_off: d.ptr(&self.dep_off),
+            dep_cur: d.ptr(&self.dep_cur),
+            dep_idx: d.ptr(&self.dep_idx),
+            dep_w: d.ptr(&self.dep_w),
+        }
+    }
 }
 
 impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
@@ -529,6 +584,7 @@ impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
             },
             // The engine sets it where it has ghosts (`Engine::coupling_bufs`).
             gas_skip: std::ptr::null(),
+            pairs: self.pairs.bufs(d),
         }
     }
 }
@@ -707,6 +763,7 @@ impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
                 None
             },
             per_particle_kernels: stages.variable_h,
+            pairs: PairBuffers::new(d, ng, nd)?,
         }))
     }
 }

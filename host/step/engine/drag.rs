@@ -1,6 +1,7 @@
 //! The drag: the IDIC cell step (method.md §3), the kernel coupling (§K), the explicit
 //! baseline's limit, the velocity kick with the drag, and the stopping times for output.
 use super::*;
+use crate::scene::DepositRows;
 
 impl<L: Launcher, R: Float> Engine<L, R> {
     /// The explicit drag's step limit at the current layer, [`drag::EXPLICIT_SAFETY`]/Λ with Λ
@@ -86,7 +87,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         b
     }
 
-    /// The kernel coupling's normalisers at the current positions, unless this layer has them.
+    /// The kernel coupling's pairs (its return rows) and normalisers at the current positions,
+    /// unless this layer has them: one walk per particle (docs/method.md §K, "The pairs, once
+    /// per layer"), a second only where a row outgrew its slots.
     pub(super) fn coupling_norms(&mut self) -> Result<(), GpuError> {
         let d = &self.d;
         let c = self.coupling.as_ref().expect("kernel coupling");
@@ -106,24 +109,133 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         if self.norms_fresh {
             return Ok(());
         }
-        // A ghost's normaliser comes from its owner (the refresh after them): its own sum,
-        // cut off at the halo's edge, is not computed.
-        for (gas, s) in [(true, &c.s_gas), (false, &c.s_dust)] {
-            let ph = if gas { &self.gas } else { &self.dust };
-            let a = th::NormArgs {
-                gas: self.gas.bufs(d),
-                ph: self.masked(gas),
-                s: d.ptr(s),
-                kernel_at: c.bufs(d, &self.sm.kernel_at).kernel_at,
-                keep: self.norms_kept[!gas as usize]
-                    .as_ref()
-                    .map_or(std::ptr::null(), |k| d.ptr(k)),
-                p: self.params(0.0)?.dev,
-            };
-            d.run(R::COUPLING_NORM, ph.n, &a)?;
+        let (ng, nd) = (self.gas.n, self.dust.n);
+        loop {
+            let d = &self.d;
+            let c = self.coupling.as_mut().expect("kernel coupling");
+            d.put(&mut c.pairs.ret_max, &[0])?;
+            let c = self.coupling.as_ref().expect("kernel coupling");
+            for (gas, s) in [(true, &c.s_gas), (false, &c.s_dust)] {
+                let ph = if gas { &self.gas } else { &self.dust };
+                let a = th::PairRowsArgs {
+                    gas: self.gas.bufs(d),
+                    ph: ph.bufs(d),
+                    row0: if gas { 0 } else { ng as u32 },
+                    s: d.ptr(s),
+                    // A ghost's normaliser comes from its owner (the refresh after them): its
+                    // own sum, cut off at the halo's edge, is not kept.
+                    ghost: self
+                        .ghosts
+                        .as_ref()
+                        .and_then(|g| g.mask[!gas as usize].as_ref())
+                        .map_or(std::ptr::null(), |m| d.ptr(m).cast_const()),
+                    kernel_at: c.bufs(d, &self.sm.kernel_at).kernel_at,
+                    keep: self.norms_kept[!gas as usize]
+                        .as_ref()
+                        .map_or(std::ptr::null(), |k| d.ptr(k)),
+                    pairs: c.pairs.bufs(d),
+                    p: self.params(0.0)?.dev,
+                };
+                d.run(R::COUPLING_ROWS, ph.n, &a)?;
+            }
+            let longest = d.get(&c.pairs.ret_max, 1)?[0] as usize;
+            if longest <= c.pairs.cap {
+                break;
+            }
+            // Rows outgrew their slots (or the first layer counted them): widen and find
+            // the pairs again.
+            let cap = (longest + longest / 8).next_multiple_of(8);
+            let c = self.coupling.as_mut().expect("kernel coupling");
+            c.pairs.ret_idx = d.buf((ng + nd) * cap)?;
+            c.pairs.ret_w = d.buf((ng + nd) * cap)?;
+            c.pairs.cap = cap;
         }
+        self.coupling
+            .as_mut()
+            .expect("kernel coupling")
+            .pairs
+            .deposits_fresh = false;
         self.norms_fresh = true;
         self.norms_kept = [None, None];
+        Ok(())
+    }
+
+    /// The kernel coupling's deposit rows of this layer, unless it has them: its return rows
+    /// transposed (after the normalisers' refresh: a deposit's weight is W/S of the particle
+    /// that deposits), each row in ascending particle order.
+    pub(super) fn coupling_deposits(&mut self) -> Result<(), GpuError> {
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        if c.pairs.deposits_fresh {
+            return Ok(());
+        }
+        let (ng, nd) = (self.gas.n, self.dust.n);
+        let rows = ng * (1 + self.dust.groups);
+        let d = &self.d;
+        let p = self.params(0.0)?;
+        // Chunks of at least 256 particles: fewer counters than particles.
+        let chunks = match self.phys.deposit_rows {
+            DepositRows::Auto => d.launcher.deposit_chunks(),
+            DepositRows::Chunks => 4 * ::rayon::current_num_threads(),
+            DepositRows::Atomic => 0,
+        }
+        .min((ng + nd).div_ceil(256));
+        let chunk = if chunks > 0 {
+            (ng + nd).div_ceil(chunks)
+        } else {
+            0
+        };
+        let threads = if chunk > 0 {
+            (ng + nd).div_ceil(chunk)
+        } else {
+            ng + nd
+        };
+        let c = self.coupling.as_mut().expect("kernel coupling");
+        d.zeroed(&mut c.pairs.dep_off, rows + 1)?;
+        if chunk > 0 {
+            d.zeroed(&mut c.pairs.dep_counts, threads * rows)?;
+        } else {
+            d.zeroed(&mut c.pairs.dep_cur, rows)?;
+        }
+        let c = self.coupling.as_ref().expect("kernel coupling");
+        let mut a = th::DepositRowsArgs {
+            gas: self.gas.bufs(d),
+            dust: self.dust.bufs(d),
+            cb: c.bufs(d, &self.sm.kernel_at),
+            chunk: chunk as u32,
+            counts: d.ptr(&c.pairs.dep_counts),
+            p: p.dev,
+        };
+        d.run(R::COUPLING_DEPOSIT_COUNT, threads, &a)?;
+        if chunk > 0 {
+            d.run(R::COUPLING_DEPOSIT_TOTAL, rows, &a)?;
+        }
+        d.scan(&c.pairs.dep_off, rows + 1, &mut self.sums)?;
+        // The scan leaves the total after its chunk sums.
+        let blocks = (rows + 1).div_ceil(SCAN_CHUNK);
+        let total = d.get(&self.sums, blocks + 1)?[blocks] as usize;
+        let c = self.coupling.as_mut().expect("kernel coupling");
+        if c.pairs.dep_idx.len < total {
+            let n = total + total / 8;
+            c.pairs.dep_idx = d.buf(n)?;
+            c.pairs.dep_w = d.buf(n)?;
+        }
+        a.cb = self
+            .coupling
+            .as_ref()
+            .expect("kernel coupling")
+            .bufs(d, &self.sm.kernel_at);
+        if chunk > 0 {
+            d.run(R::COUPLING_DEPOSIT_STARTS, rows, &a)?;
+        }
+        d.run(R::COUPLING_DEPOSIT_FILL, threads, &a)?;
+        if chunk == 0 {
+            d.run(R::COUPLING_DEPOSIT_SORT, rows, &a)?;
+        }
+        self.coupling
+            .as_mut()
+            .expect("kernel coupling")
+            .pairs
+            .deposits_fresh = true;
         Ok(())
     }
 
@@ -184,8 +296,9 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     /// the increments back to the gas (from ṽ) and the dust (from ũ).
     pub(super) fn kernel_coupling(&mut self, tau: f64, heat: bool) -> Result<(), StepError> {
         self.coupling_norms()?;
-        // The solve weighs each neighbour by its own norm.
+        // The deposits weigh each neighbour by its own norm.
         self.ghost_sync(&Refresh::COUPLING_NORMS)?;
+        self.coupling_deposits()?;
         let ng = self.gas.n;
         let nf = self.dust.groups;
         let d = &self.d;
@@ -419,6 +532,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     pub(super) fn kernel_stopping_times(&mut self) -> Result<Vec<Vec<f64>>, StepError> {
         self.coupling_norms()?;
         self.ghost_sync(&Refresh::COUPLING_NORMS)?;
+        self.coupling_deposits()?;
         let d = &self.d;
         let p = self.params(0.0)?;
         let ca = th::CoupleArgs {

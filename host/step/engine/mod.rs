@@ -48,6 +48,62 @@ pub const DEVICE_BYTES_PER_PARTICLE: [f64; 2] = [700.0, 420.0];
 
 type V3 = [f64; 3];
 
+/// Device memory the kernel coupling takes per pair (a particle and a gas particle within
+/// reach): its slot in the return rows (u32 index + W) and its deposit entry (u32 index + w),
+/// with the 1/8 of slack both are allocated with; f64, f32. Measured with the per-particle
+/// figure ([`device_bytes_estimate`], `tests/launch.rs`).
+pub const COUPLING_BYTES_PER_PAIR: [f64; 2] = [2.0 * 12.0 * 1.125, 2.0 * 8.0 * 1.125];
+
+/// The kernel coupling's pairs, estimated before a run: every particle (gas or dust) has the
+/// gas's neighbour number within reach — (2 hfact)^d times the unit ball's volume with
+/// variable h, the gas's mean number density (ρ/m, or over its bounding box) times the
+/// support's volume with a fixed h — and a third more for the uneven (0 without the kernel
+/// coupling).
+pub fn coupling_pairs_estimate(phys: &Physics, state: &State) -> f64 {
+    if phys.coupling != crate::step::Coupling::Kernel || state.dust.is_empty() {
+        return 0.0;
+    }
+    let d = phys.dim as i32;
+    let ball = match d {
+        1 => 2.0,
+        2 => std::f64::consts::PI,
+        _ => 4.0 / 3.0 * std::f64::consts::PI,
+    };
+    let g = &state.gas.ph.x;
+    let neighbours = match phys.variable_h {
+        Some(hfact) => ball * (SUPPORT * hfact).powi(d),
+        None => {
+            // The gas's number density: ρ/m where the state has densities (a concentrated
+            // cloud, e.g. the ball, is denser than its bounding box says), else the box's.
+            let ph = &state.gas.ph;
+            let number = if ph.rho.len() == g.len() && ph.rho.iter().all(|r| *r > 0.0) {
+                let sum: f64 = (ph.rho.iter().zip(&ph.m)).map(|(r, m)| r / m).sum();
+                sum / g.len().max(1) as f64
+            } else {
+                let mut vol = 1.0;
+                for k in 0..phys.dim as usize {
+                    let lo = g.iter().map(|x| x[k]).fold(f64::INFINITY, f64::min);
+                    let hi = g.iter().map(|x| x[k]).fold(f64::NEG_INFINITY, f64::max);
+                    vol *= (hi - lo).max(phys.h);
+                }
+                g.len() as f64 / vol
+            };
+            number * ball * (SUPPORT * phys.h).powi(d)
+        }
+    };
+    let n = g.len() + state.dust.iter().map(|p| p.x.len()).sum::<usize>();
+    4.0 / 3.0 * neighbours * n as f64
+}
+
+/// Device memory a run of `state` takes, estimated before it starts: the particles'
+/// ([`DEVICE_BYTES_PER_PARTICLE`]) and the kernel coupling's pairs
+/// ([`COUPLING_BYTES_PER_PAIR`], [`coupling_pairs_estimate`]).
+pub fn device_bytes_estimate(phys: &Physics, state: &State, f32: bool) -> f64 {
+    let n = state.gas.ph.x.len() + state.dust.iter().map(|d| d.x.len()).sum::<usize>();
+    n as f64 * DEVICE_BYTES_PER_PARTICLE[f32 as usize]
+        + coupling_pairs_estimate(phys, state) * COUPLING_BYTES_PER_PAIR[f32 as usize]
+}
+
 pub struct Engine<L: Launcher, R: Float> {
     pub phys: Physics,
     pub stages: Stages,
