@@ -107,7 +107,7 @@ fn close_packed_box_with_offset_dust_equals_the_drag_ode() {
 fn the_nearest_cell_fails_the_same_offset_box() {
     // Why the kernel coupling exists: with the dust offset by half a spacing at ≈57
     // neighbours, cells rarely hold both phases and the source report's IDIC is far off.
-    let sets = with(&["dustybox.dust_shift=0.5"]);
+    let sets = with(&["dustybox.dust_shift=0.5", "idic.coupling=\"cell\""]);
     let refs: Vec<&str> = sets.iter().map(|s| s.as_str()).collect();
     let (s, _) = run_scene("dustybox", &refs);
     let e = final_error(&s, 0, "u_d0").linf;

@@ -93,32 +93,33 @@ fn iad_leapfrog_and_variable_h_each_cut_the_error() {
 fn four_fraction_wave_matches_the_exact_n_fraction_solution() {
     let (s, st) = run_scene("dustywave_phantom_poly", &SMALL);
     assert_eq!(st.dust.len(), 4);
-    // Measured: gas 0.473%, fractions t = 1e-6, 1e-4, 1e-2: 0.473%, 0.473%, 0.486%, t = 1:
-    // 0.264%.
+    // Measured with the kernel coupling (the default): gas 0.438%, fractions t = 1e-6, 1e-4,
+    // 1e-2: 0.489%, 0.489%, 0.572%, t = 1: 0.357% (the nearest cell: 0.473%, 0.473%, 0.473%,
+    // 0.486%, 0.264%; the kernel's dust follows the gas field smoothed over its kernel).
     for f in ["v_g", "u_d0", "u_d1", "u_d2", "u_d3"] {
         let e = rel_l2(&s, f);
         assert!(e < 0.007, "{f}: {e:e}");
     }
     // The loosely coupled fraction keeps its own (slower-decaying) velocity: its error is the
     // smallest, so it is not simply dragged along with the gas.
-    assert!(rel_l2(&s, "u_d3") < 0.7 * rel_l2(&s, "u_d0"));
+    assert!(rel_l2(&s, "u_d3") < 0.8 * rel_l2(&s, "u_d0"));
     assert!(s.conservation.momentum_drift_relative < 1e-12);
 }
 
 #[test]
 fn offset_dust_with_the_kernel_coupling_is_as_accurate_as_dust_on_the_gas() {
     // The dust lattice offset by half a spacing along every axis: the nearest cell no longer
-    // couples the phases (≈120% error); the kernel coupling is as accurate as with the dust on
-    // the gas, for the velocities and for the density perturbation of both phases (dust h
+    // couples the phases (≈120% error); the kernel coupling (the default) is as accurate as the
+    // nearest cell with the dust on the gas, for the velocities and for the density perturbation of both phases (dust h
     // variable like the gas's; with the reference h the dust density was 5× the gas's error).
     let run = |sets: &[&str]| {
         let mut all = SMALL.to_vec();
         all.extend_from_slice(sets);
         run_scene("dustywave_phantom", &all).0
     };
-    let on = run(&[]);
-    let off = run(&["dustywave.dust_shift=0.5", "idic.coupling=\"kernel\""]);
-    let cell_off = run(&["dustywave.dust_shift=0.5"]);
+    let on = run(&["idic.coupling=\"cell\""]);
+    let off = run(&["dustywave.dust_shift=0.5"]);
+    let cell_off = run(&["dustywave.dust_shift=0.5", "idic.coupling=\"cell\""]);
     let base = rel_l2(&on, "v_g");
     for f in ["v_g", "u_d0"] {
         let e = rel_l2(&off, f);

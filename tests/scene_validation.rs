@@ -157,7 +157,11 @@ fn impossible_values_name_their_key_and_file() {
         ("dustydisc", "time.dt_max=0", "time.dt_max"),
         ("dustybox", "time.dt_max=0.1", "time.dt_max"),
         ("dustydisc", "scene.dim=1", "scene.dim"),
-        ("dustybox", "idic.dispersion=\"damped\"", "idic.dispersion"),
+        (
+            "dusty_ball",
+            "idic.dispersion=\"damped\"",
+            "idic.dispersion",
+        ),
         (
             "dustydisc",
             "dustydisc.dust_velocity=\"still\"",

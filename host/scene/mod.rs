@@ -397,6 +397,15 @@ mod tests {
         // The isothermal background's pressure is c_s² ρ; viscosity off is no viscosity.
         assert_eq!(l.scene.problem.background().map(|b| b.p), Some(1.0));
         assert_eq!(l.scene.sph.viscosity, None);
+        // The kernel coupling by default; the nearest cell with the explicit baseline.
+        assert_eq!(l.scene.idic.coupling, Coupling::Kernel);
+        assert!(l.scene.to_toml().contains("coupling = \"kernel\""));
+        let l = load_shipped(
+            "configs/dustybox.toml",
+            &["drag.method=\"explicit\"".into()],
+        );
+        assert_eq!(l.unwrap().scene.idic.coupling, Coupling::Cell);
+        let l = load_shipped("configs/dusty_ball.toml", &[]).unwrap();
         assert_eq!(l.scene.idic.coupling, Coupling::Cell);
     }
 }
