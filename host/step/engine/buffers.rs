@@ -511,6 +511,8 @@ pub(super) struct PairBuffers<L: Launcher, R: Float> {
     pub(super) dep_w: Buf<L, R>,
     /// The chunked transposition's counters (`th::DepositRowsArgs::counts`).
     pub(super) dep_counts: Buf<L, u32>,
+    /// The pairs of the last layer (the deposit rows' entries).
+    pub(super) pairs: usize,
     /// The deposit rows belong to the current return rows (built once per layer, after the
     /// normalisers' refresh).
     pub(super) deposits_fresh: bool,
@@ -529,6 +531,7 @@ impl<L: Launcher, R: Float> PairBuffers<L, R> {
             dep_idx: d.buf(1)?,
             dep_w: d.buf(1)?,
             dep_counts: d.buf(1)?,
+            pairs: 0,
             deposits_fresh: false,
         })
     }

@@ -214,6 +214,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let blocks = (rows + 1).div_ceil(SCAN_CHUNK);
         let total = d.get(&self.sums, blocks + 1)?[blocks] as usize;
         let c = self.coupling.as_mut().expect("kernel coupling");
+        c.pairs.pairs = total;
         if c.pairs.dep_idx.len < total {
             let n = total + total / 8;
             c.pairs.dep_idx = d.buf(n)?;

@@ -328,8 +328,22 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         self.check(state)
     }
 
+    /// The launcher, and the kernel coupling's pairs at the last layer with the memory their
+    /// rows hold (once it has found some).
     pub fn describe(&self) -> String {
-        self.d.launcher.describe()
+        let mut s = self.d.launcher.describe();
+        if let Some(p) = self.coupling.as_ref().map(|c| &c.pairs).filter(|p| p.pairs > 0) {
+            let bytes = (p.ret_idx.len + p.dep_idx.len + p.ret_cnt.len + 2 * p.dep_off.len) * 4
+                + (p.ret_w.len + p.dep_w.len) * std::mem::size_of::<R>();
+            s += &format!(
+                "; kernel coupling: {} particle–gas pairs at the last layer, {:.1} MB of rows \
+                 ({} return slots per particle)",
+                p.pairs,
+                bytes as f64 / 1e6,
+                p.cap
+            );
+        }
+        s
     }
 
     /// Bytes of device memory the engine has allocated (buffers grown and replaced count
