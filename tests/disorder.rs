@@ -153,9 +153,12 @@ fn drift_through_disordered_gas_reaches_its_terminal_velocity() {
                 "{arrangement}: fraction {k} drift off by {:e}",
                 err[k]
             );
+            // The coupling passes the gas's noise on and adds little of its own: on the
+            // force-free glass, whose gas is 7× quieter than a descent's, the dust's scatter is
+            // 1.04× the gas's (n = 12; 1.09× at n = 16), from the sampling noise of ε.
             assert!(
-                scatter[k] <= gas,
-                "{arrangement}: fraction {k} scatter {} > gas {gas}",
+                scatter[k] <= 1.2 * gas,
+                "{arrangement}: fraction {k} scatter {} > 1.2 × gas {gas}",
                 scatter[k]
             );
         }
@@ -170,7 +173,11 @@ fn stiff_drift_bias_on_a_glass_is_bounded_in_absolute_terms() {
     let (err, scatter, gas) = drift("dustybox.lattice=\"glass\"", 1e-6);
     let absolute = err[0].abs() * 1e-6 * 10.0 / 2.5;
     assert!(absolute < 2e-5, "stiff drift off by {absolute:e}");
-    assert!(scatter[0] <= gas);
+    assert!(
+        scatter[0] <= 1.2 * gas,
+        "scatter {} against gas {gas}",
+        scatter[0]
+    );
     let (err, _, _) = drift("dustybox.jitter=0", 1e-6);
     assert!(err[0].abs() < 1e-6, "lattice: drift off by {:e}", err[0]);
 }
@@ -209,5 +216,34 @@ fn default_coupling_drifts_within_2_percent_on_a_glass_down_to_tau_over_t_33() {
     assert!(
         cell.iter().any(|e| e.abs() > 0.1),
         "the nearest cell on a glass drifts as the exact ({cell:?}): is the default the kernel?"
+    );
+}
+
+/// A relaxed glass at rest stays at rest (method.md §K, "Disordered particles"): the
+/// relaxation ends with FIRE until the rms acceleration is below 5e-5 c_s²/h, so over t = 1 the
+/// gas's rms speed stays below 1e-3 c_s (the density descent alone left 0.04 c_s).
+#[test]
+fn a_glass_at_rest_stays_at_rest() {
+    let (_, st) = run_scene(
+        "dustybox",
+        &sets(&[
+            "dustybox.lattice=\"glass\"",
+            "dust.fractions=[{eps=1e-6, t_stop=1e-5}]",
+            "dustybox.u_dust=[0.0]",
+            "time.t_end=1",
+            "time.dt=0.005",
+            "time.output_dt=1",
+        ]),
+    );
+    let v = &st.gas.ph.v;
+    let rms = (v
+        .iter()
+        .map(|u| u.iter().map(|c| c * c).sum::<f64>())
+        .sum::<f64>()
+        / v.len() as f64)
+        .sqrt();
+    assert!(
+        rms < 1e-3,
+        "a glass at rest reached an rms speed of {rms:e} c_s"
     );
 }

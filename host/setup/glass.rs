@@ -5,8 +5,9 @@
 //! isothermal gas with the problem's kernel, h (fixed or variable) and gradient (standard or
 //! IAD), so that the glass is force-free for the forces the run will use,
 //! x ← x + κ h² A/c_s² with the velocities reset
-//! every iteration (a damped relaxation), until the summed density stops getting smoother.
-//! Each phase is relaxed from its own draw. The result is cached by a digest of everything it
+//! every iteration (a damped relaxation), until the summed density stops getting smoother;
+//! then FIRE (damped dynamics steered along the forces, Bitzek et al. 2006) until the
+//! accelerations vanish (rms below 5e-5 c_s²/h), so that a glass at rest stays at rest. Each phase is relaxed from its own draw. The result is cached by a digest of everything it
 //! depends on, so a scene, a resume or a test pays for it once per machine.
 use super::{disorder, gas_phase, SetupError};
 use crate::grid::Domain;
@@ -17,7 +18,7 @@ use dustsph_device::eos::Eos;
 use std::path::PathBuf;
 
 /// Bumped whenever the relaxation changes, so that no cache entry outlives its algorithm.
-const VERSION: u64 = 2;
+const VERSION: u64 = 3;
 
 /// The problem's SPH that a glass is relaxed with.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,6 +36,15 @@ const MAX_ITERATIONS: usize = 400;
 /// Stop when the density noise fell by less than this share over the last `WINDOW` iterations.
 const STALL: f64 = 0.005;
 const WINDOW: usize = 20;
+/// FIRE after the descent ([`settle`]): its first and largest step (h/c_s), its mixing
+/// (Bitzek et al.'s α_start), the steps of positive power before the step grows, the rms
+/// acceleration it stops at (c_s²/h) and its most steps.
+const DT: f64 = 0.1;
+const DT_MAX: f64 = 0.5;
+const FIRE_ALPHA: f64 = 0.1;
+const FIRE_WAIT: usize = 5;
+const FORCE_TOL: f64 = 5e-5;
+const MAX_SETTLE: usize = 3000;
 
 /// Everything a glass depends on besides its starting lattice: the periodic box [0, len) on
 /// the first `dim` axes, the lattice spacing, h, the draw (`seed`, `phase`) and the SPH.
@@ -102,7 +112,6 @@ pub(crate) fn relax(start: &[[f64; 3]], g: &GlassSpec) -> Result<Glass, SetupErr
         phase,
         sph,
     } = *g;
-    let n = start.len();
     let mut x = start.to_vec();
     disorder::jitter(&mut x, dim, &len, spacing, 0.5, seed, phase);
     let volume: f64 = len[..dim as usize].iter().product();
@@ -120,30 +129,10 @@ pub(crate) fn relax(start: &[[f64; 3]], g: &GlassSpec) -> Result<Glass, SetupErr
     let mut history: Vec<f64> = Vec::new();
     let mut best: Option<(f64, Vec<[f64; 3]>)> = None;
     for it in 0..=MAX_ITERATIONS {
-        let mut st = State {
-            t: 0.0,
-            step: 0,
-            gas: gas_phase(
-                Phase {
-                    x,
-                    v: vec![[0.0; 3]; n],
-                    m: vec![volume / n as f64; n],
-                    rho: vec![1.0; n],
-                    id: (0..n as u64).collect(),
-                    fixed: None,
-                },
-                None,
-            ),
-            dust: Vec::new(),
-        };
-        let mut eng = Backend::new(DeviceChoice::Cpu, phys.clone(), &mut st)
-            .map_err(|e| fail(e.to_string()))?;
-        eng.forces().map_err(|e| fail(e.to_string()))?;
-        let acc = eng.accelerations().map_err(|e| fail(e.to_string()))?;
-        eng.sync(&mut st).map_err(|e| fail(e.to_string()))?;
-        let noise = density_noise(&st.gas.ph.rho);
+        let (xs, acc, rho, _) = forces_at(x, volume, &phys).map_err(fail)?;
+        let noise = density_noise(&rho);
         history.push(noise);
-        x = st.gas.ph.x;
+        x = xs;
         if best.as_ref().is_none_or(|(b, _)| noise < *b) {
             best = Some((noise, x.clone()));
         }
@@ -164,13 +153,105 @@ pub(crate) fn relax(start: &[[f64; 3]], g: &GlassSpec) -> Result<Glass, SetupErr
             }
         }
     }
-    let (noise, x) = best.expect("at least one iteration");
+    let (_, x) = best.expect("at least one iteration");
+    let (x, noise, steps) = settle(x, g, &phys).map_err(fail)?;
     Ok(Glass {
         x,
         start_noise: history[0],
         noise,
-        iterations: history.len() - 1,
+        iterations: history.len() - 1 + steps,
     })
+}
+
+/// The SPH forces and densities of the points `x` (isothermal, c_s = 1): the points sorted
+/// as the engine sorts them, their accelerations and densities, and where each came from
+/// (its index in `x`).
+type Forces = (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<f64>, Vec<u64>);
+
+fn forces_at(x: Vec<[f64; 3]>, volume: f64, phys: &Physics) -> Result<Forces, String> {
+    let n = x.len();
+    let mut st = State {
+        t: 0.0,
+        step: 0,
+        gas: gas_phase(
+            Phase {
+                x,
+                v: vec![[0.0; 3]; n],
+                m: vec![volume / n as f64; n],
+                rho: vec![1.0; n],
+                id: (0..n as u64).collect(),
+                fixed: None,
+            },
+            None,
+        ),
+        dust: Vec::new(),
+    };
+    let mut eng =
+        Backend::new(DeviceChoice::Cpu, phys.clone(), &mut st).map_err(|e| e.to_string())?;
+    eng.forces().map_err(|e| e.to_string())?;
+    let acc = eng.accelerations().map_err(|e| e.to_string())?;
+    eng.sync(&mut st).map_err(|e| e.to_string())?;
+    let ph = st.gas.ph;
+    Ok((ph.x, acc, ph.rho, ph.id))
+}
+
+/// FIRE (Bitzek et al. 2006, PRL 97, 170201) after the descent: the descent stops when the
+/// density noise stops falling, not when the forces vanish, and left a glass that set itself
+/// moving at 0.03–0.04 c_s. Damped dynamics whose velocity is steered along the force, the
+/// step grown while the power F·v stays positive and the motion stopped when it turns, until
+/// the rms acceleration is below `FORCE_TOL` c_s²/h: the glass, at rest, then stays at rest.
+/// Returns the points, their density noise and the steps taken.
+fn settle(
+    mut x: Vec<[f64; 3]>,
+    g: &GlassSpec,
+    phys: &Physics,
+) -> Result<(Vec<[f64; 3]>, f64, usize), String> {
+    let dim = g.dim as usize;
+    let volume: f64 = g.len[..dim].iter().product();
+    let mut v = vec![[0.0f64; 3]; x.len()];
+    let (mut dt, mut alpha, mut positive) = (DT * g.h, FIRE_ALPHA, 0usize);
+    let dt_max = DT_MAX * g.h;
+    let norm = |w: &[[f64; 3]]| {
+        w.iter()
+            .map(|u| u.iter().map(|c| c * c).sum::<f64>())
+            .sum::<f64>()
+    };
+    for step in 0..=MAX_SETTLE {
+        let (xs, acc, rho, id) = forces_at(x, volume, phys)?;
+        // The engine sorted the points: the velocities follow them.
+        v = id.iter().map(|&i| v[i as usize]).collect();
+        x = xs;
+        let rms = (norm(&acc) / acc.len().max(1) as f64).sqrt();
+        if rms * g.h < FORCE_TOL || step == MAX_SETTLE {
+            return Ok((x, density_noise(&rho), step));
+        }
+        let power: f64 = (acc.iter().zip(&v))
+            .map(|(a, u)| (0..dim).map(|k| a[k] * u[k]).sum::<f64>())
+            .sum();
+        let (vn, an) = (norm(&v).sqrt(), norm(&acc).sqrt());
+        if power > 0.0 {
+            for (u, a) in v.iter_mut().zip(&acc) {
+                for k in 0..dim {
+                    u[k] = (1.0 - alpha) * u[k] + alpha * vn / an * a[k];
+                }
+            }
+            positive += 1;
+            if positive > FIRE_WAIT {
+                dt = (dt * 1.1).min(dt_max);
+                alpha *= 0.99;
+            }
+        } else {
+            v.iter_mut().for_each(|u| *u = [0.0; 3]);
+            (dt, alpha, positive) = (dt * 0.5, FIRE_ALPHA, 0);
+        }
+        for ((p, u), a) in x.iter_mut().zip(v.iter_mut()).zip(&acc) {
+            for k in 0..dim {
+                u[k] += dt * a[k];
+                p[k] = (p[k] + dt * u[k]).rem_euclid(g.len[k]);
+            }
+        }
+    }
+    unreachable!("the loop returns at its last step")
 }
 
 /// rms of ρ/⟨ρ⟩ − 1.

@@ -332,7 +332,12 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     /// rows hold (once it has found some).
     pub fn describe(&self) -> String {
         let mut s = self.d.launcher.describe();
-        if let Some(p) = self.coupling.as_ref().map(|c| &c.pairs).filter(|p| p.pairs > 0) {
+        if let Some(p) = self
+            .coupling
+            .as_ref()
+            .map(|c| &c.pairs)
+            .filter(|p| p.pairs > 0)
+        {
             let bytes = (p.ret_idx.len + p.dep_idx.len + p.ret_cnt.len + 2 * p.dep_off.len) * 4
                 + (p.ret_w.len + p.dep_w.len) * std::mem::size_of::<R>();
             s += &format!(
