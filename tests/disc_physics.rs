@@ -783,41 +783,40 @@ fn dust_in_a_3d_disc_settles_at_its_terminal_velocity() {
 /// the gas, u_R − v_R, against the exact multi-species steady drift computed from the bins' own
 /// ε, St and pressure gradient: within 10 % (docs/method.md §D quotes the run to one orbit).
 #[test]
-fn a_running_disc_drifts_at_the_exact_steady_rate() {
-    common::run_scene_in(
-        "dustydisc",
-        &["time.t_end=1.5707963267948966", "time.output_dt="],
-        |dir| {
-            let snap = dir.join("snapshot_0001.h5");
-            dustsph::commands::profile::post_process(&snap, 100).unwrap();
-            let text = std::fs::read_to_string(dir.join("snapshot_0001_disc.csv")).unwrap();
-            let mut lines = text.lines();
-            let head: Vec<&str> = lines.next().unwrap().split(',').collect();
-            let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
-            let (r, g, gx) = (col("R"), col("gas_v_R"), col("gas_v_R_exact"));
-            let mut checked = 0;
-            for l in lines {
-                let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
-                if !(1.1..1.7).contains(&v[r]) {
-                    continue;
-                }
-                for k in 0..3 {
-                    let d = v[col(&format!("dust_fraction_{k}_v_R"))];
-                    let dx = v[col(&format!("dust_fraction_{k}_v_R_exact"))];
-                    let (rel, exact) = (d - v[g], dx - v[gx]);
-                    eprintln!(
-                        "R {:.3} fraction {k}: u_R − v_R {rel:.3e}, exact {exact:.3e}",
-                        v[r]
-                    );
-                    assert!(
-                        (rel / exact - 1.0).abs() < 0.1,
-                        "R {}: fraction {k}: {rel:e} vs {exact:e}",
-                        v[r]
-                    );
-                    checked += 1;
-                }
+fn a_running_disc_drifts_at_the_exact_steady_rate_for_an_orbit() {
+    // One orbit at r_ref: the sheared lattices' sampling offsets, read as a relative velocity
+    // by the plain means (`idic.sampling = "mean"`), slow the small grains by 15–19 % here by
+    // then; read at the gas particle they stay within 6 % (method.md §K, "Sampling offsets").
+    common::run_scene_in("dustydisc", &["time.output_dt="], |dir| {
+        let snap = dir.join("snapshot_0001.h5");
+        dustsph::commands::profile::post_process(&snap, 100).unwrap();
+        let text = std::fs::read_to_string(dir.join("snapshot_0001_disc.csv")).unwrap();
+        let mut lines = text.lines();
+        let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
+        let (r, g, gx) = (col("R"), col("gas_v_R"), col("gas_v_R_exact"));
+        let mut checked = 0;
+        for l in lines {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            if !(1.0..1.7).contains(&v[r]) {
+                continue;
             }
-            assert!(checked >= 6, "{checked} checked");
-        },
-    );
+            for k in 0..3 {
+                let d = v[col(&format!("dust_fraction_{k}_v_R"))];
+                let dx = v[col(&format!("dust_fraction_{k}_v_R_exact"))];
+                let (rel, exact) = (d - v[g], dx - v[gx]);
+                eprintln!(
+                    "R {:.3} fraction {k}: u_R − v_R {rel:.3e}, exact {exact:.3e}",
+                    v[r]
+                );
+                assert!(
+                    (rel / exact - 1.0).abs() < 0.1,
+                    "R {}: fraction {k}: {rel:e} vs {exact:e}",
+                    v[r]
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked >= 6, "{checked} checked");
+    });
 }

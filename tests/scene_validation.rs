@@ -162,6 +162,12 @@ fn impossible_values_name_their_key_and_file() {
             "idic.dispersion=\"damped\"",
             "idic.dispersion",
         ),
+        ("dusty_ball", "idic.sampling=\"linear\"", "idic.sampling"),
+        (
+            "dustydisc",
+            "idic.deposit=\"scatter\"\u{0}idic.sampling=\"linear\"",
+            "idic.sampling",
+        ),
         (
             "dustydisc",
             "dustydisc.dust_velocity=\"still\"",

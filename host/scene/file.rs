@@ -267,6 +267,20 @@ pub struct IdicSection {
     /// Kernel coupling only: whether each dust particle's unresolved velocity deviation is
     /// kept (each particle gets the smoothed increments alone) or damped at the drag rate.
     pub dispersion: Option<Dispersion>,
+    /// Kernel coupling only: where each deposit on a gas particle is read (method.md §K,
+    /// "Sampling offsets").
+    pub sampling: Option<Sampling>,
+}
+
+/// Where the kernel coupling reads the deposits of gas and dust on a gas particle.
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Sampling {
+    /// At the gas particle: each phase's mean less the gas's velocity gradient (fitted over
+    /// the particle's gas row) times the offset of that phase's centroid.
+    Linear,
+    /// At each phase's own centroid: the plain mass-weighted means (the source's form).
+    Mean,
 }
 
 /// The kernel coupling's treatment of a dust particle's velocity deviation from the smoothed

@@ -9,7 +9,7 @@
 use super::file::{
     Coupling, DensityMethod, DepositForm, DepositRows, Dispersion, DragMethod, DustStart, EosKind,
     EpsteinForm, GradientMethod, Integrator, Lattice, LawKind, ListChoice, PositionUpdate,
-    Precision, Problem, RadiusKind, WaveMode,
+    Precision, Problem, RadiusKind, Sampling, WaveMode,
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
@@ -318,6 +318,8 @@ pub struct Idic {
     pub deposit: DepositForm,
     /// Kernel coupling: the dust's unresolved velocity deviation (`kept` with the cell one).
     pub dispersion: Dispersion,
+    /// Kernel coupling: where the deposits are read (`mean` with the cell coupling).
+    pub sampling: Sampling,
 }
 
 /// `[drag]`.

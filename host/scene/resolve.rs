@@ -235,17 +235,34 @@ impl Scene {
         } else {
             Coupling::Kernel
         };
+        let coupling_kind = idic_file
+            .and_then(|i| i.coupling)
+            .unwrap_or(default_coupling);
+        let deposit = idic_file
+            .and_then(|i| i.deposit)
+            .unwrap_or(DepositForm::Gather);
+        // The deposits read at their gas particle about a point mass, where the shear makes
+        // the lattices' offsets read as a drift (method.md §K, "Sampling offsets"); elsewhere
+        // the plain means, whose stiff-limit bias on strongly disordered gas is half as large.
+        // The scatter form sums no rows to fit.
+        let default_sampling = if coupling_kind == Coupling::Kernel
+            && deposit == DepositForm::Gather
+            && gravity.is_some()
+        {
+            Sampling::Linear
+        } else {
+            Sampling::Mean
+        };
         let idic = Idic {
             cell,
-            coupling: idic_file
-                .and_then(|i| i.coupling)
-                .unwrap_or(default_coupling),
-            deposit: idic_file
-                .and_then(|i| i.deposit)
-                .unwrap_or(DepositForm::Gather),
+            coupling: coupling_kind,
+            deposit,
             dispersion: idic_file
                 .and_then(|i| i.dispersion)
                 .unwrap_or(Dispersion::Kept),
+            sampling: idic_file
+                .and_then(|i| i.sampling)
+                .unwrap_or(default_sampling),
         };
         coupling(&idic, &drag, dust.is_some())?;
         if idic.dispersion == Dispersion::Damped && dust.as_ref().is_some_and(|d| d.heating) {
@@ -856,6 +873,15 @@ fn coupling(idic: &Idic, drag: &Drag, has_dust: bool) -> VResult {
         return err(
             "idic.dispersion",
             "\"damped\" acts on the kernel coupling's return; it needs idic.coupling = \"kernel\"",
+        );
+    }
+    if idic.sampling == Sampling::Linear
+        && (idic.coupling != Coupling::Kernel || idic.deposit != DepositForm::Gather)
+    {
+        return err(
+            "idic.sampling",
+            "\"linear\" fits the gas over the kernel coupling's gathered rows; it needs \
+             idic.coupling = \"kernel\" with idic.deposit = \"gather\" (or set \"mean\")",
         );
     }
     if idic.coupling == Coupling::Kernel && drag.method == DragMethod::Explicit {

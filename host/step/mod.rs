@@ -42,6 +42,9 @@ pub struct Physics {
     pub deposit_scatter: bool,
     /// Kernel coupling: the dust's unresolved velocity deviation damped (`idic.dispersion`).
     pub damp_dispersion: bool,
+    /// Kernel coupling: the deposits read at their gas particle through the gas's fitted
+    /// velocity gradient (`idic.sampling = "linear"`).
+    pub linear_sampling: bool,
     /// Constant external accelerations of the gas and of every dust particle.
     pub ext_gas: [f64; 3],
     pub ext_dust: [f64; 3],
@@ -88,6 +91,7 @@ impl Physics {
             coupling: scene.idic.coupling,
             deposit_scatter: scene.idic.deposit == crate::scene::DepositForm::Scatter,
             damp_dispersion: scene.idic.dispersion == crate::scene::Dispersion::Damped,
+            linear_sampling: scene.idic.sampling == crate::scene::Sampling::Linear,
             ext_gas: scene.external.gas,
             ext_dust: scene.external.dust,
             local_cs: scene
@@ -127,6 +131,7 @@ impl Physics {
             coupling: Coupling::Cell,
             deposit_scatter: false,
             damp_dispersion: false,
+            linear_sampling: false,
             ext_gas: [0.0; 3],
             ext_dust: [0.0; 3],
             gravity: Default::default(),

@@ -83,6 +83,141 @@ pub fn deposit_rows<R: Real>(
     d
 }
 
+/// The least-squares fit of the gas's velocity about gas particle a over its deposit row
+/// (method.md §K, "Sampling offsets"): with the weights ω_b = w_ba m_b, offsets d_b = x_b − x_a
+/// (`dx`) and velocities `dv(b)` (relative to a's, against cancellation), the gradient
+/// G = C_vx C_xx⁻¹ of the centred moments C_xx = Σ ω (d − d̄)(d − d̄)ᵀ,
+/// C_vx = Σ ω (v − v̄)(d − d̄)ᵀ over the first `dim` axes, and the row's first moment Σ ω d.
+/// Exact for a linear field on any arrangement. `None` where the row's offsets do not span
+/// `dim` axes (det C_xx below 1e-6 of (tr C_xx/dim)^dim: a row on a line or a point).
+#[inline(always)]
+pub fn row_gradient<R: Real>(
+    idx: &[u32],
+    w: &[R],
+    m: &[R],
+    dx: impl Fn(usize) -> Vec3<R>,
+    dv: impl Fn(usize) -> Vec3<R>,
+    dim: usize,
+) -> Option<([Vec3<R>; 3], Vec3<R>)> {
+    let (mut mass, mut d1, mut v1) = (R::ZERO, [R::ZERO; 3], [R::ZERO; 3]);
+    let (mut dd, mut vd) = ([[R::ZERO; 3]; 3], [[R::ZERO; 3]; 3]);
+    for (&q, &wq) in idx.iter().zip(w) {
+        let q = q as usize;
+        let om = wq * m[q];
+        let (d, v) = (dx(q), dv(q));
+        mass += om;
+        d1 = axpy(d1, om, d);
+        v1 = axpy(v1, om, v);
+        for i in 0..3 {
+            dd[i] = axpy(dd[i], om * d[i], d);
+            vd[i] = axpy(vd[i], om * v[i], d);
+        }
+    }
+    if mass <= R::ZERO {
+        return None;
+    }
+    let inv_m = R::ONE / mass;
+    let mut c = [[R::ZERO; 3]; 3];
+    let mut cv = [[R::ZERO; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            c[i][j] = dd[i][j] - d1[i] * d1[j] * inv_m;
+            cv[i][j] = vd[i][j] - v1[i] * d1[j] * inv_m;
+        }
+    }
+    let inv = inverse_leading(&c, dim)?;
+    let mut g = [[R::ZERO; 3]; 3];
+    for i in 0..3 {
+        for j in 0..dim {
+            let mut s = R::ZERO;
+            for k in 0..dim {
+                s += cv[i][k] * inv[k][j];
+            }
+            g[i][j] = s;
+        }
+    }
+    Some((g, d1))
+}
+
+/// Σ ω d over a deposit row: the first moment of a phase's offsets from the gas particle.
+#[inline(always)]
+pub fn row_moment<R: Real>(
+    idx: &[u32],
+    w: &[R],
+    m: &[R],
+    dx: impl Fn(usize) -> Vec3<R>,
+) -> Vec3<R> {
+    let mut d1 = [R::ZERO; 3];
+    for (&q, &wq) in idx.iter().zip(w) {
+        let q = q as usize;
+        d1 = axpy(d1, wq * m[q], dx(q));
+    }
+    d1
+}
+
+/// A deposit read at the gas particle instead of at its particles' centroid: Σ ω ṽ less
+/// G · Σ ω d (the fit's value at d = 0, times the mass).
+#[inline(always)]
+pub fn read_at_centre<R: Real>(dep: &mut Deposit<R>, g: &[Vec3<R>; 3], first: Vec3<R>) {
+    for (i, gi) in g.iter().enumerate() {
+        dep.mom[i] -= crate::dot(*gi, first);
+    }
+}
+
+/// The inverse of the leading `dim` × `dim` block of a symmetric matrix (zeros elsewhere);
+/// `None` when it is singular to 1e-6 of its scale.
+#[inline(always)]
+fn inverse_leading<R: Real>(c: &[Vec3<R>; 3], dim: usize) -> Option<[Vec3<R>; 3]> {
+    let mut inv = [[R::ZERO; 3]; 3];
+    let scale = match dim {
+        1 => c[0][0],
+        2 => R::from_f64(0.5) * (c[0][0] + c[1][1]),
+        _ => R::from_f64(1.0 / 3.0) * (c[0][0] + c[1][1] + c[2][2]),
+    };
+    if scale <= R::ZERO {
+        return None;
+    }
+    let tiny = R::from_f64(1e-6);
+    match dim {
+        1 => inv[0][0] = R::ONE / c[0][0],
+        2 => {
+            let det = c[0][0] * c[1][1] - c[0][1] * c[1][0];
+            if det <= tiny * scale * scale {
+                return None;
+            }
+            let r = R::ONE / det;
+            inv[0][0] = c[1][1] * r;
+            inv[1][1] = c[0][0] * r;
+            inv[0][1] = -c[0][1] * r;
+            inv[1][0] = -c[1][0] * r;
+        }
+        _ => {
+            let a = [
+                c[1][1] * c[2][2] - c[1][2] * c[2][1],
+                c[0][2] * c[2][1] - c[0][1] * c[2][2],
+                c[0][1] * c[1][2] - c[0][2] * c[1][1],
+            ];
+            let det = c[0][0] * a[0] + c[1][0] * a[1] + c[2][0] * a[2];
+            if det <= tiny * scale * scale * scale {
+                return None;
+            }
+            let r = R::ONE / det;
+            inv[0] = [a[0] * r, a[1] * r, a[2] * r];
+            inv[1] = [
+                (c[1][2] * c[2][0] - c[1][0] * c[2][2]) * r,
+                (c[0][0] * c[2][2] - c[0][2] * c[2][0]) * r,
+                (c[0][2] * c[1][0] - c[0][0] * c[1][2]) * r,
+            ];
+            inv[2] = [
+                (c[1][0] * c[2][1] - c[1][1] * c[2][0]) * r,
+                (c[0][1] * c[2][0] - c[0][0] * c[2][1]) * r,
+                (c[0][0] * c[1][1] - c[0][1] * c[1][0]) * r,
+            ];
+        }
+    }
+    Some(inv)
+}
+
 /// The implicit solve on gas particle a from the deposits (method.md §3.3 closed form, with the
 /// cell means replaced by the deposit means): ε_k = M_k/M_g, t_k* from each law with the
 /// mass-weighted mean densities and sound speed (`gamma_root` · mean sqrt(p/ρ)).

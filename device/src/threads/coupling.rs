@@ -133,6 +133,10 @@ pub struct CouplingBufs<R> {
     pub u_new: *mut Vec3<R>,
     pub gas_dev: *mut Vec3<R>,
     pub react: *mut Vec3<R>,
+    /// `idic.dispersion = "damped"` with `idic.sampling = "linear"` (null otherwise): per gas
+    /// particle a its fitted velocity gradient G_a (rows 3a..3a+3, G[i] = ∇v_i), zeros where
+    /// the fit fails: the damping reads each gas particle's field at the particle it serves.
+    pub grad: *mut Vec3<R>,
     /// The gas kernels of the weights, one per gas particle (variable h: W(r, h_a)); null:
     /// one shared kernel at the reference h.
     pub kernel_at: *const KernelAt<R>,
@@ -425,11 +429,12 @@ pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
     let nf = p.nf as usize;
     let mut dust_dep = [kernels::Deposit::default(); MAX_FRACTIONS];
     if kernels::is_fixed(g.fixed(), t) || gas_skipped(&a.cb, t) {
+        store_gradient(t, &a.cb, &[[R::ZERO; 3]; 3]);
         return coupling_finish(t, a, &kernels::Deposit::default(), &dust_dep);
     }
     let pr = &a.cb.pairs;
     let (idx, w) = pr.dep(t, 0, 1 + nf);
-    let gas_dep = kernels::deposit_rows(
+    let mut gas_dep = kernels::deposit_rows(
         idx,
         w,
         g.m(),
@@ -443,7 +448,73 @@ pub unsafe fn coupling_solve<R: Real>(t: usize, a: &CoupleArgs<R>) {
         let (idx, w) = pr.dep(t, 1 + f, 1 + nf);
         *dep = kernels::deposit_rows(idx, w, d.m(), d.rho(), |j| u[j], |_| R::ZERO);
     }
+    if p.linear_sampling != 0 {
+        read_at_particle(t, a, &mut gas_dep, &mut dust_dep);
+    }
     coupling_finish(t, a, &gas_dep, &dust_dep);
+}
+
+/// Every deposit on gas particle t read at x_t, not at its particles' mass-weighted centroid:
+/// corrected by the gas's velocity gradient fitted over t's gas row (method.md §K, "Sampling
+/// offsets"). Gas and dust centroids about a gas particle differ by a fraction of h wherever
+/// the two lattices differ, and in a Keplerian shear that offset alone reads as a relative
+/// velocity of the order of the drift; unchanged where the row does not span the dimensions.
+#[inline(always)]
+unsafe fn read_at_particle<R: Real>(
+    t: usize,
+    a: &CoupleArgs<R>,
+    gas_dep: &mut kernels::Deposit<R>,
+    dust_dep: &mut [kernels::Deposit<R>; MAX_FRACTIONS],
+) {
+    let (g, d, p) = (&a.gas, &a.dust, &a.p);
+    let nf = p.nf as usize;
+    let pr = &a.cb.pairs;
+    let xt = g.x()[t];
+    let dx = |x: Vec3<f64>| p.geom.separation(x, xt).map(R::from_f64);
+    let vt = gas_base_velocity(a, t);
+    let (idx, w) = pr.dep(t, 0, 1 + nf);
+    let Some((grad, first)) = kernels::row_gradient(
+        idx,
+        w,
+        g.m(),
+        |b| dx(g.x()[b]),
+        |b| crate::sub(gas_base_velocity(a, b), vt),
+        p.dim as usize,
+    ) else {
+        return store_gradient(t, &a.cb, &[[R::ZERO; 3]; 3]);
+    };
+    store_gradient(t, &a.cb, &grad);
+    kernels::read_at_centre(gas_dep, &grad, first);
+    for (f, dep) in dust_dep.iter_mut().enumerate().take(nf) {
+        let (idx, w) = pr.dep(t, 1 + f, 1 + nf);
+        let first = kernels::row_moment(idx, w, d.m(), |j| dx(d.x()[j]));
+        kernels::read_at_centre(dep, &grad, first);
+    }
+}
+
+/// Keep gas particle t's fitted gradient for the damping ([`CouplingBufs::grad`]), if kept.
+#[inline(always)]
+unsafe fn store_gradient<R: Real>(t: usize, cb: &CouplingBufs<R>, g: &[Vec3<R>; 3]) {
+    if !cb.grad.is_null() {
+        for (i, gi) in g.iter().enumerate() {
+            *cb.grad.add(3 * t + i) = *gi;
+        }
+    }
+}
+
+/// Gas particle g's field `f` read at x (its gradient times x − x_g added where kept).
+#[inline(always)]
+unsafe fn field_at<R: Real>(a: &ReturnArgs<R>, g: usize, f: Vec3<R>, x: Vec3<f64>) -> Vec3<R> {
+    if a.cb.grad.is_null() {
+        return f;
+    }
+    let d = a.p.geom.separation(x, a.gas.x()[g]).map(R::from_f64);
+    let gr = a.cb.grad.add(3 * g);
+    [
+        f[0] + crate::dot(*gr, d),
+        f[1] + crate::dot(*gr.add(1), d),
+        f[2] + crate::dot(*gr.add(2), d),
+    ]
 }
 
 /// ṽ_b = v_b + τ(A_b + ext_gas) of gas particle b.
@@ -692,15 +763,18 @@ pub unsafe fn coupling_damp<R: Real>(t: usize, a: &ReturnArgs<R>) {
     }
     let (idx, ws) = ret_row(t, a);
     if is_gas {
-        let smooth = kernels::gather_rows(idx, ws, s, |c| *a.cb.v_new.add(c));
+        let x = ph.x()[t];
+        let smooth = kernels::gather_rows(idx, ws, s, |c| field_at(a, c, *a.cb.v_new.add(c), x));
         *a.cb.gas_dev.add(t) = crate::sub(*v, smooth);
         return;
     }
     // One sweep for the target and the stopping time the particle feels.
     let (mut target, mut t_stop) = ([R::ZERO; 3], R::ZERO);
+    let x = ph.x()[t];
     for (&g, &w) in idx.iter().zip(ws) {
         let (g, w) = (g as usize, w / s);
-        let aim = crate::add(*a.cb.u_new.add(g * nf + f), *a.cb.gas_dev.add(g));
+        let u = field_at(a, g, *a.cb.u_new.add(g * nf + f), x);
+        let aim = crate::add(u, *a.cb.gas_dev.add(g));
         target = crate::axpy(target, w, aim);
         t_stop += w * *a.cb.t_stop.add(g * nf + f);
     }

@@ -116,6 +116,10 @@ pub struct StepParams<R> {
     /// 1: the kernel coupling damps each dust particle's unresolved velocity deviation
     /// (`idic.dispersion = "damped"`, method.md §K).
     pub damp_dispersion: u32,
+    /// 1: the kernel coupling reads every deposit at its gas particle, through the gas's
+    /// velocity gradient fitted over the particle's deposit row (`idic.sampling = "linear"`,
+    /// method.md §K "Sampling offsets"); 0: at its particles' centroid (the plain mean).
+    pub linear_sampling: u32,
     /// A central point mass (`gm` = 0: none), added to A^n and B^n.
     pub gravity: crate::gravity::PointMass,
     /// A locally isothermal gas's sound speed (`on` = 0: the EOS's own, `eos_kind`).
@@ -185,6 +189,7 @@ impl<R: Real> StepParams<R> {
             ext_dust: self.ext_dust.map(c),
             explicit_drag: self.explicit_drag,
             damp_dispersion: self.damp_dispersion,
+            linear_sampling: self.linear_sampling,
             gravity: self.gravity,
             local_cs: self.local_cs,
         }

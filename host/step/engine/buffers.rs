@@ -489,6 +489,8 @@ pub(super) struct CouplingBuffers<L: Launcher, R: Float> {
     /// `idic.dispersion = "damped"`: V^{n+1}, U^{n+1}, the gas's deviations, the dust's losses
     /// (`th::CouplingBufs`).
     pub(super) damping: Option<[Buf<L, [R; 3]>; 4]>,
+    /// The damping's gradients (`th::CouplingBufs::grad`), with linear sampling.
+    pub(super) grad: Option<Buf<L, [R; 3]>>,
     /// Variable h: the weights use each gas particle's kernel (the engine's `sm.kernel_at`).
     pub(super) per_particle_kernels: bool,
     /// The pairs of this layer (`th::PairBufs`).
@@ -580,6 +582,10 @@ impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
                 .damping
                 .as_ref()
                 .map_or(std::ptr::null_mut(), |b| d.ptr(&b[3])),
+            grad: self
+                .grad
+                .as_ref()
+                .map_or(std::ptr::null_mut(), |b| d.ptr(b)),
             kernel_at: if self.per_particle_kernels {
                 d.ptr(kernel_at)
             } else {
@@ -700,6 +706,8 @@ pub(super) fn step_params(
         explicit_drag: stages.explicit_drag as u32,
         damp_dispersion: (phys.damp_dispersion && phys.coupling == crate::step::Coupling::Kernel)
             as u32,
+        linear_sampling: (phys.linear_sampling && phys.coupling == crate::step::Coupling::Kernel)
+            as u32,
         gravity: phys.gravity,
         local_cs: phys.local_cs,
     }
@@ -762,6 +770,11 @@ impl<L: Launcher, R: Float> CouplingBuffers<L, R> {
                     d.buf(ng.max(1))?,
                     d.buf(nd.max(1))?,
                 ])
+            } else {
+                None
+            },
+            grad: if phys.damp_dispersion && phys.linear_sampling {
+                Some(d.buf((3 * ng).max(1))?)
             } else {
                 None
             },
