@@ -163,6 +163,50 @@ fn impossible_values_name_their_key_and_file() {
             "idic.dispersion",
         ),
         ("dusty_ball", "idic.sampling=\"linear\"", "idic.sampling"),
+        ("dustybox", "sph.alpha_ss=0.01", "sph.alpha_ss"),
+        (
+            "dustydisc",
+            "sph.alpha_ss=0.01\u{0}sph.alpha=0.1",
+            "sph.alpha",
+        ),
+        ("dustydisc", "sph.alpha_ss=-1", "sph.alpha_ss"),
+        ("dustydisc", "dustydisc.r_c=0", "dustydisc.r_c"),
+        (
+            "dustydisc",
+            "dustydisc.disc_mass=0.01",
+            "dustydisc.disc_mass",
+        ),
+        (
+            "dustydisc",
+            "dustydisc.sigma_ref=\u{0}dustydisc.disc_mass=-1",
+            "dustydisc.disc_mass",
+        ),
+        (
+            "dustydisc",
+            "dustydisc.particles=5000",
+            "dustydisc.particles",
+        ),
+        (
+            "dustydisc",
+            "sph.n=\u{0}dustydisc.particles=50",
+            "dustydisc.particles",
+        ),
+        (
+            "dustydisc",
+            "gravity.accretion_radius=0.6",
+            "gravity.accretion_radius",
+        ),
+        ("dustydisc", "dustydisc.r_out=0.4", "dustydisc.r_out"),
+        (
+            "dustydisc",
+            "dust.sizes={min=1e-4, max=1.0, count=4, dust_to_gas=0.01}",
+            "dust.sizes",
+        ),
+        (
+            "dustydisc",
+            "dust.fractions=\u{0}dust.sizes={min=1e-4, max=1.0, count=4, dust_to_gas=0.01}",
+            "dust.sizes",
+        ),
         (
             "dustydisc",
             "idic.deposit=\"scatter\"\u{0}idic.sampling=\"linear\"",
@@ -252,6 +296,13 @@ fn set_up_errors_name_the_key_and_write_nothing() {
     // Kernel support too large for the periodic box: caught before the output directory exists.
     let e = input_error_writes_nothing("dustybox", &["sph.hfact=40".to_string()]);
     assert!(e.contains("dustybox.length"), "{e}");
+    // A disc whose kernel is wider than its scale height over most of its mass.
+    let sets = ["sph.n=".to_string(), "dustydisc.particles=300".to_string()];
+    let e = input_error_writes_nothing("dustydisc3d", &sets);
+    assert!(
+        e.contains("dustydisc.particles") && e.contains("h/H > 1"),
+        "{e}"
+    );
 }
 
 #[test]

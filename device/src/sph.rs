@@ -11,6 +11,49 @@ pub struct Viscosity<R> {
     pub alpha: R,
     pub beta: R,
     pub nu2_factor: R,
+    /// The disc form (`sph.alpha_ss`): α set per pair for a target Shakura–Sunyaev α and the
+    /// linear term on receding pairs too; `None`: the shock form.
+    pub disc: Option<DiscViscosity>,
+}
+
+/// The disc viscosity (method.md §D, "Disc viscosity"): the linear term on every pair, which
+/// in the continuum limit is a shear viscosity ν = α_AV c_s h/κ (κ = 10 in 3D, 8 in 2D for
+/// the M4 kernel; Lodato & Price 2010, Meglicki et al. 1993), with α_AV per pair such that
+/// ν = α_SS c_s H, H = c_s/Ω_K at the pair's mid-point: α_AV = κ α_SS H/h̄.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DiscViscosity {
+    /// κ α_SS.
+    pub kappa_alpha_ss: f64,
+    /// The point mass the disc orbits (Ω_K from its GM about its z axis).
+    pub gm: f64,
+    pub centre: Vec3<f64>,
+}
+
+impl DiscViscosity {
+    /// κ of ν = α_AV c_s h/κ: the M4 kernel's continuum limit of the linear term on every
+    /// pair, 10 in 3D and 8 in 2D (Lodato & Price 2010; Murray 1996).
+    pub fn kappa(dim: u32) -> f64 {
+        if dim == 3 {
+            10.0
+        } else {
+            8.0
+        }
+    }
+
+    /// α_AV of a pair at x_a, x_b with mean sound speed `cbar` and mean h `h`.
+    #[inline(always)]
+    pub fn alpha<R: Real>(&self, xa: Vec3<f64>, xb: Vec3<f64>, cbar: R, h: R) -> R {
+        let x = 0.5 * (xa[0] + xb[0]) - self.centre[0];
+        let y = 0.5 * (xa[1] + xb[1]) - self.centre[1];
+        let r2 = x * x + y * y;
+        // Ω_K = √(GM/R³); H = c̄/Ω_K.
+        let omega = Real::sqrt(self.gm / (r2 * Real::sqrt(r2)));
+        if omega.is_finite() && omega > 0.0 {
+            R::from_f64(self.kappa_alpha_ss / omega) * cbar / h
+        } else {
+            R::ZERO
+        }
+    }
 }
 
 /// State of one gas particle as the pair loop sees it.
@@ -44,14 +87,31 @@ pub fn mu<R: Real>(vr: R, r2: R, h: R, nu2_factor: R) -> R {
     h * vr / (r2 + nu2_factor * h * h)
 }
 
-/// Monaghan Π_ab: non-zero only for approaching pairs (v_ab·r_ab < 0).
+/// Monaghan Π_ab = (−α c̄ μ + β μ²)/ρ̄: the shock form on approaching pairs only
+/// (v_ab·r_ab < 0), `alpha` the pair's α; with `receding` (the disc form) the linear term on
+/// receding pairs too, the quadratic one still on approaching pairs only.
 #[inline(always)]
-pub fn viscosity_pi<R: Real>(av: &Viscosity<R>, vr: R, r2: R, h: R, cbar: R, rhobar: R) -> R {
-    if vr >= R::ZERO || rhobar <= R::ZERO {
+#[allow(clippy::too_many_arguments)]
+pub fn viscosity_pi<R: Real>(
+    av: &Viscosity<R>,
+    alpha: R,
+    receding: bool,
+    vr: R,
+    r2: R,
+    h: R,
+    cbar: R,
+    rhobar: R,
+) -> R {
+    if (vr >= R::ZERO && !receding) || rhobar <= R::ZERO {
         return R::ZERO;
     }
     let m = mu(vr, r2, h, av.nu2_factor);
-    (-av.alpha * cbar * m + av.beta * m * m) / rhobar
+    let quad = if vr < R::ZERO {
+        av.beta * m * m
+    } else {
+        R::ZERO
+    };
+    (-alpha * cbar * m + quad) / rhobar
 }
 
 /// What one gas neighbour b adds to gas particle a.
@@ -108,14 +168,18 @@ fn viscous<R: Real>(
         Some(av) => {
             let cbar = R::from_f64(0.5) * (a.c + b.c);
             let rhobar = R::from_f64(0.5) * (a.rho + b.rho);
-            let pi = viscosity_pi(av, vr, r2, h, cbar, rhobar);
+            let (alpha, receding) = match &av.disc {
+                Some(d) => (d.alpha(a.x, b.x, cbar, h), true),
+                None => (av.alpha, false),
+            };
+            let pi = viscosity_pi(av, alpha, receding, vr, r2, h, cbar, rhobar);
             let m = if vr < R::ZERO {
                 mu(vr, r2, h, av.nu2_factor).abs()
             } else {
                 R::ZERO
             };
             // Monaghan (1989) signal speed with the viscous terms.
-            (pi, a.c + R::from_f64(1.2) * (av.alpha * cbar + av.beta * m))
+            (pi, a.c + R::from_f64(1.2) * (alpha * cbar + av.beta * m))
         }
         None => (R::ZERO, a.c),
     }

@@ -173,7 +173,27 @@ pub struct DustSection {
     pub cross_section: Option<f64>,
     /// The gas's mean molecular weight μ (in m_H) for the mean free path.
     pub mean_molecular_weight: Option<f64>,
+    /// The fractions one by one (or none, with `sizes`).
+    #[serde(default)]
     pub fractions: Vec<FractionSection>,
+    /// Epstein grains of `count` sizes log-spaced between `min` and `max` (instead of
+    /// `fractions`).
+    pub sizes: Option<SizesSection>,
+}
+
+/// `[dust.sizes]`: a size distribution dn/ds ∝ s^(−index) between `min` and `max` (cm) in
+/// `count` log-spaced bins, each a fraction at the bin's log-centre with the bin's share of the
+/// dust mass (∝ ∫ s³ s^(−index) ds), the shares summing to `dust_to_gas`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SizesSection {
+    pub min: f64,
+    pub max: f64,
+    pub count: usize,
+    /// The power of the number distribution (3.5: Mathis, Rumpl & Nordsieck 1977).
+    pub index: Option<f64>,
+    /// The total dust-to-gas mass ratio over the fractions.
+    pub dust_to_gas: f64,
 }
 
 /// The Epstein law's speed.
@@ -225,6 +245,9 @@ pub struct SphSection {
     pub viscosity: Option<bool>,
     pub alpha: Option<f64>,
     pub beta: Option<f64>,
+    /// The disc viscosity: a target Shakura–Sunyaev α (method.md §D, "Disc viscosity"); turns
+    /// the viscosity on in the disc form (needs `[gravity]`; instead of `alpha`).
+    pub alpha_ss: Option<f64>,
 }
 
 /// Gas density method (dust densities are always summed).
@@ -619,8 +642,16 @@ pub struct DiscSection {
     pub r_out: Option<f64>,
     /// The power of Σ.
     pub p: Option<f64>,
-    /// Σ at r_ref (the disc's mass follows).
+    /// Σ at r_ref (the disc's mass follows); or `disc_mass`.
     pub sigma_ref: Option<f64>,
+    /// The gas disc's mass between r_in and r_out (instead of `sigma_ref`).
+    pub disc_mass: Option<f64>,
+    /// An exponential outer cut-off: Σ also ∝ exp(−(R/r_c)^(2−p)) (Lynden-Bell & Pringle
+    /// 1974's similarity profile); none when absent.
+    pub r_c: Option<f64>,
+    /// The number of gas particles (the particle mass is the disc's mass over it), instead
+    /// of `sph.n`.
+    pub particles: Option<usize>,
     /// The dust's start: `drift` (the steady drift and settling) or `keplerian` (Phantom's).
     pub dust_velocity: Option<DustStart>,
     /// Balance the gas with the run's own SPH forces before the start (3D: its vertical

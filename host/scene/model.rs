@@ -304,8 +304,12 @@ impl SmoothingLength {
 /// Monaghan's artificial viscosity (`sph.viscosity = true`, `sph.alpha`, `sph.beta`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ArtificialViscosity {
+    /// The shock form's α (unused by the disc form).
     pub alpha: f64,
     pub beta: f64,
+    /// The disc form's target Shakura–Sunyaev α (`None`: the shock form).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alpha_ss: Option<f64>,
 }
 
 /// `[idic]`.
@@ -580,9 +584,67 @@ pub struct DiscCfg {
     pub r_in: f64,
     pub r_out: f64,
     pub p: f64,
+    /// Σ at r_ref (given, or from `disc_mass`).
     pub sigma_ref: f64,
+    /// The exponential cut-off radius (`None`: no cut-off).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub r_c: Option<f64>,
+    /// The gas particle count asked for (`None`: the resolution is `sph.n`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub particles: Option<usize>,
     pub dust_velocity: DustStart,
     pub relax: bool,
+}
+
+impl DiscCfg {
+    /// Σ(R)/Σ_ref: (R/r_ref)^(−p) (1 − √(r_in/R)) e^(−(R/r_c)^(2−p)), normalised to 1 at r_ref
+    /// (method.md §D).
+    pub fn sigma_shape(&self, r: f64, r_ref: f64) -> f64 {
+        let raw = |r: f64| {
+            let cut = self
+                .r_c
+                .map_or(1.0, |rc| (-(r / rc).powf(2.0 - self.p)).exp());
+            r.powf(-self.p) * (1.0 - (self.r_in / r).sqrt()) * cut
+        };
+        raw(r) / raw(r_ref)
+    }
+
+    /// d ln Σ/d ln R: −p, the inner taper's ½√(r_in/R)/(1 − √(r_in/R)) and the cut-off's
+    /// −(2 − p)(R/r_c)^(2−p).
+    pub fn dln_sigma(&self, r: f64) -> f64 {
+        let s = (self.r_in / r).sqrt();
+        let cut = self
+            .r_c
+            .map_or(0.0, |rc| -(2.0 - self.p) * (r / rc).powf(2.0 - self.p));
+        -self.p + 0.5 * s / (1.0 - s) + cut
+    }
+
+    /// ∫ 2πR Σ dR over [a, b] for Σ_ref = `sigma_ref` (composite Simpson in √(R − r_in), where
+    /// the taper's √ is smooth: 512 pieces).
+    pub fn mass_between(&self, a: f64, b: f64, r_ref: f64, sigma_ref: f64) -> f64 {
+        let (ua, ub) = (
+            (a - self.r_in).max(0.0).sqrt(),
+            (b - self.r_in).max(0.0).sqrt(),
+        );
+        let k = 512;
+        let du = (ub - ua) / k as f64;
+        let f = |u: f64| {
+            let r = self.r_in + u * u;
+            2.0 * std::f64::consts::PI * r * sigma_ref * self.sigma_shape(r, r_ref) * 2.0 * u
+        };
+        du / 3.0
+            * (0..=k)
+                .map(|j| {
+                    let c = match j {
+                        0 => 1.0,
+                        j if j == k => 1.0,
+                        j if j % 2 == 1 => 4.0,
+                        _ => 2.0,
+                    };
+                    c * f(ua + j as f64 * du)
+                })
+                .sum::<f64>()
+    }
 }
 
 /// Initial conditions from an HDF5 file (host/setup/file.rs).

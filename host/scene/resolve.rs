@@ -204,8 +204,17 @@ impl Scene {
         let section = section.with_background(&f.gas, eos)?;
         let units = units(f.units.as_ref())?;
         let gravity = gravity(f.gravity.as_ref(), f.scene.dim)?;
+        if f.sph.alpha_ss.is_some() && gravity.is_none() {
+            return err(
+                "sph.alpha_ss",
+                "the disc viscosity takes Ω from a point mass: it needs [gravity]",
+            );
+        }
         let dust = dust(f, eos, units.as_ref())?;
-        let sph = sph(&f.sph, f.scene.problem == Problem::File)?;
+        // A disc given by its particle count has no `sph.n`.
+        let counted = f.scene.problem == Problem::Dustydisc
+            && f.dustydisc.as_ref().is_some_and(|d| d.particles.is_some());
+        let sph = sph(&f.sph, f.scene.problem == Problem::File, counted)?;
         let idic_file = f.idic.as_ref();
         let cell = idic_file.and_then(|i| i.cell).unwrap_or(0.5);
         positive("idic.cell", cell)?;
@@ -545,6 +554,18 @@ fn dust(f: &SceneFile, eos: GasEos, units: Option<&Units>) -> VResult<Option<Dus
         }
         return Ok(None);
     };
+    let from_sizes;
+    let d = match &d.sizes {
+        Some(s) => {
+            from_sizes = DustSection {
+                fractions: size_fractions(s, d)?,
+                sizes: None,
+                ..d.clone()
+            };
+            &from_sizes
+        }
+        None => d,
+    };
     if d.fractions.is_empty() {
         return err(
             "dust.fractions",
@@ -632,6 +653,80 @@ fn dust(f: &SceneFile, eos: GasEos, units: Option<&Units>) -> VResult<Option<Dus
         heating,
         fractions,
     }))
+}
+
+/// `[dust.sizes]`: `count` Epstein fractions at the log-centres of log-spaced size bins, each
+/// with the bin's share of `dust_to_gas` for dn/ds ∝ s^(−index), the mass per bin ∝
+/// ∫ s^(3−index) ds.
+fn size_fractions(s: &SizesSection, d: &DustSection) -> VResult<Vec<FractionSection>> {
+    if !d.fractions.is_empty() {
+        return err(
+            "dust.sizes",
+            "give the grains by dust.sizes or one by one in [[dust.fractions]], not both",
+        );
+    }
+    if d.law != LawKind::Epstein {
+        return err(
+            "dust.sizes",
+            "grains by size follow the Epstein/Stokes law: set dust.law = \"epstein\"",
+        );
+    }
+    positive("dust.sizes.min", s.min)?;
+    positive("dust.sizes.max", s.max)?;
+    positive("dust.sizes.dust_to_gas", s.dust_to_gas)?;
+    let max = dustsph_device::kernels::MAX_FRACTIONS;
+    if s.count == 0 || s.count > max {
+        return err(
+            "dust.sizes.count",
+            format!("must be 1 to {max} fractions (got {})", s.count),
+        );
+    }
+    if s.max < s.min || (s.max == s.min && s.count > 1) {
+        return err(
+            "dust.sizes.max",
+            format!(
+                "must be beyond dust.sizes.min = {} for {} sizes (got {})",
+                num(s.min),
+                s.count,
+                num(s.max)
+            ),
+        );
+    }
+    let index = s.index.unwrap_or(3.5);
+    finite("dust.sizes.index", index)?;
+    let n = s.count as f64;
+    let edge = |i: usize| s.min * (s.max / s.min).powf(i as f64 / n);
+    // ∫ s^(3−index) ds between two edges (the logarithm at index 4).
+    let mass = |a: f64, b: f64| {
+        let k = 4.0 - index;
+        if k.abs() < 1e-12 {
+            (b / a).ln()
+        } else {
+            (b.powf(k) - a.powf(k)) / k
+        }
+    };
+    let shares: Vec<f64> = (0..s.count)
+        .map(|i| {
+            if s.count == 1 {
+                1.0
+            } else {
+                mass(edge(i), edge(i + 1))
+            }
+        })
+        .collect();
+    let total: f64 = shares.iter().sum();
+    Ok(shares
+        .iter()
+        .enumerate()
+        .map(|(i, w)| FractionSection {
+            eps: Some(s.dust_to_gas * w / total),
+            size: Some((edge(i) * edge(i + 1)).sqrt()),
+            grain_density: None,
+            t_stop: None,
+            k: None,
+            s_rho: None,
+        })
+        .collect())
 }
 
 /// Fraction `i`: its ε and the law's one parameter (the constant-t law falls back on
@@ -768,8 +863,14 @@ fn grain_s_rho(
     Ok(size * rho / units.surface_density_g_cm2())
 }
 
-fn sph(s: &SphSection, from_file: bool) -> VResult<Sph> {
-    let n = match (s.n, from_file) {
+fn sph(s: &SphSection, from_file: bool, counted: bool) -> VResult<Sph> {
+    if counted && s.n.is_some() {
+        return err(
+            "dustydisc.particles",
+            "the disc's resolution is given twice: keep dustydisc.particles or sph.n",
+        );
+    }
+    let n = match (s.n, from_file || counted) {
         (Some(_), true) => {
             return err(
                 "sph.n",
@@ -827,6 +928,21 @@ fn sph(s: &SphSection, from_file: bool) -> VResult<Sph> {
             "variable h defines the density by summation (sph.density = \"continuity\" excludes it)",
         );
     }
+    if let Some(a) = s.alpha_ss {
+        positive("sph.alpha_ss", a)?;
+        if s.alpha.is_some() {
+            return err(
+                "sph.alpha",
+                "the disc viscosity sets α per pair from sph.alpha_ss: give one of the two",
+            );
+        }
+        if s.viscosity == Some(false) {
+            return err(
+                "sph.alpha_ss",
+                "is the disc viscosity, and sph.viscosity = false turns it off: remove one",
+            );
+        }
+    }
     let (alpha, beta) = (s.alpha.unwrap_or(1.0), s.beta.unwrap_or(2.0));
     non_negative("sph.alpha", alpha)?;
     non_negative("sph.beta", beta)?;
@@ -837,8 +953,12 @@ fn sph(s: &SphSection, from_file: bool) -> VResult<Sph> {
         gradient: s.gradient.unwrap_or(GradientMethod::Standard),
         viscosity: s
             .viscosity
-            .unwrap_or(false)
-            .then_some(ArtificialViscosity { alpha, beta }),
+            .unwrap_or(s.alpha_ss.is_some())
+            .then_some(ArtificialViscosity {
+                alpha,
+                beta,
+                alpha_ss: s.alpha_ss,
+            }),
     })
 }
 
@@ -1102,7 +1222,6 @@ fn disc(d: &DiscSection, f: &SceneFile, eos: GasEos) -> VResult<DiscCfg> {
     let r_in = d.r_in.unwrap_or(0.5 * r_ref);
     let r_out = d.r_out.unwrap_or(2.0 * r_ref);
     let p = d.p.unwrap_or(1.0);
-    let sigma_ref = d.sigma_ref.unwrap_or(1e-3);
     positive("dustydisc.r_in", r_in)?;
     positive("dustydisc.r_out", r_out)?;
     if r_out <= r_in {
@@ -1116,7 +1235,39 @@ fn disc(d: &DiscSection, f: &SceneFile, eos: GasEos) -> VResult<DiscCfg> {
         );
     }
     finite("dustydisc.p", p)?;
-    positive("dustydisc.sigma_ref", sigma_ref)?;
+    if let Some(rc) = d.r_c {
+        positive("dustydisc.r_c", rc)?;
+        if p >= 2.0 {
+            return err(
+                "dustydisc.r_c",
+                format!(
+                    "the cut-off e^(−(R/r_c)^(2−p)) needs p < 2 (dustydisc.p = {})",
+                    num(p)
+                ),
+            );
+        }
+    }
+    if let Some(n) = d.particles {
+        if n < 100 {
+            return err(
+                "dustydisc.particles",
+                format!("{n} gas particles do not make a disc (at least 100)"),
+            );
+        }
+    }
+    if let Some(a) = f.gravity.as_ref().and_then(|g| g.accretion_radius) {
+        if a > r_in {
+            return err(
+                "gravity.accretion_radius",
+                format!(
+                    "{} reaches beyond the disc's inner edge dustydisc.r_in = {}: the star would \
+                     swallow the disc's first rings at the first step",
+                    num(a),
+                    num(r_in)
+                ),
+            );
+        }
+    }
     if r_ref <= r_in {
         return err(
             "gas.r_ref",
@@ -1127,14 +1278,35 @@ fn disc(d: &DiscSection, f: &SceneFile, eos: GasEos) -> VResult<DiscCfg> {
             ),
         );
     }
-    Ok(DiscCfg {
+    let mut cfg = DiscCfg {
         r_in,
         r_out,
         p,
-        sigma_ref,
+        sigma_ref: 1.0,
+        r_c: d.r_c,
+        particles: d.particles,
         dust_velocity: d.dust_velocity.unwrap_or(DustStart::Drift),
         relax: d.relax.unwrap_or(true),
-    })
+    };
+    cfg.sigma_ref = match (d.sigma_ref, d.disc_mass) {
+        (Some(_), Some(_)) => {
+            return err(
+                "dustydisc.disc_mass",
+                "give dustydisc.sigma_ref or dustydisc.disc_mass, not both",
+            )
+        }
+        (Some(s), None) => {
+            positive("dustydisc.sigma_ref", s)?;
+            s
+        }
+        (None, Some(mass)) => {
+            positive("dustydisc.disc_mass", mass)?;
+            mass / cfg.mass_between(r_in, r_out, r_ref, 1.0)
+        }
+        (None, None) => 1e-3,
+    };
+    finite("dustydisc.disc_mass", cfg.sigma_ref)?;
+    Ok(cfg)
 }
 
 fn dustybox(b: &BoxSection, background: GasState, nf: usize) -> VResult<BoxCfg> {

@@ -27,19 +27,25 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
     let dim = scene.dim();
     let gm = grav.central_mass;
     let centre = grav.position;
-    let sigma_norm = d.sigma_ref / taper(r_ref, d.r_in);
-    let sigma = |r: f64| sigma_norm * (r / r_ref).powf(-d.p) * taper(r, d.r_in);
+    let sigma = |r: f64| d.sigma_ref * d.sigma_shape(r, r_ref);
     let cs = |r: f64| cs0 * (r / r_ref).powf(-q);
     let omega = |r: f64| (gm / (r * r * r)).sqrt();
     // The scale height H = c_s/Ω and the midplane density Σ/(√(2π) H) of the 3D disc.
     let height = |r: f64| cs(r) / omega(r);
     let rho_mid = |r: f64| sigma(r) / ((2.0 * std::f64::consts::PI).sqrt() * height(r));
-    // Spacing 1/n at r_ref (in the midplane in 3D): particle mass Σ_ref/n² or ρ_mid,ref/n³.
-    let spacing = 1.0 / scene.sph.n as f64;
-    let m = if dim == 3 {
-        rho_mid(r_ref) * spacing.powi(3)
-    } else {
-        d.sigma_ref * spacing * spacing
+    let disc_mass = d.mass_between(d.r_in, d.r_out, r_ref, d.sigma_ref);
+    // The particle mass: the disc's over `dustydisc.particles`, or from spacing 1/n at r_ref
+    // (in the midplane in 3D): Σ_ref/n² or ρ_mid,ref/n³.
+    let m = match d.particles {
+        Some(n) => disc_mass / n as f64,
+        None => {
+            let s = 1.0 / scene.sph.n as f64;
+            if dim == 3 {
+                rho_mid(r_ref) * s.powi(3)
+            } else {
+                d.sigma_ref * s * s
+            }
+        }
     };
     let local_spacing = |r: f64| {
         if dim == 3 {
@@ -48,8 +54,13 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
             (m / sigma(r)).sqrt()
         }
     };
-    let est = std::f64::consts::PI * (d.r_out * d.r_out - d.r_in * d.r_in) * d.sigma_ref / m;
-    super::check_size(est, 1 + scene.n_fractions(), "sph.n", &["dustydisc.r_out"])?;
+    // The reference spacing (for h): the local one at r_ref.
+    let spacing = local_spacing(r_ref);
+    let (size_key, also) = match d.particles {
+        Some(_) => ("dustydisc.particles", "dustydisc.r_out"),
+        None => ("sph.n", "dustydisc.r_out"),
+    };
+    super::check_size(disc_mass / m, 1 + scene.n_fractions(), size_key, &[also])?;
     let rings = rings(d, &sigma, &local_spacing);
     if rings.is_empty() {
         return Err(SetupError {
@@ -57,11 +68,7 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
             msg: "no ring of particles fits between dustydisc.r_in and r_out; raise sph.n".into(),
         });
     }
-    // d ln Σ/d ln R: −p plus the inner taper's ½√(r_in/R)/(1 − √(r_in/R)).
-    let dln_sigma = |r: f64| {
-        let s = (d.r_in / r).sqrt();
-        -d.p + 0.5 * s / (1.0 - s)
-    };
+    let dln_sigma = |r: f64| d.dln_sigma(r);
     // The layers: each ring holds columns of n_z particles at the Gaussian's quantiles (one
     // layer, at z = 0, in 2D), alternate rings turned by half a spacing.
     let mut layers: Vec<Layer> = Vec::new();
@@ -225,12 +232,51 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         };
         hr / height(r)
     };
+    // A disc whose scale height the kernel does not resolve over most of its mass is no disc
+    // (its pressure support, drift and settling are set by h, not by H).
+    let unresolved: f64 = rings
+        .iter()
+        .filter(|g| h_over_h(g.r) > 1.0)
+        .map(|g| g.mass)
+        .fold(0.0, |a, m| a + m)
+        / rings.iter().map(|g| g.mass).sum::<f64>();
     let resolution = format!(
-        "; h/H {:.2} at the inner ring, {:.2} at r_ref, {:.2} at the outer",
+        "; h/H {:.2} at the inner ring, {:.2} at r_ref, {:.2} at the outer, > 1 over {:.0} % of \
+         the mass; disc mass {disc_mass:.4e}, gas particle mass {m:.4e}",
         h_over_h(rings[0].r),
         h_over_h(r_ref),
-        h_over_h(rings[n_rings - 1].r)
+        h_over_h(rings[n_rings - 1].r),
+        100.0 * unresolved
     );
+    if unresolved > 0.5 {
+        return Err(SetupError {
+            key: size_key.into(),
+            msg: format!(
+                "h/H > 1 over {:.0} % of the disc's mass (h/H {:.2} at r_ref): the kernel does \
+                 not resolve the scale height; raise {size_key}",
+                100.0 * unresolved,
+                h_over_h(r_ref)
+            ),
+        });
+    }
+    // Each grain's Stokes number in the midplane at the inner ring, r_ref and the outer ring.
+    let stokes: Vec<String> = fr
+        .iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let st = |r: f64| {
+                let rho = rho_at(r, 0.0);
+                omega(r) * f.law.stopping_time(rho, f.eps * rho, cs(r))
+            };
+            format!(
+                "fraction {k} (ε {:.3e}): St {:.3e} / {:.3e} / {:.3e}",
+                f.eps,
+                st(rings[0].r),
+                st(r_ref),
+                st(rings[n_rings - 1].r)
+            )
+        })
+        .collect();
     let mut su = Setup::at_start(
         gas_phase(gas, None),
         dust,
@@ -248,6 +294,14 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         relax_note,
         if drift_start { "" } else { "; dust on Keplerian orbits (no drift)" }
     ));
+    if !stokes.is_empty() {
+        su.notes.push(format!(
+            "disc: midplane Stokes numbers at R = {:.4} / {r_ref} / {:.4}: {}",
+            rings[0].r,
+            rings[n_rings - 1].r,
+            stokes.join("; ")
+        ));
+    }
     if !unstable.is_empty() {
         // Rings inside an edge damping zone have their radial motion damped: said per ring,
         // and the line is a note, not a warning, when every such ring is in a zone.
@@ -471,11 +525,6 @@ fn normal_quantile(p: f64) -> f64 {
         }
     }
     0.5 * (a + b)
-}
-
-/// 1 − √(r_in/R): Σ's inner taper (0 at r_in).
-fn taper(r: f64, r_in: f64) -> f64 {
-    1.0 - (r_in / r).sqrt()
 }
 
 /// One ring of particles: its mid-radius, particle count and mass.

@@ -21,7 +21,7 @@ use crate::scene::{
 };
 use dustsph_device::drag::StoppingLaw;
 use dustsph_device::eos::Eos;
-use dustsph_device::sph::Viscosity;
+use dustsph_device::sph::{DiscViscosity, Viscosity};
 
 /// Everything the step needs to know about the physics, resolved from the scene.
 #[derive(Debug, Clone)]
@@ -84,6 +84,12 @@ impl Physics {
                 alpha: v.alpha,
                 beta: v.beta,
                 nu2_factor: 0.01,
+                // ν = α c_s h/κ on every pair, so α_AV = κ α_SS H/h gives ν = α_SS c_s H.
+                disc: v.alpha_ss.zip(scene.gravity).map(|(a, g)| DiscViscosity {
+                    kappa_alpha_ss: DiscViscosity::kappa(scene.dim()) * a,
+                    gm: g.central_mass,
+                    centre: g.position,
+                }),
             }),
             laws: scene.fractions().iter().map(|f| f.law).collect(),
             heating: scene.dust.as_ref().is_some_and(|d| d.heating),

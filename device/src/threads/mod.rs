@@ -105,6 +105,8 @@ pub struct StepParams<R> {
     pub alpha: R,
     pub beta: R,
     pub nu2_factor: R,
+    /// κ α_SS of the disc viscosity (`sph.alpha_ss`; 0: the shock form), about `gravity`.
+    pub kappa_alpha_ss: f64,
     pub nf: u32,
     pub needs_gas_state: u32,
     pub laws: [LawParam<R>; MAX_FRACTIONS],
@@ -160,6 +162,11 @@ impl<R: Real> StepParams<R> {
             alpha: self.alpha,
             beta: self.beta,
             nu2_factor: self.nu2_factor,
+            disc: (self.kappa_alpha_ss > 0.0).then_some(crate::sph::DiscViscosity {
+                kappa_alpha_ss: self.kappa_alpha_ss,
+                gm: self.gravity.gm,
+                centre: self.gravity.pos,
+            }),
         })
     }
 
@@ -178,6 +185,7 @@ impl<R: Real> StepParams<R> {
             alpha: c(self.alpha),
             beta: c(self.beta),
             nu2_factor: c(self.nu2_factor),
+            kappa_alpha_ss: self.kappa_alpha_ss,
             nf: self.nf,
             needs_gas_state: self.needs_gas_state,
             laws: self.laws.map(|l| LawParam {

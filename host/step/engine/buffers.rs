@@ -698,6 +698,10 @@ pub(super) fn step_params(
         alpha: phys.av.map_or(0.0, |a| a.alpha),
         beta: phys.av.map_or(0.0, |a| a.beta),
         nu2_factor: phys.av.map_or(0.0, |a| a.nu2_factor),
+        kappa_alpha_ss: phys
+            .av
+            .and_then(|a| a.disc)
+            .map_or(0.0, |d| d.kappa_alpha_ss),
         nf: nf as u32,
         needs_gas_state: phys.laws.iter().any(|l| l.needs_gas_state()) as u32,
         laws,
