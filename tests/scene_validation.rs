@@ -297,7 +297,7 @@ fn set_up_errors_name_the_key_and_write_nothing() {
     let e = input_error_writes_nothing("dustybox", &["sph.hfact=40".to_string()]);
     assert!(e.contains("dustybox.length"), "{e}");
     // A disc whose kernel is wider than its scale height over most of its mass.
-    let sets = ["sph.n=".to_string(), "dustydisc.particles=300".to_string()];
+    let sets = ["dustydisc.particles=300".to_string()];
     let e = input_error_writes_nothing("dustydisc3d", &sets);
     assert!(
         e.contains("dustydisc.particles") && e.contains("h/H > 1"),

@@ -162,3 +162,28 @@ fn snapshots_and_the_summary_carry_the_units() {
     });
     assert!(s.units.is_none());
 }
+
+/// `[dust.sizes]` (configs/dustydisc3d.toml: 1 µm to 1 cm in four bins, index 3.5, dust-to-gas
+/// 0.01, 3 g cm⁻³): each fraction sits at its bin's log-centre (s ρ_s = size · 3 g cm⁻³ in code
+/// units), the ε sum to the dust-to-gas ratio, and with dn/ds ∝ s^−3.5 the mass per bin
+/// ∝ ∫ s^−½ ds, so successive ε grow by (10)^½ per decade-wide bin.
+#[test]
+fn grains_by_size_distribution_split_the_dust_by_mass_at_log_centres() {
+    let scene: Scene = load(&config("dustydisc3d"), &[]).unwrap().scene;
+    let fr = scene.fractions();
+    assert_eq!(fr.len(), 4);
+    let sigma_unit = scene.units.unwrap().surface_density_g_cm2();
+    let eps_sum: f64 = fr.iter().map(|f| f.eps).sum();
+    assert!((eps_sum - 0.01).abs() < 1e-15, "ε sum {eps_sum}");
+    for (k, f) in fr.iter().enumerate() {
+        let size = 10f64.powf(-3.5 + k as f64);
+        let StoppingLaw::Epstein { s_rho, .. } = f.law else {
+            panic!("fraction {k}: {:?}", f.law)
+        };
+        assert!((s_rho * sigma_unit / (3.0 * size) - 1.0).abs() < 1e-12, "fraction {k} size");
+        if k > 0 {
+            let ratio = f.eps / fr[k - 1].eps;
+            assert!((ratio - 10f64.sqrt()).abs() < 1e-12, "fraction {k}: ε ratio {ratio}");
+        }
+    }
+}
