@@ -180,10 +180,16 @@ fn grains_by_size_distribution_split_the_dust_by_mass_at_log_centres() {
         let StoppingLaw::Epstein { s_rho, .. } = f.law else {
             panic!("fraction {k}: {:?}", f.law)
         };
-        assert!((s_rho * sigma_unit / (3.0 * size) - 1.0).abs() < 1e-12, "fraction {k} size");
+        assert!(
+            (s_rho * sigma_unit / (3.0 * size) - 1.0).abs() < 1e-12,
+            "fraction {k} size"
+        );
         if k > 0 {
             let ratio = f.eps / fr[k - 1].eps;
-            assert!((ratio - 10f64.sqrt()).abs() < 1e-12, "fraction {k}: ε ratio {ratio}");
+            assert!(
+                (ratio - 10f64.sqrt()).abs() < 1e-12,
+                "fraction {k}: ε ratio {ratio}"
+            );
         }
     }
 }

@@ -1,7 +1,7 @@
 //! A disc snapshot in radial bins (method.md §D): each phase's surface density, mass-weighted
 //! radial velocity and azimuthal velocity relative to Keplerian, beside the exact steady drift
 //! computed from the bins' own ε, Stokes numbers and pressure gradient.
-use crate::exact::drift::steady_drift;
+use crate::exact::drift::steady_drift_viscous;
 use crate::io::SnapshotData;
 use crate::scene::{GasEos, ProblemCfg, Scene};
 
@@ -155,6 +155,24 @@ pub fn disc_bins(snap: &SnapshotData, scene: &Scene, n_bins: usize) -> Option<Di
         })
         .collect();
     let nf = phases.len() - 1;
+    // The gas's viscous inflow with the disc viscosity (`sph.alpha_ss`, ν = α_SS c_s²/Ω):
+    // v_visc = −3/(Σ√R) ∂(νΣ√R)/∂R (Lynden-Bell & Pringle 1974), ∂/∂R by differences of the
+    // bins (central inside, one-sided at the ends); 0 without it.
+    let alpha_ss = scene.sph.viscosity.and_then(|v| v.alpha_ss).unwrap_or(0.0);
+    let torque: Vec<f64> = (0..n_bins)
+        .map(|i| {
+            let omega = (g.central_mass / r[i].powi(3)).sqrt();
+            alpha_ss * cs(r[i]).powi(2) / omega * phases[0].sigma[i] * r[i].sqrt()
+        })
+        .collect();
+    let v_visc = |i: usize| {
+        if alpha_ss == 0.0 || n_bins < 2 {
+            return 0.0;
+        }
+        let (a, b) = (i.saturating_sub(1), (i + 1).min(n_bins - 1));
+        let d = (torque[b] - torque[a]) / (r[b] - r[a]);
+        -3.0 * d / (phases[0].sigma[i] * r[i].sqrt())
+    };
     let mut exact = vec![(vec![f64::NAN; n_bins], vec![f64::NAN; n_bins]); nf + 1];
     for i in 0..n_bins {
         // d ln P/d ln R: the least-squares slope of the gas particles' own ln P (c_s² ρ, in
@@ -180,7 +198,8 @@ pub fn disc_bins(snap: &SnapshotData, scene: &Scene, n_bins: usize) -> Option<Di
             .zip(&eps)
             .map(|(f, e)| omega * f.law.stopping_time(sg / mid(i), e * sg / mid(i), c))
             .collect();
-        if let Some(s) = steady_drift(&eps, &st).filter(|_| eta_vk.is_finite()) {
+        let drift = steady_drift_viscous(&eps, &st, v_visc(i) / eta_vk);
+        if let Some(s) = drift.filter(|_| eta_vk.is_finite()) {
             exact[0].0[i] = s.gas.0 * eta_vk;
             exact[0].1[i] = s.gas.1 * eta_vk;
             for (k, u) in s.dust.iter().enumerate() {

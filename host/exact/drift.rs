@@ -11,7 +11,9 @@
 //!   species R: 0 = 2 δu_φ,j − (u_R,j − v_R)/St_j
 //!   species φ: 0 = −u_R,j/2 − (δu_φ,j − δv_φ)/St_j
 //! a linear system of 2N + 2 unknowns, solved directly (for the drag accelerations
-//! (u_j − v)/St_j rather than the velocities, see `steady_drift`).
+//! (u_j − v)/St_j rather than the velocities, see `steady_drift`). A viscous gas
+//! (`steady_drift_viscous`) adds the torque that alone would drive the inflow v_visc: the gas φ
+//! balance becomes 0 = −v_R/2 + Σ_j ε_j (δu_φ,j − δv_φ)/St_j + v_visc/2 (Dipierro et al. 2018).
 use super::linalg::solve_real;
 
 /// The steady velocities, relative to Keplerian, in units of η v_K.
@@ -26,7 +28,17 @@ pub struct SteadyDrift {
 /// The steady drift for dust-to-gas ratios `eps` and Stokes numbers `st` (each > 0); `None`
 /// when the inputs are not positive and finite.
 pub fn steady_drift(eps: &[f64], st: &[f64]) -> Option<SteadyDrift> {
+    steady_drift_viscous(eps, st, 0.0)
+}
+
+/// [`steady_drift`] with the gas's viscous inflow `v_visc` (in η v_K: the radial velocity the
+/// viscous torque would give the gas alone, −3/(Σ√R) ∂(νΣ√R)/∂R); `None` also when it is not
+/// finite.
+pub fn steady_drift_viscous(eps: &[f64], st: &[f64], v_visc: f64) -> Option<SteadyDrift> {
     let n = eps.len();
+    if !v_visc.is_finite() {
+        return None;
+    }
     if st.len() != n || eps.iter().chain(st).any(|v| !(v.is_finite() && *v > 0.0)) {
         return None;
     }
@@ -39,8 +51,9 @@ pub fn steady_drift(eps: &[f64], st: &[f64]) -> Option<SteadyDrift> {
     // Gas R: 2 δv_φ + Σ ε a_R = −2.
     a[0][1] = 2.0;
     b[0] = -2.0;
-    // Gas φ: −v_R/2 + Σ ε a_φ = 0.
+    // Gas φ: −v_R/2 + Σ ε a_φ = −v_visc/2.
     a[1][0] = -0.5;
+    b[1] = -0.5 * v_visc;
     for j in 0..n {
         let (ar, ap) = (2 + 2 * j, 3 + 2 * j);
         a[0][ar] = eps[j];
@@ -120,5 +133,37 @@ mod tests {
         assert!(flux.abs() < 1e-13, "net radial mass flux {flux}");
         assert!(steady_drift(&[0.1], &[0.0]).is_none());
         assert!(steady_drift(&[0.1, 0.2], &[1.0]).is_none());
+    }
+
+    /// With the gas's viscous inflow v_visc, Dipierro et al. (2018) eqs. 11 and 13:
+    /// v_g,R = [−λ1 v_P + (1 + λ0) v_visc]/D, u_R,j = [v_P ((1 + λ0) St_j − λ1) + v_visc
+    /// (1 + λ0 + St_j λ1)]/[D (1 + St_j²)], D = (1 + λ0)² + λ1²; dust-free gas flows in at
+    /// v_visc; the net radial mass flux is ρ_g v_visc (the drag only moves momentum between
+    /// the phases; the torque on the gas moves the whole).
+    #[test]
+    fn viscous_drift_is_dipierro_et_al_with_the_inflow() {
+        let eps = [0.01, 0.3, 1.5, 0.05];
+        let st = [1e-3, 0.1, 1.0, 30.0];
+        let (vp, vv) = (-2.0, -0.37);
+        let d = steady_drift_viscous(&eps, &st, vv).unwrap();
+        let l0: f64 = eps.iter().zip(&st).map(|(e, s)| e / (1.0 + s * s)).sum();
+        let l1: f64 = eps
+            .iter()
+            .zip(&st)
+            .map(|(e, s)| e * s / (1.0 + s * s))
+            .sum();
+        let den = (1.0 + l0).powi(2) + l1 * l1;
+        let want_g = (-l1 * vp + (1.0 + l0) * vv) / den;
+        assert!((d.gas.0 - want_g).abs() < 1e-13, "{:?} vs {want_g}", d.gas);
+        for (j, (s, u)) in st.iter().zip(&d.dust).enumerate() {
+            let want =
+                (vp * ((1.0 + l0) * s - l1) + vv * (1.0 + l0 + s * l1)) / (den * (1.0 + s * s));
+            assert!((u.0 - want).abs() < 1e-13, "{j}: {} vs {want}", u.0);
+        }
+        let flux = d.gas.0 + eps.iter().zip(&d.dust).map(|(e, u)| e * u.0).sum::<f64>();
+        assert!((flux - vv).abs() < 1e-13, "net radial mass flux {flux}");
+        let alone = steady_drift_viscous(&[1e-300], &[1.0], vv).unwrap();
+        assert!((alone.gas.0 - vv).abs() < 1e-13);
+        assert!(steady_drift_viscous(&eps, &st, f64::NAN).is_none());
     }
 }
