@@ -107,15 +107,17 @@ mod tests {
         }
     }
 
-    /// N species, radial velocities: the closed form of Dipierro et al. (2018) without
-    /// viscosity, λ0 = Σ ε_j/(1 + St_j²), λ1 = Σ ε_j St_j/(1 + St_j²), v_P = −2 (in η v_K):
-    /// v_g,R = −λ1 v_P/[(1 + λ0)² + λ1²], u_R,j = v_P ((1 + λ0) St_j − λ1)/{[(1 + λ0)² + λ1²]
-    /// (1 + St_j²)}. And the total radial mass flux vanishes (ρ_g v_R + Σ ρ_j u_R,j = 0).
+    /// N species, radial velocities: the closed form of Dipierro et al. (2018, eqs. 11 and
+    /// 13) with and without the gas's viscous inflow v_visc, λ0 = Σ ε_j/(1 + St_j²),
+    /// λ1 = Σ ε_j St_j/(1 + St_j²), D = (1 + λ0)² + λ1², v_P = −2 (in η v_K):
+    /// v_g,R = [−λ1 v_P + (1 + λ0) v_visc]/D, u_R,j = [v_P ((1 + λ0) St_j − λ1) + v_visc
+    /// (1 + λ0 + St_j λ1)]/[D (1 + St_j²)]. The net radial mass flux is ρ_g v_visc (the drag
+    /// only moves momentum between the phases; the torque on the gas moves the whole), and
+    /// dust-free gas flows in at v_visc.
     #[test]
-    fn n_species_radial_drift_is_dipierro_et_al_and_carries_no_net_mass() {
+    fn radial_drift_is_dipierro_et_al_with_and_without_the_viscous_inflow() {
         let eps = [0.01, 0.3, 1.5, 0.05];
         let st = [1e-3, 0.1, 1.0, 30.0];
-        let d = steady_drift(&eps, &st).unwrap();
         let l0: f64 = eps.iter().zip(&st).map(|(e, s)| e / (1.0 + s * s)).sum();
         let l1: f64 = eps
             .iter()
@@ -124,46 +126,26 @@ mod tests {
             .sum();
         let den = (1.0 + l0).powi(2) + l1 * l1;
         let vp = -2.0;
-        assert!((d.gas.0 - (-l1 * vp / den)).abs() < 1e-13, "{:?}", d.gas);
-        for (j, (s, u)) in st.iter().zip(&d.dust).enumerate() {
-            let want = vp * ((1.0 + l0) * s - l1) / (den * (1.0 + s * s));
-            assert!((u.0 - want).abs() < 1e-13, "{j}: {} vs {want}", u.0);
+        for vv in [0.0, -0.37] {
+            let d = steady_drift_viscous(&eps, &st, vv).unwrap();
+            let want_g = (-l1 * vp + (1.0 + l0) * vv) / den;
+            assert!((d.gas.0 - want_g).abs() < 1e-13, "{:?} vs {want_g}", d.gas);
+            for (j, (s, u)) in st.iter().zip(&d.dust).enumerate() {
+                let want =
+                    (vp * ((1.0 + l0) * s - l1) + vv * (1.0 + l0 + s * l1)) / (den * (1.0 + s * s));
+                assert!((u.0 - want).abs() < 1e-13, "{j}: {} vs {want}", u.0);
+            }
+            let flux = d.gas.0 + eps.iter().zip(&d.dust).map(|(e, u)| e * u.0).sum::<f64>();
+            assert!((flux - vv).abs() < 1e-13, "net radial mass flux {flux}");
+            let alone = steady_drift_viscous(&[1e-300], &[1.0], vv).unwrap();
+            assert!((alone.gas.0 - vv).abs() < 1e-13);
         }
-        let flux = d.gas.0 + eps.iter().zip(&d.dust).map(|(e, u)| e * u.0).sum::<f64>();
-        assert!(flux.abs() < 1e-13, "net radial mass flux {flux}");
+        assert_eq!(
+            steady_drift(&eps, &st),
+            steady_drift_viscous(&eps, &st, 0.0)
+        );
+        assert!(steady_drift_viscous(&eps, &st, f64::NAN).is_none());
         assert!(steady_drift(&[0.1], &[0.0]).is_none());
         assert!(steady_drift(&[0.1, 0.2], &[1.0]).is_none());
-    }
-
-    /// With the gas's viscous inflow v_visc, Dipierro et al. (2018) eqs. 11 and 13:
-    /// v_g,R = [−λ1 v_P + (1 + λ0) v_visc]/D, u_R,j = [v_P ((1 + λ0) St_j − λ1) + v_visc
-    /// (1 + λ0 + St_j λ1)]/[D (1 + St_j²)], D = (1 + λ0)² + λ1²; dust-free gas flows in at
-    /// v_visc; the net radial mass flux is ρ_g v_visc (the drag only moves momentum between
-    /// the phases; the torque on the gas moves the whole).
-    #[test]
-    fn viscous_drift_is_dipierro_et_al_with_the_inflow() {
-        let eps = [0.01, 0.3, 1.5, 0.05];
-        let st = [1e-3, 0.1, 1.0, 30.0];
-        let (vp, vv) = (-2.0, -0.37);
-        let d = steady_drift_viscous(&eps, &st, vv).unwrap();
-        let l0: f64 = eps.iter().zip(&st).map(|(e, s)| e / (1.0 + s * s)).sum();
-        let l1: f64 = eps
-            .iter()
-            .zip(&st)
-            .map(|(e, s)| e * s / (1.0 + s * s))
-            .sum();
-        let den = (1.0 + l0).powi(2) + l1 * l1;
-        let want_g = (-l1 * vp + (1.0 + l0) * vv) / den;
-        assert!((d.gas.0 - want_g).abs() < 1e-13, "{:?} vs {want_g}", d.gas);
-        for (j, (s, u)) in st.iter().zip(&d.dust).enumerate() {
-            let want =
-                (vp * ((1.0 + l0) * s - l1) + vv * (1.0 + l0 + s * l1)) / (den * (1.0 + s * s));
-            assert!((u.0 - want).abs() < 1e-13, "{j}: {} vs {want}", u.0);
-        }
-        let flux = d.gas.0 + eps.iter().zip(&d.dust).map(|(e, u)| e * u.0).sum::<f64>();
-        assert!((flux - vv).abs() < 1e-13, "net radial mass flux {flux}");
-        let alone = steady_drift_viscous(&[1e-300], &[1.0], vv).unwrap();
-        assert!((alone.gas.0 - vv).abs() < 1e-13);
-        assert!(steady_drift_viscous(&eps, &st, f64::NAN).is_none());
     }
 }
