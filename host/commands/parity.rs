@@ -480,7 +480,13 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         "kernel coupling, damped dispersion: the 2D dusty disc (point mass, locally isothermal, \
          edge damping zones)",
         "configs/dustydisc.toml",
-        &["sph.n=12"],
+        &["sph.n=16"],
+        5,
+    ),
+    (
+        "the disc viscosity (α_SS on every pair) and the linear sampling: the 2D dusty disc",
+        "configs/dustydisc.toml",
+        &["sph.n=16", "sph.alpha_ss=0.01", "sph.beta=0"],
         5,
     ),
 ];
