@@ -694,3 +694,57 @@ struct GasToml {
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     background: Option<GasState>,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn disc(r_c: Option<f64>) -> DiscCfg {
+        DiscCfg {
+            r_in: 10.0,
+            r_out: 100.0,
+            p: 1.0,
+            sigma_ref: 1.0,
+            r_c,
+            particles: None,
+            dust_velocity: DustStart::Drift,
+            relax: true,
+        }
+    }
+
+    /// The disc's mass (what `dustydisc.disc_mass` is converted with): for p = 1 without a
+    /// cut-off ∫2πR Σ dR = 2π Σ_ref r_ref [R − 2√(r_in R)]/(1 − √(r_in/r_ref)) exactly; with a
+    /// cut-off against a fine midpoint sum; d ln Σ/d ln R against differences of ln Σ.
+    #[test]
+    fn the_discs_mass_and_slope_follow_its_profile() {
+        let (r_ref, d) = (30.0, disc(None));
+        let prim = |r: f64| r - 2.0 * (d.r_in * r).sqrt();
+        let exact = 2.0 * std::f64::consts::PI * r_ref * (prim(100.0) - prim(10.0))
+            / (1.0 - (d.r_in / r_ref).sqrt());
+        let got = d.mass_between(10.0, 100.0, r_ref, 1.0);
+        assert!((got / exact - 1.0).abs() < 1e-10, "{got} vs {exact}");
+        for dc in [disc(None), disc(Some(40.0))] {
+            let n = 200_000;
+            let w = 90.0 / n as f64;
+            let fine: f64 = (0..n)
+                .map(|i| {
+                    let r = 10.0 + (i as f64 + 0.5) * w;
+                    2.0 * std::f64::consts::PI * r * dc.sigma_shape(r, r_ref) * w
+                })
+                .sum();
+            let got = dc.mass_between(10.0, 100.0, r_ref, 1.0);
+            assert!(
+                (got / fine - 1.0).abs() < 1e-7,
+                "{:?}: {got} vs {fine}",
+                dc.r_c
+            );
+            for r in [12.0, 30.0, 70.0] {
+                let e = 1e-6;
+                let fd = (dc.sigma_shape(r * (1.0 + e), r_ref).ln()
+                    - dc.sigma_shape(r * (1.0 - e), r_ref).ln())
+                    / (2.0 * e);
+                assert!((dc.dln_sigma(r) - fd).abs() < 1e-7, "{:?} R {r}", dc.r_c);
+            }
+        }
+    }
+}
