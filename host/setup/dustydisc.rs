@@ -144,6 +144,18 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
             })
             .collect()
     };
+    // The leapfrog's circular orbit at its synchronised times is slower than the continuous
+    // balance by (Ωτ)²/8 (method.md §D, "The set-up's ringing"): started on the continuous
+    // one, every ring would ring at 2 (Ωτ)²/8 v_K. Every particle starts on the discrete orbit
+    // of the run's first step τ (`orbit_factor`).
+    let tau = match scene.time.integrator {
+        crate::scene::Integrator::Kdk => first_step(scene, &gas, h, domain)?,
+        crate::scene::Integrator::FirstOrder => 0.0,
+    };
+    let orbit_factor = |r: f64, vphi: f64| {
+        let w = vphi * tau / r;
+        1.0 - w * w / 8.0
+    };
     // The layers' mean height and η v_K = (v_K² − v_φ²)/(2 v_K) from the balance.
     let mut sums = vec![(0.0, 0.0, 0usize); layers.len()];
     for i in 0..gas.len() {
@@ -186,9 +198,10 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
                     } else {
                         0.0
                     };
-                    [ur * eta_vk, vk + up * eta_vk, vz]
+                    let vphi = vk + up * eta_vk;
+                    [ur * eta_vk, vphi * orbit_factor(r, vphi), vz]
                 }
-                None => [0.0, vk, 0.0],
+                None => [0.0, vk * orbit_factor(r, vk), 0.0],
             };
             let at = Layer { z, ..*ly };
             place(ph, &at, 0.5, centre, v, eps[j] * ly.mass, eps[j] * rho_g);
@@ -212,6 +225,7 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
             Some((gr, gp)) => (gr * eta_vk, vphi_p + (gp + 1.0) * eta_vk),
             None => (0.0, vphi_p),
         };
+        let vphi = vphi * orbit_factor(r, vphi);
         let (s, co) = (x[1] / r, x[0] / r);
         gas_v[i] = [vr * co - vphi * s, vr * s + vphi * co, 0.0];
     }
@@ -294,6 +308,13 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         relax_note,
         if drift_start { "" } else { "; dust on Keplerian orbits (no drift)" }
     ));
+    if tau > 0.0 {
+        su.notes.push(format!(
+            "disc: every particle on the leapfrog's circular orbit for the first step τ = {tau:.4e} \
+             ((Ωτ)²/8 below the continuous balance: {:.2e} of v_φ at r_ref)",
+            1.0 - orbit_factor(r_ref, (gm / r_ref).sqrt())
+        ));
+    }
     if !stokes.is_empty() {
         su.notes.push(format!(
             "disc: midplane Stokes numbers at R = {:.4} / {r_ref} / {:.4}: {}",
@@ -393,6 +414,40 @@ fn kepler_and_slope(
         0.0
     };
     (vk, dln_sigma(r) - 2.0 * q + vertical)
+}
+
+/// The run's first step τ for this gas (at rest, as the balance was measured): the step
+/// planner's rule on the gas's own forces with the scene's physics (edge zones included). The
+/// dust adds no limit the gas has not (the same pull; IDIC no drag limit).
+fn first_step(
+    scene: &Scene,
+    gas: &Phase,
+    h: f64,
+    domain: crate::grid::Domain,
+) -> Result<f64, SetupError> {
+    let mut phys = crate::step::Physics::from_scene(scene, h, domain);
+    phys.laws.clear();
+    phys.accretion_radius = 0.0;
+    let mut st = State {
+        t: 0.0,
+        step: 0,
+        gas: gas_phase(gas.clone(), None),
+        dust: Vec::new(),
+    };
+    let forces =
+        crate::step::backend::Backend::new(crate::step::backend::DeviceChoice::Cpu, phys, &mut st)
+            .and_then(|mut eng| eng.forces())
+            .map_err(|e| SetupError {
+                key: "dustydisc".into(),
+                msg: format!("the disc's first step could not be measured: {e}"),
+            })?;
+    let (dt_cfl, dt_force) = crate::step::timestep::dt_limits(h, &forces);
+    let dt_damp = if forces.damp_rate_max > 0.0 {
+        1.0 / forces.damp_rate_max
+    } else {
+        f64::INFINITY
+    };
+    Ok(crate::step::timestep::step_size(&scene.time, dt_cfl, dt_force, dt_damp, f64::INFINITY).0)
 }
 
 /// Iterations of the vertical relaxation at most, and when it has converged: the rms of the
