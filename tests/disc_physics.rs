@@ -562,7 +562,7 @@ fn a_gas_disc_started_on_the_leapfrogs_orbit_does_not_ring() {
     let (_, st) = dustsph::run::run(&loaded, &cpu_run(dir.path(), "r")).unwrap();
     let p = &st.gas.ph;
     let edges: Vec<f64> = (0..8).map(|i| 1.0 + 0.1 * i as f64).collect();
-    let mut sums = vec![(0.0, 0.0); 7];
+    let mut sums = [(0.0, 0.0); 7];
     for i in 0..p.len() {
         let (x, v) = (p.x[i], p.v[i]);
         let r = x[0].hypot(x[1]);
