@@ -884,7 +884,7 @@ fn dust_in_a_3d_disc_settles_at_its_terminal_velocity() {
 fn a_running_disc_drifts_at_the_exact_steady_rate_for_an_orbit() {
     // One orbit at r_ref: the sheared lattices' sampling offsets, read as a relative velocity
     // by the plain means (`idic.sampling = "mean"`), slow the small grains by 15–19 % here by
-    // then; read at the gas particle they stay within 6 % (method.md §K, "Sampling offsets").
+    // then; read at the gas particle they stay within 8.2 % (method.md §K, "Sampling offsets").
     common::run_scene_in("dustydisc", &["time.output_dt="], |dir| {
         let snap = dir.join("snapshot_0001.h5");
         dustsph::commands::profile::post_process(&snap, 100).unwrap();
