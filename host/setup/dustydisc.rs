@@ -56,11 +56,16 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
     };
     // The reference spacing (for h): the local one at r_ref.
     let spacing = local_spacing(r_ref);
-    let (size_key, also) = match d.particles {
-        Some(_) => ("dustydisc.particles", "dustydisc.r_out"),
-        None => ("sph.n", "dustydisc.r_out"),
+    let size_key = match d.particles {
+        Some(_) => "dustydisc.particles",
+        None => "sph.n",
     };
-    super::check_size(disc_mass / m, 1 + scene.n_fractions(), size_key, &[also])?;
+    super::check_size(
+        disc_mass / m,
+        1 + scene.n_fractions(),
+        size_key,
+        &["dustydisc.r_out"],
+    )?;
     let rings = rings(d, &sigma, &local_spacing);
     if rings.is_empty() {
         return Err(SetupError {
@@ -117,6 +122,34 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
     }
     gas.id = (0..gas.len() as u64).collect();
     let h = smoothing_length(scene, spacing);
+    // The resolution of the scale height: h/H of the midplane at the inner and outer rings and
+    // at r_ref (variable h: the h of the set-up's density).
+    let h_over_h = |r: f64| {
+        let hr = match scene.sph.smoothing.variable_hfact() {
+            Some(hf) => dustsph_device::kernel::h_of_density(m, rho_at(r, 0.0), hf, dim, h),
+            None => h,
+        };
+        hr / height(r)
+    };
+    // A disc whose scale height the kernel does not resolve over most of its mass is no disc
+    // (its pressure support, drift and settling are set by h, not by H).
+    let unresolved: f64 = rings
+        .iter()
+        .filter(|g| h_over_h(g.r) > 1.0)
+        .map(|g| g.mass)
+        .fold(0.0, |a, m| a + m) // from +0: an empty f64 sum is −0
+        / rings.iter().map(|g| g.mass).sum::<f64>();
+    if unresolved > 0.5 {
+        return Err(SetupError {
+            key: size_key.into(),
+            msg: format!(
+                "h/H > 1 over {:.0} % of the disc's mass (h/H {:.2} at r_ref): the kernel does \
+                 not resolve the scale height; raise {size_key}",
+                100.0 * unresolved,
+                h_over_h(r_ref)
+            ),
+        });
+    }
     let domain = crate::grid::Domain {
         dim,
         periodic: [None; 3],
@@ -237,23 +270,6 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         next += ph.len() as u64;
     }
     let n_rings = rings.len();
-    // The resolution of the scale height: h/H of the midplane at the inner and outer rings and
-    // at r_ref (variable h: the h of the set-up's density).
-    let h_over_h = |r: f64| {
-        let hr = match scene.sph.smoothing.variable_hfact() {
-            Some(hf) => dustsph_device::kernel::h_of_density(m, rho_at(r, 0.0), hf, dim, h),
-            None => h,
-        };
-        hr / height(r)
-    };
-    // A disc whose scale height the kernel does not resolve over most of its mass is no disc
-    // (its pressure support, drift and settling are set by h, not by H).
-    let unresolved: f64 = rings
-        .iter()
-        .filter(|g| h_over_h(g.r) > 1.0)
-        .map(|g| g.mass)
-        .fold(0.0, |a, m| a + m)
-        / rings.iter().map(|g| g.mass).sum::<f64>();
     let resolution = format!(
         "; h/H {:.2} at the inner ring, {:.2} at r_ref, {:.2} at the outer, > 1 over {:.0} % of \
          the mass; disc mass {disc_mass:.4e}, gas particle mass {m:.4e}",
@@ -262,17 +278,6 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         h_over_h(rings[n_rings - 1].r),
         100.0 * unresolved
     );
-    if unresolved > 0.5 {
-        return Err(SetupError {
-            key: size_key.into(),
-            msg: format!(
-                "h/H > 1 over {:.0} % of the disc's mass (h/H {:.2} at r_ref): the kernel does \
-                 not resolve the scale height; raise {size_key}",
-                100.0 * unresolved,
-                h_over_h(r_ref)
-            ),
-        });
-    }
     // Each grain's Stokes number in the midplane at the inner ring, r_ref and the outer ring.
     let stokes: Vec<String> = fr
         .iter()
@@ -425,29 +430,35 @@ fn first_step(
     h: f64,
     domain: crate::grid::Domain,
 ) -> Result<f64, SetupError> {
-    let mut phys = crate::step::Physics::from_scene(scene, h, domain);
-    phys.laws.clear();
-    phys.accretion_radius = 0.0;
+    let fail = |e: String| SetupError {
+        key: "dustydisc".into(),
+        msg: format!("the disc's first step could not be measured: {e}"),
+    };
     let mut st = State {
         t: 0.0,
         step: 0,
         gas: gas_phase(gas.clone(), None),
         dust: Vec::new(),
     };
-    let forces =
-        crate::step::backend::Backend::new(crate::step::backend::DeviceChoice::Cpu, phys, &mut st)
-            .and_then(|mut eng| eng.forces())
-            .map_err(|e| SetupError {
-                key: "dustydisc".into(),
-                msg: format!("the disc's first step could not be measured: {e}"),
-            })?;
-    let (dt_cfl, dt_force) = crate::step::timestep::dt_limits(h, &forces);
-    let dt_damp = if forces.damp_rate_max > 0.0 {
-        1.0 / forces.damp_rate_max
-    } else {
-        f64::INFINITY
-    };
-    Ok(crate::step::timestep::step_size(&scene.time, dt_cfl, dt_force, dt_damp, f64::INFINITY).0)
+    let forces = crate::step::backend::Backend::new(
+        crate::step::backend::DeviceChoice::Cpu,
+        gas_physics(scene, h, domain),
+        &mut st,
+    )
+    .and_then(|mut eng| eng.forces())
+    .map_err(|e| fail(e.to_string()))?;
+    crate::step::timestep::StepPlanner::new(&scene.time, h)
+        .plan(&forces, f64::INFINITY, 0.0, 0, scene.time.t_end)
+        .map(|plan| plan.dt_free)
+        .map_err(|e| fail(format!("{e:?}")))
+}
+
+/// The scene's physics for the gas alone (no drag, no accretion): the set-up's measurements.
+fn gas_physics(scene: &Scene, h: f64, domain: crate::grid::Domain) -> crate::step::Physics {
+    let mut phys = crate::step::Physics::from_scene(scene, h, domain);
+    phys.laws.clear();
+    phys.accretion_radius = 0.0;
+    phys
 }
 
 /// Iterations of the vertical relaxation at most, and when it has converged: the rms of the
@@ -474,9 +485,7 @@ fn relax(
         key: "dustydisc.relax".into(),
         msg: format!("the disc's gas could not be balanced: {e}"),
     };
-    let mut phys = crate::step::Physics::from_scene(scene, h, domain);
-    phys.laws.clear();
-    phys.accretion_radius = 0.0;
+    let mut phys = gas_physics(scene, h, domain);
     // The balance is measured at rest: no zone damping.
     phys.gravity.damp_per_omega = 0.0;
     let centre = phys.gravity.pos;
