@@ -22,7 +22,7 @@ pub struct CoreCheck {
 /// process's; collective: the counts summed, the largest deviations over the processes);
 /// `None` once the core has shrunk to nothing.
 pub fn core_check(
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     state: &State,
     ball: (f64, f64, f64, f64, f64, f64),
 ) -> Option<CoreCheck> {

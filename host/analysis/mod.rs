@@ -6,7 +6,7 @@ pub mod profiles;
 pub mod radial;
 pub mod spherical;
 
-use crate::dist::Collective;
+use crate::dist::Comm;
 use crate::exact::dustybox::{DustyBox, Forcing};
 use crate::exact::dustywave::WaveGas;
 use crate::exact::riemann::{DustyRiemann, Prim};
@@ -58,7 +58,7 @@ fn dustybox_model(scene: &Scene, b: &BoxCfg) -> (DustyBox, f64, Vec<f64>) {
 }
 
 fn phase_errors(
-    c: &dyn Collective,
+    c: &dyn Comm,
     name: &str,
     ph: &Phase,
     rho_scale: f64,
@@ -93,7 +93,7 @@ fn phase_errors(
 /// v_x errors of one phase normalised by the rms of the exact v_x over its particles (all three
 /// norms use that scale); mass-weighted like every other norm (equal masses: plain means).
 fn relative_velocity_error(
-    c: &dyn Collective,
+    c: &dyn Comm,
     name: &str,
     ph: &Phase,
     exact: impl Fn([f64; 3]) -> f64,
@@ -114,7 +114,7 @@ fn relative_velocity_error(
 }
 
 /// The constant part of a phase's density error: the mass-weighted mean of ρ − ρ_exact.
-fn density_offset(c: &dyn Collective, ph: &Phase, exact: impl Fn([f64; 3]) -> f64) -> f64 {
+fn density_offset(c: &dyn Comm, ph: &Phase, exact: impl Fn([f64; 3]) -> f64) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for i in (0..ph.len()).filter(|&i| !ph.is_fixed(i)) {
         num += ph.m[i] * (ph.rho[i] - exact(ph.x[i]));
@@ -134,7 +134,7 @@ fn density_offset(c: &dyn Collective, ph: &Phase, exact: impl Fn([f64; 3]) -> f6
 /// perturbation `exact(x)`, relative to the rms of the exact perturbation (as
 /// [`relative_velocity_error`]).
 fn relative_perturbation_error(
-    c: &dyn Collective,
+    c: &dyn Comm,
     name: &str,
     ph: &Phase,
     exact: impl Fn([f64; 3]) -> f64,
@@ -161,7 +161,7 @@ fn relative_perturbation_error(
 }
 
 fn all_phase_errors(
-    c: &dyn Collective,
+    c: &dyn Comm,
     state: &State,
     rho_scale: &dyn Fn(usize) -> f64,
     v_scale: f64,
@@ -209,7 +209,7 @@ pub fn exact_errors(scene: &Scene, state: &State, dt_fixed: Option<f64>) -> Vec<
 /// process's; collective): the same norms, their sums reduced over the processes. Not for
 /// the settling column ([`outputs_read_whole_state`]).
 pub fn exact_errors_over(
-    c: &dyn Collective,
+    c: &dyn Comm,
     scene: &Scene,
     state: &State,
     dt_fixed: Option<f64>,
@@ -227,7 +227,7 @@ pub fn exact_errors_over(
 /// The dusty box against the exact solution of its linear drag ODE, and (fixed τ, IDIC) against
 /// IDIC's own discrete solution.
 fn box_errors(
-    c: &dyn Collective,
+    c: &dyn Comm,
     scene: &Scene,
     b: &BoxCfg,
     state: &State,
@@ -319,7 +319,7 @@ fn box_velocity_scale(bx: &DustyBox, v0: f64, u0: &[f64], a: Forcing) -> f64 {
 
 /// The dusty wave against the exact linear solution, in two metrics: this code's (normalised
 /// by the amplitude) and Phantom's DUSTYWAVE one.
-fn wave_errors(c: &dyn Collective, scene: &Scene, w: &WaveCfg, state: &State) -> Vec<ExactErrors> {
+fn wave_errors(c: &dyn Comm, scene: &Scene, w: &WaveCfg, state: &State) -> Vec<ExactErrors> {
     let t = state.t;
     let mut out = Vec::new();
     let lw = dustywave::model(scene, w);
@@ -417,12 +417,7 @@ fn wave_errors(c: &dyn Collective, scene: &Scene, w: &WaveCfg, state: &State) ->
 }
 
 /// The dusty shock tube against the equilibrium (t_stop → 0) mixture Riemann solution.
-fn shock_errors(
-    c: &dyn Collective,
-    scene: &Scene,
-    s: &ShockCfg,
-    state: &State,
-) -> Vec<ExactErrors> {
+fn shock_errors(c: &dyn Comm, scene: &Scene, s: &ShockCfg, state: &State) -> Vec<ExactErrors> {
     let t = state.t;
     let mut out = Vec::new();
     let eps_k: Vec<f64> = scene.fractions().iter().map(|f| f.eps).collect();
@@ -466,7 +461,7 @@ fn shock_errors(
 /// ([`crate::exact::settle`]), over the particles in the middle 60% of the column: ρ_g and the
 /// dust velocities relative to their exact values (u_dk: (u − u_term)/|u_term|), the gas
 /// velocity in units of the largest terminal speed in the column.
-fn settle_errors(c: &dyn Collective, scene: &Scene, cfg: &SettleCfg, state: &State) -> ExactErrors {
+fn settle_errors(c: &dyn Comm, scene: &Scene, cfg: &SettleCfg, state: &State) -> ExactErrors {
     let col = crate::setup::dustysettle::column(scene, cfg);
     let laws: Vec<_> = scene.fractions().iter().map(|f| f.law).collect();
     let h = crate::setup::dustysettle::smoothing(scene, cfg).0;
@@ -572,7 +567,7 @@ pub fn ball_reference(scene: &Scene, t: f64) -> Option<radial::RadialCurve> {
 /// p, radial v_g, ρ_d, radial u_d inside r < R0 − 2h (away from the kernel-truncated edge) and
 /// over the whole ball. Absolute errors (the initial state is ρ_g = 1, p = 1 in the seed).
 fn ball_reference_errors(
-    c: &dyn Collective,
+    c: &dyn Comm,
     scene: &Scene,
     b: &BallCfg,
     state: &State,

@@ -16,7 +16,7 @@ impl Norms {
 
     /// [`Norms::of`] of the particles every process of `c` holds a share of (`err`, `m`: this
     /// process's; collective): the sums and the largest error over the processes.
-    pub fn over(c: &dyn crate::dist::Collective, err: &[f64], m: &[f64]) -> Norms {
+    pub fn over(c: &dyn crate::dist::Comm, err: &[f64], m: &[f64]) -> Norms {
         let mut s = [
             m.iter().sum::<f64>(),
             err.iter().zip(m).map(|(e, m)| m * e.abs()).sum::<f64>(),

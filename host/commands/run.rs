@@ -1,6 +1,7 @@
 //! `dustsph run` and `dustsph resume`: a scene's simulation with its outputs — snapshots at the
 //! scene's output times, checkpoints, the progress bar — stepped to t_end, then the summary.
 //! One process, or MPI ranks (rank 0 writes every output).
+use crate::dist::Comm;
 use crate::io;
 use crate::particles::State;
 use crate::scene::{LoadedScene, Precision};
@@ -54,7 +55,6 @@ impl Run {
     /// share and builds its engine on it; the first step is checked over every rank (its
     /// verdict the same on each) before anything is written; the ranks write each output
     /// together (rank 0 the file, each rank its particles' chunks).
-    #[cfg(feature = "mpi")]
     pub fn start_over_ranks(
         loaded: &LoadedScene,
         opts: &RunOptions,
@@ -201,7 +201,6 @@ impl Run {
     /// [`Run::resume`] as one of several MPI ranks: each rank reads its share of the
     /// checkpoint's rows (one written by any number of ranks, or by one process; rank 0 checks
     /// its digest block by block) and steps from there: no rank reads every particle.
-    #[cfg(feature = "mpi")]
     pub fn resume_over_ranks(
         dir: &Path,
         verbose: bool,
@@ -335,7 +334,6 @@ impl Run {
 }
 
 /// How a run over ranks starts ([`over_ranks`]).
-#[cfg(feature = "mpi")]
 struct Start {
     device: DeviceChoice,
     verbose: bool,
@@ -352,7 +350,6 @@ struct Start {
 /// ([`crate::analysis::outputs_read_whole_state`]), else gathered on rank 0. A start refused is
 /// said before any rank leaves (mpirun stops the job at the first rank that exits non-zero,
 /// which could otherwise cut the others off before they speak).
-#[cfg(feature = "mpi")]
 fn over_ranks(
     world: crate::dist::comm::World,
     loaded: &LoadedScene,
@@ -488,9 +485,9 @@ pub struct ResumeArgs {
 /// MPI for a run started as one of several ranks (`None` otherwise). A rank that panics must
 /// not finalise MPI while the others wait in a collective (that hangs the job): it prints and
 /// leaves at once, and mpirun stops the others.
-#[cfg(feature = "mpi")]
 fn ranks_world() -> Option<Result<crate::dist::comm::World, RunError>> {
-    if crate::dist::launched().is_none_or(|(_, n)| n <= 1) {
+    // A build without MPI runs every command on one process (main refuses several ranks).
+    if !cfg!(feature = "mpi") || crate::dist::launched().is_none_or(|(_, n)| n <= 1) {
         return None;
     }
     let world = crate::dist::comm::World::init().map_err(|e| RunError::Input(format!("MPI: {e}")));
@@ -635,7 +632,6 @@ pub fn execute(a: RunArgs) -> u8 {
         device,
     };
     // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
-    #[cfg(feature = "mpi")]
     if let Some(world) = ranks_world() {
         let start = || world.and_then(|w| Run::start_over_ranks(&loaded, &opts, w));
         return drive(start, checkpoint_every, stop_after);
@@ -655,7 +651,6 @@ pub fn execute_resume(a: ResumeArgs) -> u8 {
         eprintln!("dustsph: resuming {}", dir.display());
     }
     // Started as one of several MPI ranks: the rest of the run is split over them.
-    #[cfg(feature = "mpi")]
     if let Some(world) = ranks_world() {
         let start = || world.and_then(|w| Run::resume_over_ranks(&dir, !quiet, device, w));
         return drive(start, checkpoint_every, None);

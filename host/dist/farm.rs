@@ -2,7 +2,7 @@
 //! the gathered state while the other ranks would wait for it: they deflate a share of its
 //! chunks instead (chunk c on rank c mod R), and rank 0 stores what comes back as it is, the
 //! same bytes it would have made itself (docs/scaling.md, "Outputs").
-use super::comm::World;
+use super::comm::{Comm, World};
 use crate::io::chunks::{filter_chunk, ChunkFilter, OnCores};
 
 /// Rank 0's side: a [`ChunkFilter`] that hands every R-th chunk to each other rank. Every

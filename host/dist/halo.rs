@@ -1,7 +1,7 @@
 //! The decomposition over ranks and the halo: the Morton cut agreed by every rank, the
 //! migration of particles to their owners, the halo's copies, the thin halo's refresh between
 //! the step's passes ([`RankGhosts`]) and the deep halo's shell.
-use super::comm::World;
+use super::comm::{Comm, World};
 use super::records::{full_pos, ParticleRecord};
 use crate::decomp::{CellBox, Cells, Partition};
 use crate::particles::KeyMap;
@@ -310,7 +310,7 @@ impl GhostSync for RankGhosts {
             }
             counts.push(self.send_buf.len() - start);
         }
-        (self.comm).exchange_bytes(&self.send_buf, &counts, &mut self.recv_buf)?;
+        (self.comm).exchange_bytes_into(&self.send_buf, &counts, &mut self.recv_buf)?;
         let got = &self.recv_buf;
         let expected: usize = self.recv_slots.iter().map(|&(k, _)| row[k]).sum();
         if got.len() != expected {

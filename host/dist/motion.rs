@@ -11,7 +11,7 @@
 //! distance at the build (at least the cells' gap) and the phases' own `near` (the gas and
 //! the dust meet only in an IDIC cell under the cell coupling) give it more room. Pairs of
 //! cells further apart keep the global bound.
-use super::Collective;
+use super::Comm;
 use crate::decomp::CellBox;
 
 /// How many halo reaches either way the test pairs cells: pairs further apart are at least
@@ -71,7 +71,7 @@ impl MotionCells {
     /// scene's `dim` axes (collective): `anchors` are this rank's own particles' positions at
     /// the build.
     pub fn new(
-        c: &dyn Collective,
+        c: &dyn Comm,
         within: &CellBox,
         reach: f64,
         (dim, per_reach): (u32, u32),
@@ -186,14 +186,7 @@ impl MotionCells {
     /// global bound `global` (twice the relative motion) less their room; never above
     /// `global`. `near` is the classes' own reach (gas–gas, dust–dust), `cross` the gas–dust
     /// one.
-    pub fn bound(
-        &mut self,
-        c: &dyn Collective,
-        reach: f64,
-        near: f64,
-        cross: f64,
-        global: f64,
-    ) -> f64 {
+    pub fn bound(&mut self, c: &dyn Comm, reach: f64, near: f64, cross: f64, global: f64) -> f64 {
         c.max_f64(&mut self.bins);
         let bins = &self.bins;
         let bin = |s: u32, k: usize| &bins[(s as usize * CLASSES + k) * BIN..][..BIN];
@@ -314,21 +307,38 @@ mod tests {
         other: Vec<u8>,
     }
 
-    impl Collective for Two {
+    impl Comm for Two {
         fn rank(&self) -> u32 {
             0
         }
         fn size(&self) -> u32 {
             2
         }
-        fn max_f64(&self, _: &mut [f64]) {}
-        fn sum_u64(&self, _: &mut [u64]) {}
-        fn sum_f64(&self, _: &mut [f64]) {}
-        fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>> {
+        fn reduce_f64(&self, _: &mut [f64], _: crate::dist::comm::Reduce) {}
+        fn reduce_u64(&self, _: &mut [u64], _: crate::dist::comm::Reduce) {}
+        fn all_gather_raw(&self, mine: &[u8]) -> Vec<Vec<u8>> {
             vec![mine.to_vec(), self.other.clone()]
         }
-        fn exchange_bytes(&self, send: &[u8], _: &[usize]) -> Result<Vec<u8>, String> {
-            Ok(send.to_vec())
+        fn gather_raw(&self, _: &[u8]) -> Option<Vec<Vec<u8>>> {
+            unimplemented!("not used by the motion bound")
+        }
+        fn send_raw(&self, _: u32, _: &[u8]) {
+            unimplemented!("not used by the motion bound")
+        }
+        fn receive_raw(&self, _: u32) -> Vec<u8> {
+            unimplemented!("not used by the motion bound")
+        }
+        fn all_to_all_counts(&self, _: &[i32]) -> Vec<i32> {
+            unimplemented!("not used by the motion bound")
+        }
+        fn all_to_all_raw(&self, _: &[u8], _: &[i32], _: &mut [u8], _: &[i32]) {
+            unimplemented!("not used by the motion bound")
+        }
+        fn dup(&self) -> Box<dyn Comm> {
+            unimplemented!("not used by the motion bound")
+        }
+        fn abort(&self, _: i32) -> ! {
+            unimplemented!("not used by the motion bound")
         }
     }
 

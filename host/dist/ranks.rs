@@ -11,7 +11,7 @@
 //!
 //! The step size comes from the maxima over all ranks; each rank keeps its owned particles'
 //! results.
-use super::comm::World;
+use super::comm::{Comm, World};
 use super::halo::{cut, fail_requested, halo_sends, shell, RankGhosts};
 use super::motion::MotionCells;
 use super::records::{
@@ -640,7 +640,13 @@ impl RankStepper {
             return Err(failure(world, step, me, &err.unwrap_or_default()));
         }
         let mut eng = built.map_err(|x| x.to_string())?;
-        let sync = RankGhosts::new(world.dup(), keys, replies, arriving, self.fail.clone())?;
+        let sync = RankGhosts::new(
+            world.duplicate(),
+            keys,
+            replies,
+            arriving,
+            self.fail.clone(),
+        )?;
         // Built from the records (no layer computed), its ghosts hold their owners' values.
         let fresh = matches!(layer, InitialLayer::FromState);
         if let Err(x) = eng.set_ghosts(Box::new(sync), ghost_keys, fresh) {

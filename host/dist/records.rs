@@ -70,7 +70,6 @@ impl ParticleRecord {
     }
 }
 
-#[cfg(feature = "mpi")]
 pub(crate) fn full_pos(r: &ParticleRecord) -> [f64; 3] {
     r.x
 }

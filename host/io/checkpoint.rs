@@ -237,7 +237,7 @@ pub fn write_checkpoint_shared(
     path: &Path,
     state: &State,
     meta: &CheckpointMeta,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
 ) -> Result<(), IoError> {
     let me = c.rank() as usize;
     // Which columns each phase has, and this process's rows of each.
@@ -347,7 +347,7 @@ pub struct CheckpointShare {
 /// any.
 pub fn read_checkpoint_on(
     path: &Path,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
 ) -> Result<CheckpointShare, IoError> {
     let (rank, size) = (c.rank(), c.size());
     let block = super::ics::row_block();

@@ -148,7 +148,7 @@ pub(crate) fn write_rows_shared<T: H5Type + Copy + Sync>(
     width: usize,
     share: &RowShare,
     (chunk_rows, level): (usize, u8),
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     filter: &dyn ChunkFilter,
     (path, obj): (&Path, &str),
 ) -> Result<(), IoError> {

@@ -21,7 +21,7 @@ use super::snapshot::{
     INTERNAL_ENERGY, MASSES, PARTICLE_IDS, SMOOTHING_LENGTH, VELOCITIES,
 };
 use super::IoError;
-use crate::dist::{agree, agree_first, share_rows, Alone, Collective};
+use crate::dist::{agree, agree_first, share_rows, Alone, Comm};
 
 /// Rows per block of a shared read: a rank's share is whole blocks, and sums over the rows
 /// (the mean spacing) are taken block by block, so they come out the same on any number of
@@ -91,7 +91,7 @@ pub fn read_ics(path: &Path) -> Result<Ics, IoError> {
 /// Reads this process's share of an initial-conditions file's rows ([`share_rows`]) and
 /// checks them, the IDs' uniqueness across every process's (collective: every process gets
 /// the same error, the lowest failing rank's).
-pub fn read_ics_on(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
+pub fn read_ics_on(path: &Path, c: &dyn Comm) -> Result<Ics, IoError> {
     // Each check's place in the order one process takes them: the error named is the first
     // check's that fails anywhere, at its lowest row.
     let step = std::cell::Cell::new(0u64);
@@ -112,11 +112,7 @@ pub fn read_ics_on(path: &Path, c: &dyn Collective) -> Result<Ics, IoError> {
 }
 
 /// [`read_ics_on`] without its collective checks; `step` counts the checks of the rows taken.
-fn read_share(
-    path: &Path,
-    c: &dyn Collective,
-    step: &std::cell::Cell<u64>,
-) -> Result<Ics, IoError> {
+fn read_share(path: &Path, c: &dyn Comm, step: &std::cell::Cell<u64>) -> Result<Ics, IoError> {
     std::fs::metadata(path).map_err(|e| IoError::io(path, e))?;
     let file = File::open(path).map_err(|e| {
         IoError::invalid(
@@ -256,7 +252,7 @@ fn read_phase(
     name: &str,
     (offset, per_h): ([f64; 3], f64),
     path: &Path,
-    c: &dyn Collective,
+    c: &dyn Comm,
     step: &std::cell::Cell<u64>,
 ) -> Result<IcPhase, IoError> {
     let next = || step.set(step.get() + 1);
@@ -436,7 +432,7 @@ fn unique_ids(
     gas: &IcPhase,
     dust: Option<&IcPhase>,
     path: &Path,
-    c: &dyn Collective,
+    c: &dyn Comm,
 ) -> Result<(), IoError> {
     // (id, particle type: 0 gas, 1 dust, row in the file) by the process that checks it.
     let mut to: Vec<Vec<[u64; 3]>> = vec![Vec::new(); c.size() as usize];

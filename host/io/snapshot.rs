@@ -413,7 +413,7 @@ pub fn write_snapshot(path: &Path, snap: &SnapshotView) -> Result<(), IoError> {
 pub fn write_snapshot_shared(
     path: &Path,
     snap: &SnapshotView,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<[u64; 2], IoError> {
     // Check everything that can be checked before touching the disk.
@@ -489,7 +489,7 @@ pub fn write_snapshot_shared(
 /// Every process's `mine` (counts), in rank order, once every process has checked that its
 /// first `same` entries (which columns it has) are everyone's (collective).
 pub(crate) fn same_columns(
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     path: &Path,
     mine: &[u64],
     same: usize,
@@ -514,7 +514,7 @@ pub(crate) fn same_columns(
 /// (`create_excl`: never through something that appeared under that name), begun by `begin`;
 /// the temporary name, and the file on process 0 (collective: every process goes on, or none).
 pub(crate) fn create_shared(
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     path: &Path,
     begin: impl FnOnce(&File) -> Result<(), IoError>,
 ) -> Result<(std::path::PathBuf, Option<File>), IoError> {
@@ -545,7 +545,7 @@ pub(crate) fn clone_err(e: &IoError) -> IoError {
 /// This process's `mine` once every process of `c` has said whether it can go on
 /// (collective): its own error as it arose, else the first other process's, else its value.
 pub(crate) fn go_on<T>(
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     path: &Path,
     mine: Result<T, IoError>,
 ) -> Result<T, IoError> {
@@ -668,7 +668,7 @@ fn write_group(
     cols: &Columns,
     share: &RowShare,
     path: &Path,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<(), IoError> {
     let obj = format!("/{name}");
@@ -707,7 +707,7 @@ pub(crate) struct SharedGroup<'a> {
     pub g: Option<&'a Result<Group, IoError>>,
     pub share: &'a RowShare,
     pub path: &'a Path,
-    pub c: &'a dyn crate::dist::Collective,
+    pub c: &'a dyn crate::dist::Comm,
     pub filter: &'a dyn super::chunks::ChunkFilter,
 }
 
@@ -729,7 +729,7 @@ impl SharedGroup<'_> {
 
 /// Every process's verdict on a step of a shared write: the first process's error on each.
 fn agreed(
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     path: &Path,
     mine: Result<(), IoError>,
 ) -> Result<(), IoError> {
@@ -764,7 +764,7 @@ fn put_dataset_shared<T: H5Type + Copy + Sync>(
     width: usize,
     share: &RowShare,
     path: &Path,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     filter: &dyn super::chunks::ChunkFilter,
 ) -> Result<(), IoError> {
     let rows = share.total as usize;

@@ -3,7 +3,7 @@
 //! fractions, equation of state and smoothing-length rule), each failure naming the file,
 //! the dataset and the first offending row.
 use super::*;
-use crate::dist::{agree_first, Collective};
+use crate::dist::{agree_first, Comm};
 use crate::io::ics::{read_ics_on, row_block, IcPhase, Ics};
 use crate::scene::{FileCfg, GasEos, SmoothingLength};
 
@@ -18,7 +18,7 @@ pub struct IcSource {
 /// The file's particles as this process's share of a set-up over `c` (each process reads its
 /// own rows of the file, [`read_ics_on`]; one process reads them all): the sums and checks
 /// over every row are collective, and every process stops with the same error.
-pub(super) fn build(scene: &Scene, f: &FileCfg, c: &dyn Collective) -> Result<Setup, SetupError> {
+pub(super) fn build(scene: &Scene, f: &FileCfg, c: &dyn Comm) -> Result<Setup, SetupError> {
     let path = &f.resolved;
     let fail = |msg: String| SetupError {
         key: "file.path".into(),
@@ -134,12 +134,12 @@ pub(super) fn build(scene: &Scene, f: &FileCfg, c: &dyn Collective) -> Result<Se
 }
 
 /// A set-up's result agreed over the processes: the lowest failing rank's error on all.
-fn agreed<T>(c: &dyn Collective, r: Result<T, SetupError>) -> Result<T, SetupError> {
+fn agreed<T>(c: &dyn Comm, r: Result<T, SetupError>) -> Result<T, SetupError> {
     agreed_first(c, r.map_err(|e| (0, e)))
 }
 
 /// [`agreed`]: the error of the first check (its place given with it) that fails anywhere.
-fn agreed_first<T>(c: &dyn Collective, r: Result<T, (u64, SetupError)>) -> Result<T, SetupError> {
+fn agreed_first<T>(c: &dyn Comm, r: Result<T, (u64, SetupError)>) -> Result<T, SetupError> {
     let text = |e: &SetupError| format!("{}\n{}", e.key, e.msg);
     let from = |m: String| {
         let (key, msg) = m.split_once('\n').unwrap_or(("file.path", &m));
@@ -152,7 +152,7 @@ fn agreed_first<T>(c: &dyn Collective, r: Result<T, (u64, SetupError)>) -> Resul
 }
 
 /// The largest of every process's value (`None` where no process has one).
-fn largest(c: &dyn Collective, mine: Option<u64>) -> Option<u64> {
+fn largest(c: &dyn Comm, mine: Option<u64>) -> Option<u64> {
     let bytes = mine.map(u64::to_le_bytes);
     let all = c.all_gather_bytes(bytes.as_ref().map_or(&[][..], |b| &b[..]));
     (all.iter())
@@ -165,7 +165,7 @@ fn largest(c: &dyn Collective, mine: Option<u64>) -> Option<u64> {
 /// block of [`row_block`] rows summed in row order, then the blocks in file order (the same
 /// sums on any number of processes; collective).
 fn blocked_sums(
-    c: &dyn Collective,
+    c: &dyn Comm,
     values: &[f64],
     class: impl Fn(usize) -> usize,
     classes: usize,
@@ -331,7 +331,7 @@ fn periodic_volume(periodic: &[Option<(f64, f64)>; 3], dim: u32) -> Option<f64> 
 /// (V/N)^(1/d) of a periodic box, else the extent of the particles over N^(1/d); over every
 /// process's rows (collective). The mean is summed in blocks of [`row_block`] rows, each in
 /// row order, then block by block: the same sum for any number of processes.
-fn mean_spacing(gas: &IcPhase, dim: u32, volume: Option<f64>, c: &dyn Collective) -> f64 {
+fn mean_spacing(gas: &IcPhase, dim: u32, volume: Option<f64>, c: &dyn Comm) -> f64 {
     let n = gas.total as f64;
     let d = dim as f64;
     if let Some(rho) = &gas.rho {
@@ -364,7 +364,7 @@ fn smoothing(
     gas: &IcPhase,
     spacing: f64,
     at: &impl Fn(String) -> SetupError,
-    c: &dyn Collective,
+    c: &dyn Comm,
 ) -> Result<f64, SetupError> {
     match scene.sph.smoothing {
         SmoothingLength::Absolute { h } => Ok(h),

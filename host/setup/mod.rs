@@ -173,7 +173,7 @@ pub struct Keep {
 }
 
 impl Keep {
-    pub fn of(c: &dyn crate::dist::Collective) -> Keep {
+    pub fn of(c: &dyn crate::dist::Comm) -> Keep {
         Keep {
             rank: c.rank() as u64,
             size: c.size().max(1) as u64,
@@ -213,7 +213,7 @@ pub fn build(scene: &Scene) -> Result<Setup, SetupError> {
 /// share (each process its own rows, [`Setup::share`]), the ball, the box and the wave set up
 /// by share (each process its [`Keep`]); other scenes are set up whole on each (collective;
 /// every process gets the same error).
-pub fn build_on(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
+pub fn build_on(scene: &Scene, c: &dyn crate::dist::Comm) -> Result<Setup, SetupError> {
     let su = build_problem(scene, c)?;
     // A point mass's pull has no periodic image: it needs open axes.
     if scene.gravity.is_some() && su.domain.periodic.iter().any(Option::is_some) {
@@ -228,7 +228,7 @@ pub fn build_on(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup,
     Ok(su)
 }
 
-fn build_problem(scene: &Scene, c: &dyn crate::dist::Collective) -> Result<Setup, SetupError> {
+fn build_problem(scene: &Scene, c: &dyn crate::dist::Comm) -> Result<Setup, SetupError> {
     match &scene.problem {
         ProblemCfg::Dustybox(b) => dustybox::build(scene, b, Keep::of(c)),
         ProblemCfg::Dustywave(w) => dustywave::build(scene, w, Keep::of(c)),

@@ -76,12 +76,9 @@ impl Checkpointer for RunCheckpoints {
         let io_err = |e: io::IoError| RunError::Io(e.to_string());
         // Over ranks whose outputs are written by share, each rank writes its own particles
         // into the one file; elsewhere rank 0 writes the whole state, gathered.
-        #[cfg(feature = "mpi")]
         let shared = (sim.stepper).with_own(&sim.state, |own, w| {
             io::checkpoint::write_checkpoint_shared(&path, own, &meta, w).map_err(io_err)
         });
-        #[cfg(not(feature = "mpi"))]
-        let shared: Option<Result<(), RunError>> = None;
         let written = match shared {
             Some(w) => w,
             None => {
@@ -114,7 +111,7 @@ pub fn read(dir: &Path) -> Result<(State, LoadedScene, Progress), RunError> {
 /// the same verdict.
 pub fn read_on(
     dir: &Path,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
 ) -> Result<(State, LoadedScene, Progress), RunError> {
     let ck = dir.join(io::checkpoint::CHECKPOINT_NAME);
     let io::checkpoint::CheckpointShare {
@@ -154,7 +151,7 @@ pub fn read_on(
 /// gas's, then each fraction's); collective over `c`.
 fn verify_resume(
     dir: &Path,
-    (state, whole, c): (&State, &[usize], &dyn crate::dist::Collective),
+    (state, whole, c): (&State, &[usize], &dyn crate::dist::Comm),
     loaded: &LoadedScene,
     outputs: &OutputRecord,
     accreted: &super::accretion::Accreted,

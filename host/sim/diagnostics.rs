@@ -50,7 +50,7 @@ impl Totals {
 
     /// Summed (the largest sound speed: the largest) over the processes of `c`, each holding
     /// a share of the particles (collective).
-    pub fn reduce(mut self, c: &dyn crate::dist::Collective) -> Totals {
+    pub fn reduce(mut self, c: &dyn crate::dist::Comm) -> Totals {
         let nd = self.mass_dust.len();
         let [(a, b), (d, e)] = self.moments;
         let mut f: Vec<f64> = [self.mass_gas, self.energy, a, b, d, e]

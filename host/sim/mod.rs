@@ -263,8 +263,7 @@ impl Simulation {
         let state = &self.state;
         match &mut self.stepper {
             Stepper::Local(eng) => eng.plan(&planner, state, t_target),
-            #[allow(unreachable_patterns)]
-            _ => Err(StepError::Unsupported(
+            Stepper::Ranks { .. } => Err(StepError::Unsupported(
                 "planning a step without taking it runs on one process".into(),
             )),
         }
@@ -293,7 +292,6 @@ impl Simulation {
     /// Over ranks, drop the whole state rank 0 gathered for an output (it is gathered again
     /// for the next): no rank holds the whole run between outputs.
     pub fn shed_gathered(&mut self) {
-        #[cfg(feature = "mpi")]
         if let Stepper::Ranks { t_stop, output, .. } = &mut self.stepper {
             self.state = self.state.shape();
             *t_stop = None;

@@ -4,8 +4,7 @@
 //! after every step).
 use super::{Flow, Observer, RunError, Simulation};
 use crate::analysis::{self, ExactErrors};
-#[cfg(feature = "mpi")]
-use crate::dist::comm::World;
+use crate::dist::comm::{Comm, World};
 use crate::io::chunks::{ChunkFilter, OnCores};
 use crate::io::{self, PhaseView, SnapshotView};
 use crate::scene::{LoadedScene, OutputSchedule, Problem};
@@ -79,25 +78,19 @@ impl Outputs {
     /// series. Over ranks every rank goes on, or none.
     pub fn write_next(&mut self, sim: &mut Simulation) -> Result<(), RunError> {
         let name = io::snapshot_name(self.record.snapshots.len());
-        #[cfg(feature = "mpi")]
         if self.write_by_share(sim, &name)? {
             return Ok(());
         }
         // Over ranks the others deflate a share of rank 0's chunks while it writes.
-        #[cfg(feature = "mpi")]
         let helpers = sim.stepper.output_world();
-        #[cfg(not(feature = "mpi"))]
-        let helpers: Option<std::convert::Infallible> = None;
         let written = match (sim.is_root(), helpers) {
             (true, None) => self.write_files(sim, &name, &OnCores),
-            #[cfg(feature = "mpi")]
             (true, Some(w)) => {
                 let farm = crate::dist::farm::Farm::new(w);
                 let written = self.write_files(sim, &name, &farm);
                 farm.finish();
                 written
             }
-            #[cfg(feature = "mpi")]
             (false, Some(w)) => {
                 if let Err(e) = crate::dist::farm::serve(&w) {
                     // Rank 0 waits for this rank's chunks: the job cannot go on.
@@ -107,8 +100,6 @@ impl Outputs {
                 Ok(())
             }
             (false, None) => Ok(()),
-            #[cfg(not(feature = "mpi"))]
-            (_, Some(never)) => match never {},
         };
         // No rank may wait on one that stopped.
         if sim.any(written.is_err()) {
@@ -124,7 +115,6 @@ impl Outputs {
 
     /// Over ranks whose outputs are written by share: the next snapshot, each rank its own
     /// particles ([`write_snapshot_of`]; collective). False (nothing written) elsewhere.
-    #[cfg(feature = "mpi")]
     fn write_by_share(&mut self, sim: &mut Simulation, name: &str) -> Result<bool, RunError> {
         let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
         let ics = self.record.initial_conditions.as_ref();
@@ -133,7 +123,7 @@ impl Outputs {
         let loaded = &self.loaded;
         let fixed_dt = loaded.scene.time.fixed_dt();
         let write = |own: &crate::particles::State, t_stop: &[Vec<f64>], w: &World| {
-            let c: &dyn crate::dist::Collective = w;
+            let c: &dyn crate::dist::Comm = w;
             let written =
                 write_snapshot_of(&path, (loaded, ics), &phys, (own, t_stop), c, &OnCores);
             // The errors and the ball's core reduced over the ranks (whatever the write said:
@@ -262,7 +252,7 @@ pub fn write_snapshot_of(
     (loaded, ics): (&LoadedScene, Option<&crate::setup::file::IcSource>),
     phys: &crate::step::Physics,
     (state, t_stop): (&crate::particles::State, &[Vec<f64>]),
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
     chunks: &dyn ChunkFilter,
 ) -> Result<(), RunError> {
     let h = phys.h;
@@ -358,7 +348,7 @@ fn ball_core(
     loaded: &LoadedScene,
     state: &crate::particles::State,
     phys: &crate::step::Physics,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
 ) -> Option<analysis::ball::CoreCheck> {
     let sc = &loaded.scene;
     let b = sc.ball()?;

@@ -52,7 +52,7 @@ pub fn prepare_on(
     loaded: &LoadedScene,
     state: Option<State>,
     warn: bool,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
 ) -> Result<(Physics, State, Option<IcSource>, bool), RunError> {
     let file = loaded.path.display().to_string();
     let su = crate::setup::build_on(&loaded.scene, c)

@@ -1,16 +1,14 @@
 //! What steps a simulation: the engine on one process, or the scene's particles split over MPI
 //! ranks ([`crate::dist::ranks`]). Either takes a step with the planner's one rule, reports the
 //! momentum after it, and brings the host state up to date for an output.
+use crate::dist::Comm;
 use crate::particles::State;
 use crate::step::backend::Backend;
-#[cfg(feature = "mpi")]
 use crate::step::backend::DeviceChoice;
 use crate::step::timestep::{StepPlanner, Taken};
-#[cfg(feature = "mpi")]
 use crate::step::Forces;
 use crate::step::{Momentum, StepError};
 
-#[cfg(feature = "mpi")]
 pub use crate::dist::ranks::RankStepper;
 
 /// Where a simulation steps.
@@ -19,7 +17,6 @@ pub enum Stepper {
     Local(Backend),
     /// MPI ranks: this rank's share. Rank 0's state is the gathered whole after a sync, with
     /// the dust densities and stopping times the ranks' engines computed for it.
-    #[cfg(feature = "mpi")]
     Ranks {
         ranks: Box<RankStepper>,
         /// The dust stopping times of the gathered state (rank 0), per fraction.
@@ -46,7 +43,6 @@ impl Stepper {
     ) -> Result<Taken, StepError> {
         match self {
             Stepper::Local(eng) => eng.step(planner, state, t_target),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => {
                 let (plan, t_new, vsig_max) = ranks
                     .step(planner, state.t, state.step, t_target)
@@ -67,10 +63,9 @@ impl Stepper {
 
     /// Over MPI ranks, a communicator of the output's own (collective): the other ranks
     /// deflate rank 0's snapshot chunks over it (`dist::farm`). `None` on one process.
-    #[cfg(feature = "mpi")]
     pub fn output_world(&self) -> Option<crate::dist::comm::World> {
         match self {
-            Stepper::Ranks { ranks, .. } => Some(ranks.world.dup()),
+            Stepper::Ranks { ranks, .. } => Some(ranks.world.duplicate()),
             Stepper::Local(_) => None,
         }
     }
@@ -79,7 +74,6 @@ impl Stepper {
     pub fn writes_by_share(&self) -> bool {
         match self {
             Stepper::Local(_) => false,
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { by_share, .. } => *by_share,
         }
     }
@@ -88,7 +82,6 @@ impl Stepper {
     /// the outputs are written by share, of every rank's own particles.
     pub fn totals(&mut self, state: &State) -> crate::sim::diagnostics::Totals {
         use crate::sim::diagnostics::Totals;
-        #[cfg(feature = "mpi")]
         if let Some(t) = self.with_own(state, |own, w| Totals::of(own).reduce(w)) {
             return t;
         }
@@ -97,7 +90,6 @@ impl Stepper {
 
     /// Where the outputs are written by share: `f` of this rank's own particles as they stand
     /// (at `state`'s time and step) and the ranks (collective where `f` is); `None` elsewhere.
-    #[cfg(feature = "mpi")]
     pub fn with_own<R>(
         &mut self,
         state: &State,
@@ -117,7 +109,6 @@ impl Stepper {
     /// `state`'s time and step, the dust stopping times its engine computed for them, and the
     /// ranks (collective); `None` elsewhere, and where the ranks step on the deep halo (the
     /// output is then gathered: [`Stepper::sync`]).
-    #[cfg(feature = "mpi")]
     pub fn own_output<R>(
         &mut self,
         state: &State,
@@ -137,7 +128,6 @@ impl Stepper {
     pub fn momentum(&mut self) -> Result<Momentum, StepError> {
         match self {
             Stepper::Local(eng) => eng.momentum(),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => Ok(ranks.momentum()),
         }
     }
@@ -149,7 +139,6 @@ impl Stepper {
     pub fn sync(&mut self, state: &mut State) -> Result<(), StepError> {
         match self {
             Stepper::Local(eng) => eng.sync(state),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks {
                 ranks,
                 t_stop,
@@ -173,7 +162,6 @@ impl Stepper {
     /// for an output: computed by the stepping engine, or over ranks by the ranks' engines at
     /// the sync (rank 0 only; nothing here is collective).
     pub fn output_fields(&mut self, state: &mut State) -> Result<Vec<Vec<f64>>, StepError> {
-        #[cfg(feature = "mpi")]
         if let Stepper::Ranks {
             t_stop: Some(ts), ..
         } = self
@@ -187,7 +175,6 @@ impl Stepper {
 
     /// The dust densities of the synced state (over ranks, the sync computed them).
     pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
-        #[cfg(feature = "mpi")]
         if let Stepper::Ranks {
             t_stop: Some(_), ..
         } = self
@@ -201,11 +188,9 @@ impl Stepper {
     /// the ranks' engines did not compute an output's fields, rank 0's engine rebuilt on the
     /// gathered state.
     // The state is rank 0's gathered one over ranks; one process's engine is already on it.
-    #[cfg_attr(not(feature = "mpi"), allow(unused_variables))]
     fn engine(&mut self, state: &mut State) -> Result<&mut Backend, StepError> {
         match self {
             Stepper::Local(eng) => Ok(eng),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks {
                 ranks,
                 output,
@@ -231,7 +216,6 @@ impl Stepper {
     pub fn phys(&self) -> &crate::step::Physics {
         match self {
             Stepper::Local(eng) => eng.phys(),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => ranks.phys(),
         }
     }
@@ -240,7 +224,6 @@ impl Stepper {
     pub fn timers(&self) -> crate::step::timers::Timers {
         match self {
             Stepper::Local(eng) => eng.timers().clone(),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => ranks.timers(),
         }
     }
@@ -251,7 +234,6 @@ impl Stepper {
         match self {
             // A reduction on the engine's launcher: the particles stay on the device.
             Stepper::Local(eng) => eng.lagrange_jacobi(dim),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => Ok(ranks.lagrange_jacobi_terms(dim)),
         }
     }
@@ -260,7 +242,6 @@ impl Stepper {
     pub fn local(&mut self) -> Option<&mut Backend> {
         match self {
             Stepper::Local(eng) => Some(eng),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { .. } => None,
         }
     }
@@ -269,7 +250,6 @@ impl Stepper {
     pub fn is_root(&self) -> bool {
         match self {
             Stepper::Local(_) => true,
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => ranks.is_root(),
         }
     }
@@ -278,7 +258,6 @@ impl Stepper {
     pub fn any(&self, flag: bool) -> bool {
         match self {
             Stepper::Local(_) => flag,
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => ranks.any(flag),
         }
     }
@@ -288,7 +267,6 @@ impl Stepper {
     pub fn traffic(&self) -> Option<Vec<crate::dist::Traffic>> {
         match self {
             Stepper::Local(_) => None,
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => {
                 let mine = crate::dist::comm::traffic();
                 let all = ranks.world.all_gather_bytes(bytemuck::bytes_of(&mine));
@@ -305,7 +283,6 @@ impl Stepper {
     pub fn describe(&self) -> String {
         match self {
             Stepper::Local(eng) => eng.describe(),
-            #[cfg(feature = "mpi")]
             Stepper::Ranks { ranks, .. } => {
                 format!("{}; set-up: cpu (rank 0)", ranks.describe())
             }

@@ -179,7 +179,7 @@ impl Physics {
 pub fn dust_without_gas_in_cell(
     phys: &Physics,
     state: &crate::particles::State,
-    c: &dyn crate::dist::Collective,
+    c: &dyn crate::dist::Comm,
 ) -> (usize, usize) {
     use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
     if state.dust.is_empty() {
