@@ -812,8 +812,8 @@ fn an_accreting_run_resumes_bit_for_bit() {
 /// relative to the gas of the slow root of z̈ = −Ω_z² z − ż/t (ż ≈ −z Ω St for St ≪ 1), at
 /// heights between H/4 and 5H/4. H/R = 0.1, 24 particles per unit length in the midplane at
 /// r_ref (h/H ≈ 0.5: the vertical balance the set-up reaches with the run's own SPH forces is
-/// good to ≈1.5 % rms, and the comparison to 15 %; docs/method.md §D quotes the figures per
-/// height, with the band above 5H/4).
+/// good to ≈1.5 % rms, and the comparison to 15 %; docs/decisions/disc-settling.md quotes the
+/// figures per height, with the band above 5H/4).
 #[test]
 fn dust_in_a_3d_disc_settles_at_its_terminal_velocity() {
     let (t0, t1) = (0.01, 0.03);
@@ -879,7 +879,8 @@ fn dust_in_a_3d_disc_settles_at_its_terminal_velocity() {
 /// orbit at r_ref (2.5 stopping times of the St = 0.1 grains, 25 of the St = 0.01 ones), in
 /// the mid-disc bins of `dustsph profile` (1.1 < R < 1.7), each fraction's drift relative to
 /// the gas, u_R − v_R, against the exact multi-species steady drift computed from the bins' own
-/// ε, St and pressure gradient: within 10 % (docs/method.md §D quotes the run to one orbit).
+/// ε, St and pressure gradient: within 10 % (docs/decisions/disc-drift.md quotes the run to one
+/// orbit).
 #[test]
 fn a_running_disc_drifts_at_the_exact_steady_rate_for_an_orbit() {
     // One orbit at r_ref: the sheared lattices' sampling offsets, read as a relative velocity

@@ -184,8 +184,9 @@ fn stiff_drift_bias_on_a_glass_is_bounded_in_absolute_terms() {
 
 /// With the defaults (the kernel coupling, since `idic.coupling` is left out) on a relaxed
 /// glass, each fraction's mean drift is within 2 % of its own exact drift at τ/t = 33 (t = 3e-4,
-/// τ = 0.01), the stiffest ratio the default promises this for (method.md §K, "The stiff drift
-/// on disordered particles"); the nearest cell on the same glass leaves most dust uncoupled.
+/// τ = 0.01), the stiffest ratio the default promises this for (docs/decisions/disorder.md;
+/// method.md §K, "The stiff drift on disordered particles"); the nearest cell on the same
+/// glass leaves most dust uncoupled.
 #[test]
 fn default_coupling_drifts_within_2_percent_on_a_glass_down_to_tau_over_t_33() {
     let run = |coupling: Option<&str>| {

@@ -316,7 +316,7 @@ fn damped_dispersion_lets_unresolved_dust_noise_decay_at_the_drag_rate() {
 
 /// The damping acts on what the kernel does not resolve: a co-moving sine under stiff drag
 /// loses only a little amplitude, less by far than at the next resolution (its loss falls as
-/// a high power of h; NumPy model: h^5, scripts/prototypes/dispersion_damping.py).
+/// a high power of h; NumPy model: h^5, docs/decisions/dispersion-damping.md).
 #[test]
 fn damped_dispersion_leaves_resolved_comoving_modes_to_high_order() {
     let damped = ["idic.dispersion=\"damped\""];
