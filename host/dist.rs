@@ -34,15 +34,6 @@ pub fn refuse_many_ranks(what: &str) -> Result<(), String> {
     }
 }
 
-/// A count a test may set smaller through the environment variable `name` (a positive
-/// integer; otherwise `default`): tests/mpi.rs splits small runs into many pieces this way.
-pub fn count_from_env(name: &str, default: usize) -> usize {
-    (std::env::var(name).ok())
-        .and_then(|v| v.parse().ok())
-        .filter(|&n| n > 0)
-        .unwrap_or(default)
-}
-
 pub mod comm;
 pub use comm::{Alone, Comm, World};
 

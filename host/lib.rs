@@ -10,6 +10,7 @@ pub mod analysis;
 pub mod commands;
 pub mod decomp;
 pub mod dist;
+pub mod env;
 pub mod exact;
 pub mod grid;
 pub mod io;

@@ -201,6 +201,8 @@ fn stepping_over_ranks_matches_one_process() {
 /// scene kind and option, on 3 ranks; the mutation leaving the accelerations out of the
 /// refresh after the forces fails here (and the wave then differs by 4e-8 from one process).
 #[test]
+// The check and the hook are compiled only with the feature `checks` (scripts/test).
+#[cfg(feature = "checks")]
 fn each_halo_refresh_moves_every_field_written_since_the_last() {
     let cases: &[&[&str]] = &[
         &["configs/dustybox.toml"],
@@ -757,6 +759,8 @@ fn each_rank_steps_on_the_device_asked_for() {
 /// will not reach: the job stops (MPI_Abort) within the time limit with that rank's message,
 /// and the snapshots written before stay readable; no summary.
 #[test]
+// The check and the hook are compiled only with the feature `checks` (scripts/test).
+#[cfg(feature = "checks")]
 fn a_failure_inside_a_step_stops_the_job_with_its_message() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("failed");

@@ -226,7 +226,8 @@ impl RankGhosts {
 /// Whether `DUSTSPH_FAIL_IN_STEP=rank:step` names this rank and step (tests/mpi.rs: a failure
 /// inside a step stops the job, with its message, and does not hang).
 pub(super) fn fail_requested(rank: u32, step: u64) -> bool {
-    std::env::var("DUSTSPH_FAIL_IN_STEP").is_ok_and(|v| v == format!("{rank}:{step}"))
+    crate::env::check("DUSTSPH_FAIL_IN_STEP")
+        && crate::env::var("DUSTSPH_FAIL_IN_STEP").is_some_and(|v| v == format!("{rank}:{step}"))
 }
 
 impl GhostSync for RankGhosts {

@@ -276,9 +276,9 @@ impl RankStepper {
         verbose: bool,
     ) -> Result<RankStepper, String> {
         let me = world.rank();
-        let rebalance_at = match std::env::var("DUSTSPH_REBALANCE_AT") {
-            Err(_) => REBALANCE_AT,
-            Ok(v) => match v.trim().parse::<f64>() {
+        let rebalance_at = match crate::env::var("DUSTSPH_REBALANCE_AT") {
+            None => REBALANCE_AT,
+            Some(v) => match v.trim().parse::<f64>() {
                 Ok(x) if x >= 0.0 => x,
                 _ => {
                     return Err(format!(
@@ -348,7 +348,7 @@ impl RankStepper {
             builds: 0,
             steps: 0,
             fail: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(-1)),
-            trace: std::env::var_os("DUSTSPH_HALO_TRACE").is_some(),
+            trace: crate::env::check("DUSTSPH_HALO_TRACE"),
             carried_norms: None,
             busy: 0.0,
             busy_steps: 0,
@@ -1265,7 +1265,7 @@ const STREAM_RECORDS: usize = 32 * 1024;
 /// [`STREAM_RECORDS`], or `DUSTSPH_STREAM_RECORDS` where set (tests/mpi.rs streams a small
 /// run in many short messages).
 fn stream_records() -> usize {
-    crate::dist::count_from_env("DUSTSPH_STREAM_RECORDS", STREAM_RECORDS)
+    crate::env::count("DUSTSPH_STREAM_RECORDS", STREAM_RECORDS)
 }
 
 /// Every rank's particles as one state on rank 0 (phases in order, each by particle id), at

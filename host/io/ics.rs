@@ -31,7 +31,7 @@ pub const ROW_BLOCK: usize = 4096;
 /// [`ROW_BLOCK`], or `DUSTSPH_ROW_BLOCK` where set (tests/mpi.rs shares a small file's rows
 /// between every rank).
 pub fn row_block() -> usize {
-    crate::dist::count_from_env("DUSTSPH_ROW_BLOCK", ROW_BLOCK)
+    crate::env::count("DUSTSPH_ROW_BLOCK", ROW_BLOCK)
 }
 
 /// One particle type of an initial-conditions file, positions in the run's frame

@@ -42,7 +42,7 @@ const CHUNK_ROWS: usize = 1 << 15;
 /// [`CHUNK_ROWS`], or `DUSTSPH_CHUNK_ROWS` where set (tests/mpi.rs writes a small run's
 /// snapshots in many chunks, so that every rank deflates some).
 fn chunk_rows() -> usize {
-    crate::dist::count_from_env("DUSTSPH_CHUNK_ROWS", CHUNK_ROWS)
+    crate::env::count("DUSTSPH_CHUNK_ROWS", CHUNK_ROWS)
 }
 
 /// A borrowed view of one particle phase for output.

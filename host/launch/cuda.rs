@@ -118,10 +118,10 @@ impl Cuda {
 /// The register cap the kernels are loaded with (occupancy against spills; docs/gpu.md):
 /// [`MAX_REGISTERS`], or `DUSTSPH_PTX_MAXNREG=N` (16–255), or `=off` for none.
 pub fn register_cap() -> Result<Option<u32>, String> {
-    match std::env::var("DUSTSPH_PTX_MAXNREG") {
-        Err(_) => Ok(Some(MAX_REGISTERS)),
-        Ok(v) if v.trim() == "off" => Ok(None),
-        Ok(v) => match v.trim().parse::<u32>() {
+    match crate::env::var("DUSTSPH_PTX_MAXNREG") {
+        None => Ok(Some(MAX_REGISTERS)),
+        Some(v) if v.trim() == "off" => Ok(None),
+        Some(v) => match v.trim().parse::<u32>() {
             Ok(n) if (16..=255).contains(&n) => Ok(Some(n)),
             _ => Err(format!(
                 "DUSTSPH_PTX_MAXNREG={v}: a register count from 16 to 255, or off"

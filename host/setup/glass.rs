@@ -301,7 +301,9 @@ fn cache_dir() -> Option<PathBuf> {
             .filter(|v| !v.is_empty())
             .map(PathBuf::from)
     };
-    env("DUSTSPH_CACHE")
+    (crate::env::var("DUSTSPH_CACHE"))
+        .filter(|v| !v.is_empty())
+        .map(PathBuf::from)
         .or_else(|| env("XDG_CACHE_HOME").map(|d| d.join("dustsph")))
         .or_else(|| env("HOME").map(|d| d.join(".cache").join("dustsph")))
 }

@@ -276,7 +276,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             only: [None, None],
             host_only: [Vec::new(), Vec::new()],
             keyed: false,
-            check: std::env::var_os("DUSTSPH_HALO_CHECK").is_some(),
+            check: crate::env::check("DUSTSPH_HALO_CHECK"),
             anchor: [Vec::new(), Vec::new()],
             send_on: [None, None],
             recv_on: [None, None],
