@@ -23,16 +23,23 @@ impl Phase {
         self.x.is_empty()
     }
 
+    /// Every per-particle column of the phase, each visited once (the one list of them: the
+    /// operations on every column below are written over it). Columns a scene does not use
+    /// (`None`) are left out.
+    pub fn for_each_column(&mut self, f: &mut impl ColumnVisitor) {
+        f.visit("x", &mut self.x);
+        f.visit("v", &mut self.v);
+        f.visit("m", &mut self.m);
+        f.visit("rho", &mut self.rho);
+        f.visit("id", &mut self.id);
+        if let Some(c) = &mut self.fixed {
+            f.visit("fixed", c);
+        }
+    }
+
     /// Give back the arrays' spare capacity (a phase grown particle by particle).
     pub fn shrink_to_fit(&mut self) {
-        self.x.shrink_to_fit();
-        self.v.shrink_to_fit();
-        self.m.shrink_to_fit();
-        self.rho.shrink_to_fit();
-        self.id.shrink_to_fit();
-        if let Some(f) = &mut self.fixed {
-            f.shrink_to_fit();
-        }
+        self.for_each_column(&mut Shrink);
     }
 
     #[inline(always)]
@@ -42,32 +49,14 @@ impl Phase {
 
     /// Reorder every array by `perm` (new index → old index).
     pub fn permute(&mut self, perm: &[u32]) {
-        fn apply<T: Copy>(v: &mut Vec<T>, perm: &[u32]) {
-            let out: Vec<T> = perm.iter().map(|&p| v[p as usize]).collect();
-            *v = out;
-        }
-        apply(&mut self.x, perm);
-        apply(&mut self.v, perm);
-        apply(&mut self.m, perm);
-        apply(&mut self.rho, perm);
-        apply(&mut self.id, perm);
-        if let Some(f) = &mut self.fixed {
-            apply(f, perm);
-        }
+        self.for_each_column(&mut Permute(perm));
     }
 
     /// Keep the particles `keep` marks (`keep[i]` for particle i), in their order, in place:
     /// no column is reallocated (a rank's own particles dropping its ghosts, or those that left
     /// it).
     pub fn retain_rows(&mut self, keep: &[bool]) {
-        retain_by(&mut self.x, keep);
-        retain_by(&mut self.v, keep);
-        retain_by(&mut self.m, keep);
-        retain_by(&mut self.rho, keep);
-        retain_by(&mut self.id, keep);
-        if let Some(f) = &mut self.fixed {
-            retain_by(f, keep);
-        }
+        self.for_each_column(&mut Retain(keep));
     }
 
     pub fn total_mass(&self) -> f64 {
@@ -113,38 +102,34 @@ pub struct Gas {
 }
 
 impl Gas {
+    /// The gas's own per-particle columns (those of its phase aside), each visited once; the
+    /// optional ones only where present.
+    pub fn for_each_gas_column(&mut self, f: &mut impl ColumnVisitor) {
+        f.visit("p", &mut self.p);
+        f.visit("c", &mut self.c);
+        for (name, c) in [
+            ("e", &mut self.e),
+            ("h", &mut self.h),
+            ("omega", &mut self.omega),
+        ] {
+            if let Some(c) = c {
+                f.visit(name, c);
+            }
+        }
+        if let Some(c) = &mut self.next_forces {
+            f.visit("next_forces", c);
+        }
+    }
+
     pub fn permute(&mut self, perm: &[u32]) {
         self.ph.permute(perm);
-        let apply = |v: &mut Vec<f64>| *v = perm.iter().map(|&p| v[p as usize]).collect();
-        apply(&mut self.p);
-        apply(&mut self.c);
-        for f in [&mut self.e, &mut self.h, &mut self.omega]
-            .into_iter()
-            .flatten()
-        {
-            apply(f);
-        }
-        if let Some(f) = &mut self.next_forces {
-            *f = perm.iter().map(|&p| f[p as usize]).collect();
-        }
+        self.for_each_gas_column(&mut Permute(perm));
     }
 
     /// [`Phase::retain_rows`] over every gas column (one left empty stays so).
     pub fn retain_rows(&mut self, keep: &[bool]) {
-        let n = self.ph.len();
         self.ph.retain_rows(keep);
-        for f in [&mut self.p, &mut self.c].into_iter().chain(
-            [&mut self.e, &mut self.h, &mut self.omega]
-                .into_iter()
-                .flatten(),
-        ) {
-            if f.len() == n {
-                retain_by(f, keep);
-            }
-        }
-        if let Some(f) = self.next_forces.as_mut().filter(|f| f.len() == n) {
-            retain_by(f, keep);
-        }
+        self.for_each_gas_column(&mut Retain(keep));
     }
 
     pub fn thermal_energy(&self) -> f64 {
@@ -236,6 +221,40 @@ impl State {
     }
 }
 
+/// An operation on every per-particle column ([`Phase::for_each_column`],
+/// [`Gas::for_each_gas_column`]), whatever its element type.
+pub trait ColumnVisitor {
+    fn visit<T: Copy>(&mut self, name: &'static str, column: &mut Vec<T>);
+}
+
+struct Shrink;
+
+impl ColumnVisitor for Shrink {
+    fn visit<T: Copy>(&mut self, _: &'static str, column: &mut Vec<T>) {
+        column.shrink_to_fit();
+    }
+}
+
+/// `column[i] ← column[perm[i]]`.
+struct Permute<'a>(&'a [u32]);
+
+impl ColumnVisitor for Permute<'_> {
+    fn visit<T: Copy>(&mut self, _: &'static str, column: &mut Vec<T>) {
+        *column = self.0.iter().map(|&p| column[p as usize]).collect();
+    }
+}
+
+/// Keep the rows marked; a column left empty (a gas column not yet computed) stays so.
+struct Retain<'a>(&'a [bool]);
+
+impl ColumnVisitor for Retain<'_> {
+    fn visit<T: Copy>(&mut self, _: &'static str, column: &mut Vec<T>) {
+        if column.len() == self.0.len() {
+            retain_by(column, self.0);
+        }
+    }
+}
+
 /// Keep `v[i]` where `keep[i]`, in order, in place.
 fn retain_by<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
     debug_assert_eq!(v.len(), keep.len());
@@ -276,5 +295,70 @@ impl std::hash::Hasher for IntHasher {
     }
     fn write_i64(&mut self, v: i64) {
         self.write_u64(v as u64);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Gas, Phase, State};
+    use crate::dist::records::record_at;
+
+    /// A state with every column, optional ones included, each value distinct.
+    fn full_state(n: usize) -> State {
+        let f = |k: usize, i: usize| (100 * k + i) as f64 + 0.25;
+        let phase = |k: usize| Phase {
+            x: (0..n).map(|i| [f(k, i), -f(k, i), 2.0 * f(k, i)]).collect(),
+            v: (0..n).map(|i| [f(k + 1, i), 0.5, -f(k + 2, i)]).collect(),
+            m: (0..n).map(|i| f(k + 3, i)).collect(),
+            rho: (0..n).map(|i| f(k + 4, i)).collect(),
+            id: (0..n as u64).map(|i| 7 * i + k as u64).collect(),
+            fixed: Some((0..n).map(|i| i % 3 == 0).collect()),
+        };
+        State {
+            t: 0.5,
+            step: 3,
+            gas: Gas {
+                ph: phase(0),
+                p: (0..n).map(|i| f(10, i)).collect(),
+                c: (0..n).map(|i| f(11, i)).collect(),
+                e: Some((0..n).map(|i| f(12, i)).collect()),
+                h: Some((0..n).map(|i| f(13, i)).collect()),
+                omega: Some((0..n).map(|i| f(14, i)).collect()),
+                next_forces: Some(
+                    (0..n)
+                        .map(|i| [f(15, i), 1.0, 2.0, 3.0, f(16, i)])
+                        .collect(),
+                ),
+            },
+            dust: vec![phase(20), phase(30)],
+        }
+    }
+
+    /// Permuting and retaining rows act on every column a particle's record carries (the
+    /// records list the fields on their own): particle i of the permuted state has the record
+    /// of particle perm[i], and the rows kept have their records, in order.
+    #[test]
+    fn permute_and_retain_move_every_column_a_record_carries() {
+        let n = 9;
+        let st = full_state(n);
+        let perm: Vec<u32> = vec![4, 0, 8, 2, 6, 1, 3, 7, 5];
+        let mut p = st.clone();
+        p.gas.permute(&perm);
+        for ph in &mut p.dust {
+            ph.permute(&perm);
+        }
+        let keep: Vec<bool> = (0..n).map(|i| i % 4 != 1).collect();
+        let mut r = st.clone();
+        r.retain_rows(&keep.repeat(3));
+        for k in 0..3 {
+            for i in 0..n {
+                assert_eq!(record_at(&p, k, i), record_at(&st, k, perm[i] as usize));
+            }
+            let kept: Vec<usize> = (0..n).filter(|&i| keep[i]).collect();
+            for (j, &i) in kept.iter().enumerate() {
+                assert_eq!(record_at(&r, k, j), record_at(&st, k, i));
+            }
+        }
+        assert_eq!(r.len(), 3 * (n - 2));
     }
 }
