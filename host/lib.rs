@@ -21,7 +21,3 @@ pub mod scene;
 pub mod setup;
 pub mod sim;
 pub mod step;
-
-// The commands' modules under their former paths (tests and scripts use them).
-pub use commands::profile as post;
-pub use commands::{bench, parity, run, stiffness, study};

@@ -351,8 +351,8 @@ mod tests {
         let mut r = st.clone();
         r.retain_rows(&keep.repeat(3));
         for k in 0..3 {
-            for i in 0..n {
-                assert_eq!(record_at(&p, k, i), record_at(&st, k, perm[i] as usize));
+            for (i, &from) in perm.iter().enumerate() {
+                assert_eq!(record_at(&p, k, i), record_at(&st, k, from as usize));
             }
             let kept: Vec<usize> = (0..n).filter(|&i| keep[i]).collect();
             for (j, &i) in kept.iter().enumerate() {

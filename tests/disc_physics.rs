@@ -559,7 +559,7 @@ fn a_gas_disc_started_on_the_leapfrogs_orbit_does_not_ring() {
             "time.output_dt=",
         ],
     );
-    let (_, st) = dustsph::run::run(&loaded, &cpu_run(dir.path(), "r")).unwrap();
+    let (_, st) = dustsph::sim::run::run(&loaded, &cpu_run(dir.path(), "r")).unwrap();
     let p = &st.gas.ph;
     let edges: Vec<f64> = (0..8).map(|i| 1.0 + 0.1 * i as f64).collect();
     let mut sums = [(0.0, 0.0); 7];
@@ -598,7 +598,7 @@ fn the_profile_of_a_viscous_disc_has_the_gas_on_its_viscous_inflow() {
             "time.output_dt=",
         ],
     );
-    dustsph::run::run(&loaded, &cpu_run(dir.path(), "v")).unwrap();
+    dustsph::sim::run::run(&loaded, &cpu_run(dir.path(), "v")).unwrap();
     let snap = dir.path().join("v").join("snapshot_0000.h5");
     dustsph::commands::profile::post_process(&snap, 100).unwrap();
     let text =
@@ -655,13 +655,8 @@ fn gas_disc(dir: &std::path::Path, sets: &[&str]) -> dustsph::scene::LoadedScene
     dustsph::scene::load(&path, &sets).unwrap_or_else(|e| panic!("{e}"))
 }
 
-fn cpu_run(dir: &std::path::Path, name: &str) -> dustsph::run::RunOptions {
-    dustsph::run::RunOptions {
-        out: dir.join(name),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    }
+fn cpu_run(dir: &std::path::Path, name: &str) -> dustsph::sim::run::RunOptions {
+    dustsph::sim::run::RunOptions::quiet_on_cpu(dir.join(name))
 }
 
 /// A dust-free disc keeps its angular momentum about the star to round-off (the pair forces
@@ -671,7 +666,8 @@ fn cpu_run(dir: &std::path::Path, name: &str) -> dustsph::run::RunOptions {
 #[test]
 fn a_dust_free_disc_keeps_its_angular_momentum_and_accretion_hands_it_to_the_star() {
     let dir = tempfile::tempdir().unwrap();
-    let (s, st) = dustsph::run::run(&gas_disc(dir.path(), &[]), &cpu_run(dir.path(), "a")).unwrap();
+    let (s, st) =
+        dustsph::sim::run::run(&gas_disc(dir.path(), &[]), &cpu_run(dir.path(), "a")).unwrap();
     let l = s
         .conservation
         .angular_momentum
@@ -689,7 +685,7 @@ fn a_dust_free_disc_keeps_its_angular_momentum_and_accretion_hands_it_to_the_sta
     // the edge's pressure spreads its rings inward, into the star.
     let r_acc = 0.5;
     let loaded = gas_disc(dir.path(), &ACCRETING);
-    let (s, st) = dustsph::run::run(&loaded, &cpu_run(dir.path(), "b")).unwrap();
+    let (s, st) = dustsph::sim::run::run(&loaded, &cpu_run(dir.path(), "b")).unwrap();
     let star = s.conservation.star.as_ref().expect("the star's record");
     assert!(star.gas_particles > 50, "{} accreted", star.gas_particles);
     assert_eq!(st.gas.ph.len() + star.gas_particles, n0);
@@ -741,7 +737,7 @@ fn edge_zones_keep_a_discs_inner_edge_quiet() {
         zoned.scene.gravity.unwrap().damp_inner.is_some(),
         "the shipped disc has zones"
     );
-    let (_, a) = dustsph::run::run(&zoned, &cpu_run(dir.path(), "zones")).unwrap();
+    let (_, a) = dustsph::sim::run::run(&zoned, &cpu_run(dir.path(), "zones")).unwrap();
     let bare = gas_disc(
         dir.path(),
         &[
@@ -752,7 +748,7 @@ fn edge_zones_keep_a_discs_inner_edge_quiet() {
             "gravity.damp_time=",
         ],
     );
-    let (_, b) = dustsph::run::run(&bare, &cpu_run(dir.path(), "bare")).unwrap();
+    let (_, b) = dustsph::sim::run::run(&bare, &cpu_run(dir.path(), "bare")).unwrap();
     let (with, without) = (stirring(&a, 0.6, 0.8), stirring(&b, 0.6, 0.8));
     assert!(with < 0.02, "with zones rms v_R/c_s {with}");
     assert!(
@@ -772,7 +768,7 @@ fn a_finer_disc_sets_up_and_steps() {
         dir.path(),
         &["sph.n=48", "time.t_end=0.01", "time.output_dt=0.01"],
     );
-    let (s, st) = dustsph::run::run(&loaded, &cpu_run(dir.path(), "fine")).unwrap();
+    let (s, st) = dustsph::sim::run::run(&loaded, &cpu_run(dir.path(), "fine")).unwrap();
     assert!(
         s.steps >= 1 && st.gas.ph.len() > 20_000,
         "{} particles",
@@ -786,10 +782,10 @@ fn a_finer_disc_sets_up_and_steps() {
 fn an_accreting_run_resumes_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
     let loaded = gas_disc(dir.path(), &[&ACCRETING[..], &["time.t_end=0.6"]].concat());
-    let mut whole = dustsph::run::Run::start(&loaded, &cpu_run(dir.path(), "whole")).unwrap();
+    let mut whole = dustsph::sim::run::Run::start(&loaded, &cpu_run(dir.path(), "whole")).unwrap();
     whole.advance(None, None, None).unwrap();
     let (sw, a) = whole.finish().unwrap();
-    let mut first = dustsph::run::Run::start(&loaded, &cpu_run(dir.path(), "split")).unwrap();
+    let mut first = dustsph::sim::run::Run::start(&loaded, &cpu_run(dir.path(), "split")).unwrap();
     first.advance(Some(4), None, None).unwrap();
     first.checkpoint().unwrap();
     drop(first);

@@ -45,7 +45,7 @@ fn small_ball_conserves_momentum_and_keeps_gas_and_dust_together() {
     assert!(st.dust[0].v.iter().all(|v| v.iter().all(|x| x.is_finite())));
 }
 
-fn ball_l1(s: &dustsph::run::Summary, whole: bool, field: &str) -> f64 {
+fn ball_l1(s: &dustsph::sim::run::Summary, whole: bool, field: &str) -> f64 {
     let at_end: Vec<_> = s.errors.iter().filter(|e| e.t == s.t_final).collect();
     assert_eq!(at_end.len(), 2, "inner and whole-ball reference errors");
     at_end[whole as usize].get(field).unwrap().l1

@@ -5,7 +5,7 @@ mod common;
 use common::*;
 use dustsph::particles::Phase;
 
-fn l1_all(s: &dustsph::run::Summary) -> f64 {
+fn l1_all(s: &dustsph::sim::run::Summary) -> f64 {
     let at_end = s.errors.iter().find(|e| e.t == s.t_final).unwrap();
     at_end.fields.iter().map(|f| f.norms.l1).fold(0.0, f64::max)
 }

@@ -334,13 +334,8 @@ fn a_t_end_not_after_the_files_time_is_refused() {
     f.header.push(("Time", vec![0.5]));
     f.write(&dir.path().join("ics.h5"));
     let l = file_scene(dir.path(), 2, "ics.h5", "[true, true, false]", BOX_REST);
-    let opts = dustsph::run::RunOptions {
-        out: dir.path().join("out"),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    };
-    let e = dustsph::run::run(&l, &opts).expect_err("t_end 0.05 < t = 0.5");
+    let opts = dustsph::sim::run::RunOptions::quiet_on_cpu(dir.path().join("out"));
+    let e = dustsph::sim::run::run(&l, &opts).expect_err("t_end 0.05 < t = 0.5");
     assert_eq!(e.exit_code(), 2);
     assert!(e.to_string().contains("time.t_end"), "{e}");
     assert!(!dir.path().join("out").exists());
@@ -358,16 +353,11 @@ fn a_run_from_a_file_resumes_bit_for_bit_and_keeps_its_source() {
     f.write(&dir.path().join("ics.h5"));
     let rest = BOX_REST.replace("t_end = 0.05", "t_end = 0.1");
     let l = file_scene(dir.path(), 2, "ics.h5", "[true, true, false]", &rest);
-    let opts = |d: &str| dustsph::run::RunOptions {
-        out: dir.path().join(d),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    };
-    let mut whole = dustsph::run::Run::start(&l, &opts("whole")).unwrap();
+    let opts = |d: &str| dustsph::sim::run::RunOptions::quiet_on_cpu(dir.path().join(d));
+    let mut whole = dustsph::sim::run::Run::start(&l, &opts("whole")).unwrap();
     whole.advance(None, None, None).unwrap();
     let (sw, a) = whole.finish().unwrap();
-    let mut first = dustsph::run::Run::start(&l, &opts("split")).unwrap();
+    let mut first = dustsph::sim::run::Run::start(&l, &opts("split")).unwrap();
     first.advance(Some(3), None, None).unwrap();
     first.checkpoint().unwrap();
     drop(first);

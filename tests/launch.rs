@@ -11,8 +11,8 @@
 //! 3. Forms that must not change the step: sparse cell tables, neighbour lists, the kernel
 //!    coupling's scatter deposits (to round-off); f32 against f64; the device-memory estimate.
 mod common;
+use dustsph::commands::parity::{compare, compare_scenes, compare_tables, CASES};
 use dustsph::launch;
-use dustsph::parity::{compare, compare_scenes, compare_tables, CASES};
 use dustsph::step::backend::DeviceChoice;
 use dustsph_device::kernel_table;
 use std::path::PathBuf;

@@ -6,7 +6,7 @@ mod common;
 use common::*;
 
 /// Phantom's metric for `field` at t_end (the second comparison of the wave's summary).
-fn rel_l2(s: &dustsph::run::Summary, field: &str) -> f64 {
+fn rel_l2(s: &dustsph::sim::run::Summary, field: &str) -> f64 {
     final_error(s, 1, field).l2
 }
 

@@ -69,7 +69,7 @@ fn a_ball_run_with_overrides_is_profiled_against_its_own_scene() {
             .unwrap()
     };
     let p_run = inner(run_errors);
-    let post = dustsph::post::post_process(&last, 50).unwrap();
+    let post = dustsph::commands::profile::post_process(&last, 50).unwrap();
     let p_post = inner(&serde_json::to_value(&post.errors).unwrap());
     assert!(
         (p_post - p_run).abs() <= 1e-9 * p_run,
@@ -78,7 +78,7 @@ fn a_ball_run_with_overrides_is_profiled_against_its_own_scene() {
     // Against the file's own p = 1 the pressure error is of order 1.
     let p1 = dustsph::scene::parse(&file_text, &last, &sets[..2]).unwrap();
     let snap = dustsph::io::read_snapshot(&last).unwrap();
-    let state = dustsph::post::state_from_snapshot(&snap);
+    let state = dustsph::commands::profile::state_from_snapshot(&snap);
     let wrong = dustsph::analysis::exact_errors(&p1, &state, None);
     let p_wrong = inner(&serde_json::to_value(&wrong).unwrap());
     assert!(

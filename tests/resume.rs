@@ -13,7 +13,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
     SERIAL.lock().unwrap_or_else(|e| e.into_inner())
 }
 use dustsph::particles::{Phase, State};
-use dustsph::run::{Run, RunOptions};
+use dustsph::sim::run::{Run, RunOptions};
 use std::process::Command;
 
 fn bits(ph: &Phase) -> Vec<u64> {
@@ -51,12 +51,7 @@ fn resume_is_bit_exact(scene: &str, sets: &[&str], n: u64) {
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
     let loaded = dustsph::scene::load(&config(scene), &sets).unwrap();
     let tmp = tempfile::tempdir().unwrap();
-    let opts = |d: &str| RunOptions {
-        out: tmp.path().join(d),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    };
+    let opts = |d: &str| RunOptions::quiet_on_cpu(tmp.path().join(d));
     let mut whole = Run::start(&loaded, &opts("whole")).unwrap();
     whole.advance(Some(2 * n), None, None).unwrap();
     let mut first = Run::start(&loaded, &opts("split")).unwrap();
@@ -185,12 +180,7 @@ fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
 fn checkpointed(scene: &str, sets: &[&str], dir: &std::path::Path, steps: u64) {
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
     let loaded = dustsph::scene::load(&config(scene), &sets).unwrap();
-    let opts = RunOptions {
-        out: dir.to_path_buf(),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    };
+    let opts = RunOptions::quiet_on_cpu(dir.to_path_buf());
     let mut r = Run::start(&loaded, &opts).unwrap();
     r.advance(Some(steps), None, None).unwrap();
     r.checkpoint().unwrap();

@@ -279,14 +279,9 @@ fn input_error_writes_nothing(scene: &str, sets: &[String]) -> String {
     let loaded = load(&config(scene), sets).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("never");
-    let opts = dustsph::run::RunOptions {
-        out: out.clone(),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    };
-    let e = dustsph::run::run(&loaded, &opts).unwrap_err();
-    assert!(matches!(e, dustsph::run::RunError::Input(_)), "{e}");
+    let opts = dustsph::sim::run::RunOptions::quiet_on_cpu(out.clone());
+    let e = dustsph::sim::run::run(&loaded, &opts).unwrap_err();
+    assert!(matches!(e, dustsph::sim::run::RunError::Input(_)), "{e}");
     assert!(!out.exists());
     e.to_string()
 }

@@ -2,7 +2,7 @@
 //! on demand (`cargo test --release --test stiffness -- --ignored`, or `dustsph stiffness --full`).
 //! Each case asserts: finite, momentum drift ≤ 1e-12 relative to max Σ m|v|, densities > 0,
 //! waves carry the exact amplitude (no over-damping), boxes equal IDIC's discrete solution.
-use dustsph::stiffness;
+use dustsph::commands::stiffness;
 
 fn check(full: bool) {
     let reports = stiffness::run(full, |_| {});

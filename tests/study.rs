@@ -54,12 +54,12 @@ fn write_study(dir: &Path, text: &str) -> PathBuf {
 fn a_study_runs_in_process_and_writes_its_tables_and_plots() {
     let tmp = tempfile::tempdir().unwrap();
     let file = write_study(tmp.path(), &study_text(""));
-    let st = dustsph::study::load(&file).unwrap_or_else(|e| panic!("{e}"));
+    let st = dustsph::commands::study::load(&file).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(st.points.len(), 6);
     let out = tmp.path().join("out");
-    let (res, files) = dustsph::study::run(&st, &out, false, true, "test").unwrap();
+    let (res, files) = dustsph::commands::study::run(&st, &out, false, true, "test").unwrap();
     for r in &res {
-        assert_eq!(r.status, dustsph::study::Status::Ok);
+        assert_eq!(r.status, dustsph::commands::study::Status::Ok);
         assert!(r.step_seconds > 0.0 && r.total_seconds >= r.step_seconds);
         assert!(r.momentum_drift < 1e-12);
     }
@@ -104,14 +104,15 @@ fn points_that_would_need_too_many_steps_are_listed_not_run() {
     let text = study_text("max_steps = 1000")
         .replace("set = [\"time.output_dt=\"]", "set = [\"time.output_dt=\", \"dust.fractions=[{eps=1.0, t_stop=1e-6}]\", \"dustybox.u_dust=[1.0]\"]")
         .replace("metrics = [\"max.l1\", \"u_d3.linf\"]", "metrics = [\"max.l1\"]");
-    let st = dustsph::study::load(&write_study(tmp.path(), &text)).unwrap();
-    let (res, _) = dustsph::study::run(&st, &tmp.path().join("o"), false, true, "t").unwrap();
+    let st = dustsph::commands::study::load(&write_study(tmp.path(), &text)).unwrap();
+    let (res, _) =
+        dustsph::commands::study::run(&st, &tmp.path().join("o"), false, true, "t").unwrap();
     for r in &res[..3] {
-        assert_eq!(r.status, dustsph::study::Status::Ok);
+        assert_eq!(r.status, dustsph::commands::study::Status::Ok);
     }
     for r in &res[3..] {
         match r.status {
-            dustsph::study::Status::Skipped(n) => {
+            dustsph::commands::study::Status::Skipped(n) => {
                 assert!((2_000_000..2_300_000).contains(&n), "{n}")
             }
             ref s => panic!("{s:?}"),

@@ -247,7 +247,7 @@ pub fn execute(a: BenchArgs) -> u8 {
             }
         };
         for &t in &threads {
-            match crate::bench::bench(name, &loaded.scene, steps, t, device) {
+            match crate::commands::bench::bench(name, &loaded.scene, steps, t, device) {
                 Ok(r) => {
                     println!(
                         "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e} {:>9}",

@@ -512,7 +512,7 @@ pub fn execute(a: ParityArgs) -> u8 {
         return 2;
     }
     let mut all_ok = true;
-    for (label, file, sets, steps) in crate::parity::CASES {
+    for (label, file, sets, steps) in crate::commands::parity::CASES {
         let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
         let loaded = crate::scene::load_shipped(file, &sets)
             .and_then(|l| l.with_numerics(Some(precision), None));
@@ -523,7 +523,7 @@ pub fn execute(a: ParityArgs) -> u8 {
                 return 2;
             }
         };
-        match crate::parity::compare(&loaded, *steps, device) {
+        match crate::commands::parity::compare(&loaded, *steps, device) {
             Ok(p) => {
                 let worst = p.fields.iter().filter(|f| !f.bitwise).count();
                 println!(

@@ -305,7 +305,7 @@ pub fn execute(a: ProfileArgs) -> u8 {
         eprintln!("error: {}: no such file", snapshot.display());
         return 2;
     }
-    match crate::post::post_process(&snapshot, bins) {
+    match crate::commands::profile::post_process(&snapshot, bins) {
         Ok(r) => {
             for f in &r.files {
                 println!("wrote {}", f.display());

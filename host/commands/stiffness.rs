@@ -817,7 +817,7 @@ pub fn execute(a: StiffnessArgs) -> u8 {
         }
         let _ = std::fs::remove_file(&probe);
     }
-    let reports = crate::stiffness::run(full, |r| {
+    let reports = crate::commands::stiffness::run(full, |r| {
         eprintln!(
             "{:<6} {} — {}: {} steps (explicit would need {:.0}), momentum drift {:.1e}",
             if r.passed() { "pass" } else { "FAIL" },
@@ -838,7 +838,7 @@ pub fn execute(a: StiffnessArgs) -> u8 {
             if full { " --full" } else { "" },
             o.display()
         );
-        let md = crate::stiffness::markdown(&reports, full, &command);
+        let md = crate::commands::stiffness::markdown(&reports, full, &command);
         if let Err(e) = crate::io::write_bytes_atomic(o, md.as_bytes()) {
             eprintln!("error: {e}");
             return 1;

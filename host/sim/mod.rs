@@ -9,6 +9,7 @@ pub mod checkpoint;
 pub mod diagnostics;
 pub mod output;
 pub mod progress;
+pub mod run;
 pub mod start;
 pub mod stepper;
 pub mod summary;

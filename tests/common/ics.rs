@@ -129,12 +129,7 @@ pub fn file_scene(dir: &Path, dim: u32, ics: &str, periodic: &str, rest: &str) -
     dustsph::scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"))
 }
 
-pub fn run_in(dir: &Path, loaded: &LoadedScene, out: &str) -> (dustsph::run::Summary, State) {
-    let opts = dustsph::run::RunOptions {
-        out: dir.join(out),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    };
-    dustsph::run::run(loaded, &opts).unwrap_or_else(|e| panic!("{e}"))
+pub fn run_in(dir: &Path, loaded: &LoadedScene, out: &str) -> (dustsph::sim::run::Summary, State) {
+    let opts = dustsph::sim::run::RunOptions::quiet_on_cpu(dir.join(out));
+    dustsph::sim::run::run(loaded, &opts).unwrap_or_else(|e| panic!("{e}"))
 }

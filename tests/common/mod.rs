@@ -3,7 +3,7 @@
 pub mod ics;
 use dustsph::analysis::norms::Norms;
 use dustsph::particles::State;
-use dustsph::run::{run, RunOptions, Summary};
+use dustsph::sim::run::{run, RunOptions, Summary};
 use std::path::PathBuf;
 
 pub fn config(name: &str) -> PathBuf {
@@ -17,12 +17,7 @@ pub fn run_scene(name: &str, sets: &[&str]) -> (Summary, State) {
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
     let loaded = dustsph::scene::load(&config(name), &sets).unwrap_or_else(|e| panic!("{e}"));
     let dir = tempfile::tempdir().unwrap();
-    let opts = RunOptions {
-        out: dir.path().join("out"),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    };
+    let opts = RunOptions::quiet_on_cpu(dir.path().join("out"));
     run(&loaded, &opts).unwrap_or_else(|e| panic!("{name} {sets:?}: {e}"))
 }
 
@@ -71,12 +66,7 @@ pub fn run_scene_in(
     let loaded = dustsph::scene::load(&config(name), &sets).unwrap_or_else(|e| panic!("{e}"));
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
-    let opts = RunOptions {
-        out: out.clone(),
-        force: false,
-        verbose: false,
-        device: dustsph::step::backend::DeviceChoice::Cpu,
-    };
+    let opts = RunOptions::quiet_on_cpu(out.clone());
     let r = run(&loaded, &opts).unwrap_or_else(|e| panic!("{name} {sets:?}: {e}"));
     check(&out);
     r
@@ -84,8 +74,9 @@ pub fn run_scene_in(
 
 /// Resume the run in `dir` from its checkpoint on the CPU and take it to its end.
 pub fn resume_to_the_end(dir: &std::path::Path) -> (Summary, State) {
-    let mut run = dustsph::run::Run::resume(dir, false, dustsph::step::backend::DeviceChoice::Cpu)
-        .unwrap_or_else(|e| panic!("resume {}: {e}", dir.display()));
+    let mut run =
+        dustsph::sim::run::Run::resume(dir, false, dustsph::step::backend::DeviceChoice::Cpu)
+            .unwrap_or_else(|e| panic!("resume {}: {e}", dir.display()));
     run.advance(None, None, None).unwrap();
     run.finish().unwrap()
 }

@@ -27,7 +27,7 @@ pub fn execute(a: StudyArgs) -> u8 {
         quiet,
         dry_run,
     } = a;
-    let st = match crate::study::load(&study) {
+    let st = match crate::commands::study::load(&study) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("error: {e}");
@@ -55,14 +55,14 @@ pub fn execute(a: StudyArgs) -> u8 {
             out.display()
         );
     }
-    match crate::study::run(&st, &out, force, quiet, &command) {
+    match crate::commands::study::run(&st, &out, force, quiet, &command) {
         Ok((results, files)) => {
             for f in &files {
                 println!("wrote {}", f.display());
             }
             let failed = results
                 .iter()
-                .filter(|r| matches!(r.status, crate::study::Status::Failed(_)))
+                .filter(|r| matches!(r.status, crate::commands::study::Status::Failed(_)))
                 .count();
             if failed > 0 {
                 eprintln!("error: {failed} point(s) failed (see results.md)");
@@ -72,7 +72,7 @@ pub fn execute(a: StudyArgs) -> u8 {
             if !results.is_empty()
                 && results
                     .iter()
-                    .all(|r| matches!(r.status, crate::study::Status::Skipped(_)))
+                    .all(|r| matches!(r.status, crate::commands::study::Status::Skipped(_)))
             {
                 eprintln!(
                     "error: every point was skipped (each would need more than study.max_steps \
