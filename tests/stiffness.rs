@@ -1,4 +1,4 @@
-//! The stiffness and extremes matrix (host/commands/stiffness.rs): the reduced grid in CI, the full grid
+//! The stiffness and extremes matrix (host/commands/stiffness/): the reduced grid in CI, the full grid
 //! on demand (`cargo test --release --test stiffness -- --ignored`, or `dustsph stiffness --full`).
 //! Each case asserts: finite, momentum drift ≤ 1e-12 relative to max Σ m|v|, densities > 0,
 //! waves carry the exact amplitude (no over-damping), boxes equal IDIC's discrete solution.

@@ -3,10 +3,8 @@
 //! the scene and the driver's progress, so that `dustsph resume` continues exactly as if never
 //! stopped.
 use super::chunks::RowShare;
-use super::snapshot::{
-    create_shared, get_rows, get_scalar, get_string, get_vec3_rows, go_on, h5err, put_scalar,
-    same_columns, SharedGroup,
-};
+use super::h5::{get_rows, get_scalar, get_string, get_vec3_rows, h5err, put_scalar};
+use super::shared::{create_shared, go_on, same_columns, SharedGroup};
 use super::{commit_tmp, IoError, WithPath};
 use crate::particles::{Gas, Phase, State};
 use hdf5::types::VarLenUnicode;

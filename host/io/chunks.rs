@@ -345,7 +345,7 @@ fn write_chunk(ds: &Dataset, row0: u64, buf: &[u8]) -> Result<(), &'static str> 
 #[cfg(test)]
 mod tests {
     use super::shuffle;
-    use crate::io::snapshot::put_dataset;
+    use crate::io::shared::put_dataset;
     use hdf5::filters::Filter;
 
     /// What HDF5's own filter pipeline reads back is what was written, bit for bit, through

@@ -16,9 +16,10 @@ use std::path::Path;
 
 use hdf5::{File, Group};
 
+use super::h5::{get_scalar, h5err};
 use super::snapshot::{
-    get_scalar, h5err, COORDINATES, DENSITY, DUST_GROUP, FRACTION_INDEX, GAS_GROUP, HEADER_GROUP,
-    INTERNAL_ENERGY, MASSES, PARTICLE_IDS, SMOOTHING_LENGTH, VELOCITIES,
+    COORDINATES, DENSITY, DUST_GROUP, FRACTION_INDEX, GAS_GROUP, HEADER_GROUP, INTERNAL_ENERGY,
+    MASSES, PARTICLE_IDS, SMOOTHING_LENGTH, VELOCITIES,
 };
 use super::IoError;
 use crate::dist::{agree, agree_first, share_rows, Alone, Comm};

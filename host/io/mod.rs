@@ -6,9 +6,11 @@
 
 pub mod checkpoint;
 pub mod chunks;
+pub(crate) mod h5;
 pub mod ics;
 pub mod output_dir;
 pub mod sha256;
+pub(crate) mod shared;
 pub mod snapshot;
 pub mod xdmf;
 

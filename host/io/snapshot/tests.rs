@@ -1,6 +1,9 @@
 use super::*;
+use crate::io::shared::CHUNK_ROWS;
 use hdf5::filters::Filter;
-use hdf5::types::{FloatSize, IntSize};
+use hdf5::types::{FixedAscii, FloatSize, IntSize, TypeDescriptor, VarLenUnicode};
+use hdf5::File;
+use std::fs;
 use std::path::PathBuf;
 
 const SCENE: &str = "# Schéma de test — poussière\n[gas]\nname = \"gaz ρ₀\"\ngamma = 1.4\n\n\
