@@ -95,11 +95,26 @@ pub struct Gas {
     pub h: Option<Vec<f64>>,
     pub omega: Option<Vec<f64>>,
     /// Leapfrog (time.integrator = "kdk") only: the forces the next step opens with, per
-    /// particle (A_x, A_y, A_z, ė, v_sig), computed by the last step's closing kick from
-    /// predicted velocities and energies; kept with the state so that a resumed run is
-    /// bit-identical. `None` otherwise.
-    pub next_forces: Option<Vec<[f64; 5]>>,
+    /// particle, computed by the last step's closing kick from predicted velocities and
+    /// energies; kept with the state so that a resumed run is bit-identical. `None` otherwise.
+    pub closing_forces: Option<Vec<ClosingForces>>,
 }
+
+/// A gas particle's forces at the close of a leapfrog step, which the next step opens with.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ClosingForces {
+    /// The acceleration A.
+    pub acc: [f64; 3],
+    /// The rate of the specific internal energy ė (0 for an isothermal gas).
+    pub dedt: f64,
+    /// The largest signal speed over the particle's pairs (the CFL's v_sig).
+    pub vsig: f64,
+}
+
+// SAFETY: `repr(C)` of f64 only (no padding), and every bit pattern is a valid f64.
+unsafe impl bytemuck::Zeroable for ClosingForces {}
+unsafe impl bytemuck::Pod for ClosingForces {}
 
 impl Gas {
     /// The gas's own per-particle columns (those of its phase aside), each visited once; the
@@ -116,8 +131,8 @@ impl Gas {
                 f.visit(name, c);
             }
         }
-        if let Some(c) = &mut self.next_forces {
-            f.visit("next_forces", c);
+        if let Some(c) = &mut self.closing_forces {
+            f.visit("closing_forces", c);
         }
     }
 
@@ -300,7 +315,7 @@ impl std::hash::Hasher for IntHasher {
 
 #[cfg(test)]
 mod tests {
-    use super::{Gas, Phase, State};
+    use super::{ClosingForces, Gas, Phase, State};
     use crate::dist::records::record_at;
 
     /// A state with every column, optional ones included, each value distinct.
@@ -324,9 +339,13 @@ mod tests {
                 e: Some((0..n).map(|i| f(12, i)).collect()),
                 h: Some((0..n).map(|i| f(13, i)).collect()),
                 omega: Some((0..n).map(|i| f(14, i)).collect()),
-                next_forces: Some(
+                closing_forces: Some(
                     (0..n)
-                        .map(|i| [f(15, i), 1.0, 2.0, 3.0, f(16, i)])
+                        .map(|i| ClosingForces {
+                            acc: [f(15, i), 1.0, 2.0],
+                            dedt: 3.0,
+                            vsig: f(16, i),
+                        })
                         .collect(),
                 ),
             },

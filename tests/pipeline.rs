@@ -85,7 +85,7 @@ fn a_slab_expanding_into_vacuum_keeps_every_particle() {
             e: Some(vec![2.5; n]),
             h: None,
             omega: None,
-            next_forces: None,
+            closing_forces: None,
         },
         dust: vec![phase(0.5 * dx, n as u64)],
     };
@@ -164,7 +164,7 @@ fn dust_in_cells_without_gas_is_ballistic_not_dragged_to_rest() {
             e: None,
             h: None,
             omega: None,
-            next_forces: None,
+            closing_forces: None,
         },
         dust: vec![Phase {
             x: dxs.clone(),

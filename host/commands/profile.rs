@@ -57,7 +57,7 @@ pub fn state_from_snapshot(s: &SnapshotData) -> State {
         e: g.e.clone(),
         h: None,
         omega: None,
-        next_forces: None,
+        closing_forces: None,
     });
     let dust = s.dust.as_ref().map_or_else(Vec::new, |d| {
         let fr = d.fraction.clone().unwrap_or_else(|| vec![0; d.x.len()]);

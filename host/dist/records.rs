@@ -1,7 +1,7 @@
 //! Particles as they travel between ranks: [`ParticleRecord`] (a plain-data row per particle)
 //! and the conversions from and to a [`State`]. Plain data without MPI: the ranks (with the mpi
 //! feature) send them as bytes.
-use crate::particles::{Phase, State};
+use crate::particles::{ClosingForces, Phase, State};
 
 /// A particle's whole state as it travels between ranks (migration, the halo, the gather for
 /// output): everything a rank's engine needs to step it, as plain data (`Pod`: sent as bytes,
@@ -25,8 +25,8 @@ pub struct ParticleRecord {
     /// Gas with variable h: h and Ω of its last solve.
     pub h: f64,
     pub omega: f64,
-    /// Gas under the leapfrog: the closing forces (A, ė, v_sig) the next step starts from.
-    pub closing_forces: [f64; 5],
+    /// Gas under the leapfrog: the closing forces the next step starts from.
+    pub closing_forces: ClosingForces,
     /// Gas: pressure and sound speed of its layer.
     pub p: f64,
     pub c: f64,
@@ -129,7 +129,7 @@ pub fn record_at(st: &State, k: usize, i: usize) -> ParticleRecord {
             r.p = g.p[i];
             r.c = g.c[i];
         }
-        if let Some(f) = &g.next_forces {
+        if let Some(f) = &g.closing_forces {
             r.flags |= ParticleRecord::HAS_CLOSING_FORCES;
             r.closing_forces = f[i];
         }
@@ -185,7 +185,7 @@ pub fn append_records(
         }
     }
     let (mut h, mut omega) = (whole(g.h.take(), n_gas), whole(g.omega.take(), n_gas));
-    let mut nf = whole(g.next_forces.take(), n_gas);
+    let mut nf = whole(g.closing_forces.take(), n_gas);
     for v in [&mut h, &mut omega].into_iter().flatten() {
         v.reserve_exact(gas_more);
     }
@@ -264,7 +264,7 @@ pub fn append_records(
     let g = &mut st.gas;
     let some_gas = !g.ph.is_empty();
     (g.h, g.omega) = if some_gas { (h, omega) } else { (None, None) };
-    g.next_forces = nf.filter(|_| some_gas);
+    g.closing_forces = nf.filter(|_| some_gas);
 }
 
 #[cfg(test)]
@@ -295,7 +295,7 @@ mod tests {
                 e: Some((0..n).map(|i| 3.0 + i as f64).collect()),
                 h: Some((0..n).map(|i| 0.02 + 1e-4 * i as f64).collect()),
                 omega: Some(vec![1.01; n]),
-                next_forces: None,
+                closing_forces: None,
             },
             dust: vec![phase(300, -5.0), phase(77, 9.0)],
         }

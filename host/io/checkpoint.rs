@@ -6,7 +6,7 @@ use super::chunks::RowShare;
 use super::h5::{get_rows, get_scalar, get_string, get_vec3_rows, h5err, put_scalar};
 use super::shared::{create_shared, go_on, same_columns, SharedGroup};
 use super::{commit_tmp, IoError, WithPath};
-use crate::particles::{Gas, Phase, State};
+use crate::particles::{ClosingForces, Gas, Phase, State};
 use hdf5::types::VarLenUnicode;
 use hdf5::{File, Group};
 use std::ops::Range;
@@ -124,7 +124,7 @@ pub fn digest(state: &State, meta: &CheckpointMeta) -> u64 {
 /// The gas's columns of [`GAS_COLUMNS`] that it has, flattened.
 fn gas_columns(g: &Gas) -> Vec<(&'static str, std::borrow::Cow<'_, [f64]>)> {
     use std::borrow::Cow::Borrowed;
-    let flat = g.next_forces.as_ref().map(|v| v.as_flattened());
+    let flat = (g.closing_forces.as_deref()).map(bytemuck::cast_slice::<ClosingForces, f64>);
     [
         Some(&g.p[..]),
         Some(&g.c[..]),
@@ -372,13 +372,10 @@ pub fn read_checkpoint_on(
             e: optional("e")?,
             h: optional("h")?,
             omega: optional("omega")?,
-            next_forces: if g.link_exists("next_forces") {
+            // The closing forces' column keeps its first name (files written before read).
+            closing_forces: if g.link_exists("next_forces") {
                 let flat: Vec<f64> = get_rows(&g, "next_forces", &[n, 5], rows.clone(), path)?;
-                Some(
-                    flat.chunks_exact(5)
-                        .map(|c| [c[0], c[1], c[2], c[3], c[4]])
-                        .collect(),
-                )
+                Some(bytemuck::pod_collect_to_vec(&flat))
             } else {
                 None
             },
@@ -464,7 +461,7 @@ mod tests {
                 e: Some(vec![2.5; 7]),
                 h: Some(vec![0.01; 7]),
                 omega: None,
-                next_forces: None,
+                closing_forces: None,
             },
             dust: vec![ph(5, false), ph(0, false)],
         };
@@ -519,7 +516,15 @@ mod tests {
                 e: None,
                 h: Some(vec![0.01; n]),
                 omega: Some(vec![1.0; n]),
-                next_forces: Some((0..n).map(|i| [i as f64, 1.0, 2.0, 3.0, 4.0]).collect()),
+                closing_forces: Some(
+                    (0..n)
+                        .map(|i| ClosingForces {
+                            acc: [i as f64, 1.0, 2.0],
+                            dedt: 3.0,
+                            vsig: 4.0,
+                        })
+                        .collect(),
+                ),
             },
             dust: vec![ph(70_000, 1), ph(3, 2)],
         };

@@ -275,7 +275,7 @@ pub(crate) fn gas_phase(ph: Phase, e: Option<Vec<f64>>) -> Gas {
         e,
         h: None,
         omega: None,
-        next_forces: None,
+        closing_forces: None,
     }
 }
 

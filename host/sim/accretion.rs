@@ -35,7 +35,7 @@ impl Accreted {
             state.gas.permute(&keep);
             // The closing forces had the removed particles in their sums: the next step
             // computes them again.
-            state.gas.next_forces = None;
+            state.gas.closing_forces = None;
             self.gas_particles += n;
             self.gas_mass += m;
             removed += n;

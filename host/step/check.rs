@@ -21,16 +21,15 @@ pub struct Forces {
 impl Forces {
     /// From per-particle rows (A_x, A_y, A_z, ė, v_sig); no damping rate (the rows do not
     /// hold it).
-    pub fn from_rows(rows: &[[f64; 5]]) -> Forces {
+    pub fn from_rows(rows: &[crate::particles::ClosingForces]) -> Forces {
         let mut f = Forces {
             vsig_max: 0.0,
             acc_max: 0.0,
             damp_rate_max: 0.0,
         };
         for r in rows {
-            let a = [r[0], r[1], r[2]];
-            f.acc_max = f.acc_max.max(dot(a, a).sqrt());
-            f.vsig_max = f.vsig_max.max(r[4]);
+            f.acc_max = f.acc_max.max(dot(r.acc, r.acc).sqrt());
+            f.vsig_max = f.vsig_max.max(r.vsig);
         }
         f
     }

@@ -54,7 +54,7 @@ fn slab() -> (Physics, State, f64, f64) {
             e: None,
             h: None,
             omega: None,
-            next_forces: None,
+            closing_forces: None,
         },
         dust: vec![dust0, dust1],
     };

@@ -795,14 +795,14 @@ impl<L: Launcher, R: Float> LeapfrogBuffers<L, R> {
         d: &Device<L>,
         phys: &Physics,
         stages: &Stages,
-        rows: Option<&[[f64; 5]]>,
+        rows: Option<&[crate::particles::ClosingForces]>,
         ng: usize,
         nd: usize,
     ) -> Result<Self, GpuError> {
         let k = stages.kdk;
         let save = k || phys.position_update == PositionUpdate::Old;
         let closing = rows.map(Forces::from_rows);
-        let vsig = rows.map(|r| r.iter().map(|x| x[4]).collect::<Vec<f64>>());
+        let vsig = rows.map(|r| r.iter().map(|x| x.vsig).collect::<Vec<f64>>());
         Ok(LeapfrogBuffers {
             closing,
             vsig: if k {

@@ -20,7 +20,7 @@ use super::timers::Timers;
 use super::{Forces, Momentum, Physics, Stages, StepError};
 use crate::grid::{merge_bounds, Grid, EMPTY_BOUNDS};
 use crate::launch::{GpuError, Launcher};
-use crate::particles::{Phase, State};
+use crate::particles::{ClosingForces, Phase, State};
 use crate::scene::{ListChoice, PositionUpdate};
 use buffers::*;
 use bytemuck::Pod;
@@ -221,22 +221,22 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         let g = &state.gas;
         // A resumed leapfrog run carries its closing forces: the first step starts from them.
         let rows = g
-            .next_forces
+            .closing_forces
             .as_deref()
             .filter(|r| stages.kdk && r.len() == ng);
-        let col = |k: usize| rows.map(|r| r.iter().map(|x| x[k]).collect::<Vec<f64>>());
+        let dedt = rows.map(|r| r.iter().map(|x| x.dedt).collect::<Vec<f64>>());
         let mut eng = Engine {
             pres: d.upload_f64(&fill(&g.p, ng))?,
             cs: d.upload_f64(&fill(&g.c, ng))?,
             e: g.e.as_deref().map(|e| d.upload_f64(e)).transpose()?,
             acc: match rows {
                 Some(r) => {
-                    d.upload_v3(&r.iter().map(|x| [x[0], x[1], x[2]]).collect::<Vec<V3>>())?
+                    d.upload_v3(&r.iter().map(|x| x.acc).collect::<Vec<V3>>())?
                 }
                 None => d.buf(ng)?,
             },
             zero_acc: d.buf(ng)?,
-            dedt: match (stages.energy, col(3)) {
+            dedt: match (stages.energy, dedt) {
                 (false, _) => None,
                 (true, Some(c)) => Some(d.upload_f64(&c)?),
                 (true, None) => Some(d.buf(ng)?),
@@ -521,9 +521,13 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 None => vec![0.0; ng],
             };
             let vsig = d.get_f64(vsig, ng)?;
-            state.gas.next_forces = Some(
+            state.gas.closing_forces = Some(
                 (0..ng)
-                    .map(|i| [acc[i][0], acc[i][1], acc[i][2], dedt[i], vsig[i]])
+                    .map(|i| ClosingForces {
+                        acc: acc[i],
+                        dedt: dedt[i],
+                        vsig: vsig[i],
+                    })
                     .collect(),
             );
         }
