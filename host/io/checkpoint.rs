@@ -375,7 +375,15 @@ pub fn read_checkpoint_on(
             // The closing forces' column keeps its first name (files written before read).
             closing_forces: if g.link_exists("next_forces") {
                 let flat: Vec<f64> = get_rows(&g, "next_forces", &[n, 5], rows.clone(), path)?;
-                Some(bytemuck::pod_collect_to_vec(&flat))
+                Some(
+                    flat.chunks_exact(5)
+                        .map(|c| ClosingForces {
+                            acc: [c[0], c[1], c[2]],
+                            dedt: c[3],
+                            vsig: c[4],
+                        })
+                        .collect(),
+                )
             } else {
                 None
             },

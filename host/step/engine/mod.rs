@@ -230,9 +230,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             cs: d.upload_f64(&fill(&g.c, ng))?,
             e: g.e.as_deref().map(|e| d.upload_f64(e)).transpose()?,
             acc: match rows {
-                Some(r) => {
-                    d.upload_v3(&r.iter().map(|x| x.acc).collect::<Vec<V3>>())?
-                }
+                Some(r) => d.upload_v3(&r.iter().map(|x| x.acc).collect::<Vec<V3>>())?,
                 None => d.buf(ng)?,
             },
             zero_acc: d.buf(ng)?,
