@@ -15,6 +15,7 @@ mod forces;
 mod halo;
 mod integrate;
 mod sort;
+mod stage_buffers;
 
 use super::timers::Timers;
 use super::{Forces, Momentum, Physics, Stages, StepError};
@@ -32,6 +33,7 @@ use dustsph_device::sph::Sym3;
 use dustsph_device::threads::{self as th, LawParam, PhaseBufs, StepParams};
 use dustsph_device::Real;
 use rayon::prelude::*;
+use stage_buffers::*;
 use std::marker::PhantomData;
 
 pub use buffers::{Float, LIST_BYTES_PER_GAS_PARTICLE};
