@@ -1,5 +1,5 @@
 //! The ranks' balance: their work per step judged, and the cut by measured cost it calls for.
-use super::{Comm, RankStepper};
+use super::{max_over, sum_over, Comm, RankStepper};
 
 /// The ranks' work per step may exceed its mean by this much before the next cut shares out
 /// their measured cost per particle instead ([`RankStepper::judge_balance`]);
@@ -31,17 +31,21 @@ impl RankStepper {
         let n = self.own_len() as f64;
         let per_step = self.busy / self.busy_steps as f64;
         (self.busy, self.busy_steps) = (0.0, 0);
-        let mut sums = [per_step, n];
-        world.sum_f64(&mut sums);
-        let mut most = [per_step, build_seconds];
-        world.max_f64(&mut most);
-        let mean = sums[0] / world.size() as f64;
-        let uneven = mean > 0.0 && most[0] > (1.0 + self.rebalance_at) * mean;
-        let worth = (most[0] - mean) * horizon > most[1];
+        let sums = sum_over(world, Work { per_step, n });
+        let most = max_over(
+            world,
+            Slowest {
+                per_step,
+                build_seconds,
+            },
+        );
+        let mean = sums.per_step / world.size() as f64;
+        let uneven = mean > 0.0 && most.per_step > (1.0 + self.rebalance_at) * mean;
+        let worth = (most.per_step - mean) * horizon > most.build_seconds;
         if self.trace && world.rank() == 0 {
             eprintln!(
                 "halo: the busiest rank's work {:.4e} s a step against the mean {mean:.4e} s{}",
-                most[0],
+                most.per_step,
                 match (uneven, worth) {
                     (true, true) => ": cut by the measured cost now",
                     (true, false) => ": cut by the measured cost at the next build",
@@ -53,7 +57,7 @@ impl RankStepper {
             return false;
         }
         // An empty rank has no cost per particle of its own: the mean's.
-        let mean_per_particle = sums[0] / sums[1].max(1.0);
+        let mean_per_particle = sums.per_step / sums.n.max(1.0);
         self.cost = Some(match n > 0.0 {
             true => (per_step / n) / mean_per_particle,
             false => 1.0,
@@ -61,3 +65,27 @@ impl RankStepper {
         worth
     }
 }
+
+/// The ranks' work per step and owned particles, summed over the ranks
+/// ([`RankStepper::judge_balance`]).
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct Work {
+    per_step: f64,
+    n: f64,
+}
+
+/// The busiest rank's work per step and the slowest build, the maxima over the ranks
+/// ([`RankStepper::judge_balance`]).
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct Slowest {
+    per_step: f64,
+    build_seconds: f64,
+}
+
+// SAFETY: `repr(C)` of f64 fields only (no padding), and every bit pattern is a valid f64.
+unsafe impl bytemuck::Zeroable for Work {}
+unsafe impl bytemuck::Pod for Work {}
+unsafe impl bytemuck::Zeroable for Slowest {}
+unsafe impl bytemuck::Pod for Slowest {}

@@ -1,7 +1,7 @@
 //! The deep halo: a step on an engine built for it on a rank's particles and a halo deep
 //! enough for the step's chain of passes (a rank without gas, `mpi-check --depth`).
 use super::layer::{keys_of, phase_counts};
-use super::{failure, take_planned, Comm, RankStepper, Tried};
+use super::{failure, max_over, take_planned, Comm, RankStepper, Tried};
 use crate::dist::records::append_records;
 use crate::particles::{KeySet, State};
 use crate::step::engine::InitialLayer;
@@ -67,23 +67,23 @@ impl RankStepper {
             return Err(failure(world, step, me, &err));
         }
         // Every rank took the same step (a rank without particles learns it from the others).
-        let mut tt = [if plan.is_some() {
+        let t_here = if plan.is_some() {
             local.t
         } else {
             f64::NEG_INFINITY
-        }];
-        world.max_f64(&mut tt);
+        };
+        let t_new = max_over(world, t_here);
         // A rank without particles rebuilds the step from the new time (the others' plan).
         let plan = plan.unwrap_or(Plan {
-            dt: tt[0] - t,
-            dt_free: tt[0] - t,
+            dt: t_new - t,
+            dt_free: t_new - t,
             by_drag: false,
-            landing: tt[0] == t_target,
+            landing: t_new == t_target,
             t_target,
         });
         self.own = local;
         self.layer_given = true;
-        Ok(Tried::Done((plan, tt[0], global.vsig_max)))
+        Ok(Tried::Done((plan, t_new, global.vsig_max)))
     }
 }
 

@@ -1,6 +1,6 @@
 //! A rank's particles for a step: its own migrated by the step's cut, and the halo (thin or
 //! deep) exchanged with the other ranks; the state's rows by phase and key.
-use super::{Comm, RankStepper, World};
+use super::{max_over, Comm, RankStepper, World};
 use crate::dist::halo::{cut, halo_sends, shell};
 use crate::dist::records::{append_records, record_at, ParticleRecord};
 use crate::particles::{KeySet, State};
@@ -37,9 +37,8 @@ impl RankStepper {
         // The support: of the largest h over all ranks where h varies (the reference h at
         // least), so that the halo holds every neighbour of its stepped particles.
         let solved = self.own.gas.h.iter().flatten();
-        let mut h_max = [solved.fold(self.phys.h, |a, &h| a.max(h))];
-        world.max_f64(&mut h_max);
-        let support = crate::step::SUPPORT * h_max[0];
+        let h_max = max_over(world, solved.fold(self.phys.h, |a, &h| a.max(h)));
+        let support = crate::step::SUPPORT * h_max;
         let cell = self.phys.cell_diagonal();
         let near = support.max(cell);
         let (inner, reach) = if thin {

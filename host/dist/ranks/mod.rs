@@ -319,9 +319,8 @@ impl RankStepper {
             (Some(r), true) => terms(&r.local, dim, |n| !r.flags[n]),
             _ => terms(&self.own, dim, |_| true),
         };
-        let mut s = [i, rhs];
-        self.world.sum_f64(&mut s);
-        (s[0], s[1])
+        let s = sum_over(&self.world, LagrangeJacobi { i, rhs });
+        (s.i, s.rhs)
     }
 
     /// Rank 0 writes the output.
@@ -437,16 +436,16 @@ impl RankStepper {
         if world.any(!err.is_empty()) {
             return Err(failure(world, step, me, &err));
         }
-        let mut most = [
-            forces.as_ref().map_or(0.0, |f| f.vsig_max),
-            forces.as_ref().map_or(0.0, |f| f.acc_max),
-            forces.as_ref().map_or(0.0, |f| f.damp_rate_max),
-        ];
-        world.max_f64(&mut most);
+        let most = ForceMaxima {
+            vsig_max: forces.as_ref().map_or(0.0, |f| f.vsig_max),
+            acc_max: forces.as_ref().map_or(0.0, |f| f.acc_max),
+            damp_rate_max: forces.as_ref().map_or(0.0, |f| f.damp_rate_max),
+        };
+        let most = max_over(world, most);
         let global = Forces {
-            vsig_max: most[0],
-            acc_max: most[1],
-            damp_rate_max: most[2],
+            vsig_max: most.vsig_max,
+            acc_max: most.acc_max,
+            damp_rate_max: most.damp_rate_max,
         };
         let explicit = phys.drag == crate::scene::DragMethod::Explicit;
         if explicit && !thin {
@@ -455,18 +454,18 @@ impl RankStepper {
                  over ranks with the thin halo only, and a rank holds no gas"
             ));
         }
-        let mut drag = [f64::INFINITY];
+        let mut drag = f64::INFINITY;
         if let (true, Some(e)) = (explicit, eng.as_mut()) {
             match e.timed_drag_limit() {
-                Ok(d) => drag[0] = d,
+                Ok(d) => drag = d,
                 Err(x) => err = x.to_string(),
             }
         }
         if world.any(!err.is_empty()) {
             return Err(failure(world, step, me, &err));
         }
-        world.min_f64(&mut drag);
-        Ok((forces, global, drag[0]))
+        let drag = min_over(world, drag);
+        Ok((forces, global, drag))
     }
 
     /// The momentum and its scale Σ m|v| of every rank's own particles, summed over the ranks
@@ -474,14 +473,18 @@ impl RankStepper {
     pub fn momentum(&self) -> crate::step::Momentum {
         // Accretion is refused over ranks, so no particle is counted inside a radius here.
         let c = self.phys.gravity.pos;
-        let mut s = [0.0f64; 7];
+        let mut s = MomentumSums {
+            p: [0.0; 3],
+            scale: 0.0,
+            l: [0.0; 3],
+        };
         let mut add = |m: f64, x: [f64; 3], v: [f64; 3]| {
             let x = dustsph_device::sub(x, c);
-            for (sk, vk) in s.iter_mut().zip(v) {
+            for (sk, vk) in s.p.iter_mut().zip(v) {
                 *sk += m * vk;
             }
-            s[3] += m * dustsph_device::dot(v, v).sqrt();
-            for (sk, lk) in s[4..].iter_mut().zip(dustsph_device::cross(x, v)) {
+            s.scale += m * dustsph_device::dot(v, v).sqrt();
+            for (sk, lk) in s.l.iter_mut().zip(dustsph_device::cross(x, v)) {
                 *sk += m * lk;
             }
         };
@@ -496,15 +499,70 @@ impl RankStepper {
                 add(ph.m[i], ph.x[i], ph.v[i]);
             }
         }
-        self.world.sum_f64(&mut s);
+        let s = sum_over(&self.world, s);
         crate::step::Momentum {
-            p: [s[0], s[1], s[2]],
-            scale: s[3],
-            l: [s[4], s[5], s[6]],
+            p: s.p,
+            scale: s.scale,
+            l: s.l,
             inside: 0,
         }
     }
 }
+
+/// `v` (a `#[repr(C)]` struct of f64 fields, or one f64) reduced over the ranks element-wise
+/// as one buffer, in the order of its fields: the maximum of each (collective).
+fn max_over<T: bytemuck::Pod>(world: &World, mut v: T) -> T {
+    world.max_f64(bytemuck::cast_slice_mut(std::slice::from_mut(&mut v)));
+    v
+}
+
+/// [`max_over`]'s minimum.
+fn min_over<T: bytemuck::Pod>(world: &World, mut v: T) -> T {
+    world.min_f64(bytemuck::cast_slice_mut(std::slice::from_mut(&mut v)));
+    v
+}
+
+/// [`max_over`]'s sum.
+fn sum_over<T: bytemuck::Pod>(world: &World, mut v: T) -> T {
+    world.sum_f64(bytemuck::cast_slice_mut(std::slice::from_mut(&mut v)));
+    v
+}
+
+/// The ball's Lagrange–Jacobi terms ([`RankStepper::lagrange_jacobi_terms`]), summed over the
+/// ranks.
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct LagrangeJacobi {
+    i: f64,
+    rhs: f64,
+}
+
+/// The forces' maxima ([`RankStepper::global_limits`]), reduced over the ranks.
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct ForceMaxima {
+    vsig_max: f64,
+    acc_max: f64,
+    damp_rate_max: f64,
+}
+
+/// The momentum, its scale Σ m|v| and the angular momentum ([`RankStepper::momentum`]),
+/// summed over the ranks.
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct MomentumSums {
+    p: [f64; 3],
+    scale: f64,
+    l: [f64; 3],
+}
+
+// SAFETY: `repr(C)` of f64 fields only (no padding), and every bit pattern is a valid f64.
+unsafe impl bytemuck::Zeroable for LagrangeJacobi {}
+unsafe impl bytemuck::Pod for LagrangeJacobi {}
+unsafe impl bytemuck::Zeroable for ForceMaxima {}
+unsafe impl bytemuck::Pod for ForceMaxima {}
+unsafe impl bytemuck::Zeroable for MomentumSums {}
+unsafe impl bytemuck::Pod for MomentumSums {}
 
 /// The step the planner's rule gives from the maxima over all ranks (`limits`: the forces',
 /// the explicit drag's), taken on this rank's engine (its host state `local` not synced: it

@@ -188,42 +188,14 @@ fn gather_sorted(
     values: bool,
     (t, step): (f64, u64),
 ) -> Option<(State, Option<Vec<Vec<f64>>>)> {
-    const REC: usize = std::mem::size_of::<ParticleRecord>();
     let per_msg = stream_records();
     let n = phase_counts.iter().sum::<u64>() as usize;
     let Some(counts) = world.gather_bytes(bytemuck::cast_slice(phase_counts)) else {
-        let mut msg = Vec::with_capacity(per_msg.min(n) * (REC + 8));
-        let mut vals = Vec::new();
-        for lo in (0..n).step_by(per_msg) {
-            msg.clear();
-            vals.clear();
-            for j in lo..(lo + per_msg).min(n) {
-                let (rec, v) = at(j);
-                msg.extend_from_slice(bytemuck::bytes_of(&rec));
-                vals.extend(v);
-            }
-            msg.extend_from_slice(bytemuck::cast_slice(&vals));
-            world.send_to_root(&msg);
-        }
+        stream_to_root(world, n, per_msg, &at);
         return None;
     };
     let runs = counts.len();
-    // Each rank's count per phase: the whole state's columns are allocated at their size.
-    let per_phase = |b: &Vec<u8>| -> Vec<usize> {
-        (b.chunks_exact(8))
-            .map(|c| u64::from_le_bytes(c.try_into().expect("a count")) as usize)
-            .collect()
-    };
-    let mut totals = vec![0usize; phase_counts.len()];
-    let mut left: Vec<usize> = Vec::with_capacity(runs);
-    for b in &counts {
-        let c = per_phase(b);
-        for (t, x) in totals.iter_mut().zip(&c) {
-            *t += x;
-        }
-        left.push(c.iter().sum());
-    }
-    left[0] = 0;
+    let (totals, mut left) = totals_and_left(&counts, phase_counts.len());
     let mut own_at = 0;
     let mut pending: Vec<std::vec::IntoIter<(ParticleRecord, Option<f64>)>> =
         (0..runs).map(|_| Vec::new().into_iter()).collect();
@@ -243,29 +215,7 @@ fn gather_sorted(
         let k = left[r].min(per_msg);
         left[r] -= k;
         let msg = world.receive_from(r as u32);
-        let malformed = |want: usize| -> ! {
-            let why = format!(
-                "rank {r}'s output stream sent {} bytes where {k} records need {want}",
-                msg.len()
-            );
-            abort_job(world, step, &why)
-        };
-        if msg.len() < k * REC {
-            malformed(k * REC);
-        }
-        let recs: Vec<ParticleRecord> = (0..k)
-            .map(|i| bytemuck::pod_read_unaligned(&msg[i * REC..][..REC]))
-            .collect();
-        let dust = recs.iter().filter(|x| x.phase > 0).count();
-        let want = k * REC + if values { 8 * dust } else { 0 };
-        if msg.len() != want {
-            malformed(want);
-        }
-        let mut v = (msg[k * REC..].chunks_exact(8)).map(bytemuck::pod_read_unaligned);
-        let items: Vec<_> = (recs.into_iter())
-            .map(|x| (x, (values && x.phase > 0).then(|| v.next()).flatten()))
-            .collect();
-        pending[r] = items.into_iter();
+        pending[r] = read_message(world, step, (r, k), &msg, values).into_iter();
         pending[r].next()
     };
     let mut head = Vec::with_capacity(runs);
@@ -290,4 +240,86 @@ fn gather_sorted(
     st.t = t;
     st.step = step;
     Some((st, values.then_some(per_fraction)))
+}
+
+/// A record's bytes in a rank's stream to rank 0.
+const REC: usize = std::mem::size_of::<ParticleRecord>();
+
+/// A rank's stream to rank 0 ([`gather_sorted`]): its `n` records `at(j)` in key order,
+/// `per_msg` a message (records, then the values of the dust among them).
+fn stream_to_root(
+    world: &World,
+    n: usize,
+    per_msg: usize,
+    at: &impl Fn(usize) -> (ParticleRecord, Option<f64>),
+) {
+    let mut msg = Vec::with_capacity(per_msg.min(n) * (REC + 8));
+    let mut vals = Vec::new();
+    for lo in (0..n).step_by(per_msg) {
+        msg.clear();
+        vals.clear();
+        for j in lo..(lo + per_msg).min(n) {
+            let (rec, v) = at(j);
+            msg.extend_from_slice(bytemuck::bytes_of(&rec));
+            vals.extend(v);
+        }
+        msg.extend_from_slice(bytemuck::cast_slice(&vals));
+        world.send_to_root(&msg);
+    }
+}
+
+/// From every rank's count per phase (`counts`, as gathered bytes; `nph` phases): the whole
+/// state's (its columns are allocated at their size), and the records left to receive from
+/// each rank (none from rank 0, whose own are read where they lie).
+fn totals_and_left(counts: &[Vec<u8>], nph: usize) -> (Vec<usize>, Vec<usize>) {
+    let per_phase = |b: &Vec<u8>| -> Vec<usize> {
+        (b.chunks_exact(8))
+            .map(|c| u64::from_le_bytes(c.try_into().expect("a count")) as usize)
+            .collect()
+    };
+    let mut totals = vec![0usize; nph];
+    let mut left: Vec<usize> = Vec::with_capacity(counts.len());
+    for b in counts {
+        let c = per_phase(b);
+        for (t, x) in totals.iter_mut().zip(&c) {
+            *t += x;
+        }
+        left.push(c.iter().sum());
+    }
+    left[0] = 0;
+    (totals, left)
+}
+
+/// Rank `r`'s next message of its stream to rank 0, `k` records (with `values`, each dust
+/// record's value): the records and their values, in order. A malformed message stops the
+/// job (the other ranks have gone on to the next step).
+fn read_message(
+    world: &World,
+    step: u64,
+    (r, k): (usize, usize),
+    msg: &[u8],
+    values: bool,
+) -> Vec<(ParticleRecord, Option<f64>)> {
+    let malformed = |want: usize| -> ! {
+        let why = format!(
+            "rank {r}'s output stream sent {} bytes where {k} records need {want}",
+            msg.len()
+        );
+        abort_job(world, step, &why)
+    };
+    if msg.len() < k * REC {
+        malformed(k * REC);
+    }
+    let recs: Vec<ParticleRecord> = (0..k)
+        .map(|i| bytemuck::pod_read_unaligned(&msg[i * REC..][..REC]))
+        .collect();
+    let dust = recs.iter().filter(|x| x.phase > 0).count();
+    let want = k * REC + if values { 8 * dust } else { 0 };
+    if msg.len() != want {
+        malformed(want);
+    }
+    let mut v = (msg[k * REC..].chunks_exact(8)).map(bytemuck::pod_read_unaligned);
+    (recs.into_iter())
+        .map(|x| (x, (values && x.phase > 0).then(|| v.next()).flatten()))
+        .collect()
 }

@@ -3,7 +3,8 @@
 use super::balance::REBALANCE_STEPS;
 use super::layer::{phase_counts, positions, LocalLayer};
 use super::{
-    abort_job, failure, take_planned, Comm, RankStepper, Tried, STAGE_BUILD, STAGE_MOTION,
+    abort_job, failure, max_over, take_planned, Comm, RankStepper, Tried, World, STAGE_BUILD,
+    STAGE_MOTION,
 };
 use crate::dist::halo::{fail_requested, RankGhosts};
 use crate::dist::motion::MotionCells;
@@ -11,7 +12,8 @@ use crate::dist::records::{append_records, ParticleRecord};
 use crate::particles::State;
 use crate::step::backend::Backend;
 use crate::step::engine::InitialLayer;
-use crate::step::timestep::StepPlanner;
+use crate::step::timestep::{Plan, StepPlanner};
+use crate::step::{Forces, Physics};
 
 /// The thin halo's least margin beyond the support, in supports.
 const MIN_MARGIN: f64 = 0.1;
@@ -96,9 +98,8 @@ impl RankStepper {
             let m = (res.eng.owned_motion(&mut |_, _, _| {}))
                 .unwrap_or_else(|x| abort_job(&self.world, step, &x))
                 .expect("a resident engine has its ghosts");
-            let mut h_max = [m.h_max];
-            self.world.max_f64(&mut h_max);
-            let need = crate::step::SUPPORT * h_max[0];
+            let h_max = max_over(&self.world, m.h_max);
+            let need = crate::step::SUPPORT * h_max;
             if need <= res.reach {
                 // Exact: a retake of the first step starts from this layer, as one process's
                 // first step does.
@@ -140,9 +141,8 @@ impl RankStepper {
         let cells = MotionCells::new(world, &cbox, reach, shape, positions(&self.own));
         let arriving: Vec<(u64, u64)> = halo.iter().map(ParticleRecord::key).collect();
         let owned = self.own.len();
-        let mut ratio = [halo.len() as f64 / owned.max(1) as f64];
-        world.max_f64(&mut ratio);
-        self.halo_ratio = self.halo_ratio.max(ratio[0]);
+        let ratio = max_over(world, halo.len() as f64 / owned.max(1) as f64);
+        self.halo_ratio = self.halo_ratio.max(ratio);
         // The rank's own particles and the halo after them, then the engine's host copy
         // (below): the own particles are read there until a build, an output or a retake.
         let mut local = std::mem::take(&mut self.own);
@@ -190,8 +190,7 @@ impl RankStepper {
         let flags = ghost_flags(&eng);
         self.owned_stale = true;
         self.builds += 1;
-        let mut seconds = [t0.elapsed().as_secs_f64()];
-        world.max_f64(&mut seconds);
+        let build_seconds = max_over(world, t0.elapsed().as_secs_f64());
         Ok(Some(Resident {
             eng,
             local,
@@ -201,8 +200,8 @@ impl RankStepper {
             reach,
             moved: 0.0,
             steps: 0,
-            ratio: ratio[0],
-            build_seconds: seconds[0],
+            ratio,
+            build_seconds,
             step_seconds: 0.0,
             cells,
         }))
@@ -237,64 +236,18 @@ impl RankStepper {
             self.fail.store(0, Ordering::Relaxed);
         }
         let res = self.resident.as_mut().expect("built above");
-        res.local.t = t;
-        res.local.step = step;
-        let blocked = crate::dist::comm::traffic().blocked_seconds();
-        let t_step = std::time::Instant::now();
-        let (_, global, drag) =
-            Self::global_limits(world, &self.phys, Some(&mut res.eng), true, step)?;
-        let (e, local) = (&mut res.eng, &mut res.local);
-        let r = take_planned(e, local, drv, (&global, drag), (t, step, t_target));
-        let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
-        let stepped = t_step.elapsed().as_secs_f64();
-        let busy = stepped - (crate::dist::comm::traffic().blocked_seconds() - blocked);
+        let taken = Self::take_resident(world, &self.phys, res, drv, (t, step, t_target));
+        let (plan, global, stepped, busy) = taken?;
         let t0 = std::time::Instant::now();
-        let t_new = local.t;
-        // The motion since the halo was built, and the largest h, over every rank; each own
-        // particle's displacement binned by its cell at the build, in the same pass (on a GPU
-        // rank the positions cross to the host once).
-        let cells = &mut res.cells;
-        cells.clear();
-        let m = (e.owned_motion(&mut |k, x, d| cells.add(k, x, d)))
-            .unwrap_or_else(|x| abort_job(world, step, &x))
-            .expect("a resident engine has its ghosts");
-        let (lo, hi) = (m.lo, m.hi);
-        let mut worst = [
-            m.largest, m.h_max, stepped, hi[0], hi[1], hi[2], -lo[0], -lo[1], -lo[2],
-        ];
-        world.max_f64(&mut worst);
-        let lo = [-worst[6], -worst[7], -worst[8]];
-        let spread = relative_motion(worst[0], lo, [worst[3], worst[4], worst[5]]);
-        let near = (crate::step::SUPPORT * worst[1]).max(res.near);
-        // Where the global bound, growing as it has, would hold the halo another step, it
-        // serves; otherwise the pairs of cells of two ranks close enough to meet give twice
-        // the motion that matters, and the phases' own reach where they meet
-        // ([`MotionCells::bound`]).
-        let next = 2.0 * spread * (res.steps + 2) as f64 / (res.steps + 1) as f64;
-        let moved = if near + next <= res.reach {
-            spread
-        } else {
-            let cross = match self.phys.coupling {
-                crate::scene::Coupling::Kernel => near,
-                crate::scene::Coupling::Cell => self.phys.cell_diagonal().min(near),
-            };
-            0.5 * res.cells.bound(world, res.reach, near, cross, 2.0 * spread)
-        };
-        let need = near + 2.0 * moved;
-        if me == 0 && self.trace {
-            eprintln!(
-                "halo: step {step}: reach {:.4e}, near {near:.4e}, global bound {:.4e}, \
-                 used {:.4e}",
-                res.reach,
-                2.0 * spread,
-                2.0 * moved
-            );
-        }
-        // This step's motion (a cumulative largest displacement does not add up exactly; this
-        // estimate only sets when the halo is rebuilt, the test above keeps it exact).
-        let d = (moved - res.moved).max(moved / (res.steps + 1) as f64);
-        res.step_seconds += (worst[2] - res.step_seconds) / (res.steps + 1) as f64;
-        let margin = Self::margin_for(d, res) + (need - 2.0 * moved - res.near);
+        let t_new = res.local.t;
+        let trace = me == 0 && self.trace;
+        let bound = Self::motion_bound(world, &self.phys, res, stepped, step, trace);
+        let Bound {
+            moved,
+            need,
+            d,
+            margin,
+        } = bound;
         if need > res.reach {
             // Taken again from its start: `local` still holds it (synced after the last step).
             self.drop_resident();
@@ -327,6 +280,124 @@ impl RankStepper {
         self.layer_given = true;
         Ok(Tried::Done((plan, t_new, global.vsig_max)))
     }
+
+    /// The step on the resident engine (its host copy `local` keeps the step's start until it
+    /// is synced), of the size the forces' maxima over the ranks give: the plan, those
+    /// maxima, and this rank's seconds in the step and, less its time in MPI, at work.
+    fn take_resident(
+        world: &World,
+        phys: &Physics,
+        res: &mut Resident,
+        drv: &StepPlanner,
+        (t, step, t_target): (f64, u64, f64),
+    ) -> Result<(Plan, Forces, f64, f64), String> {
+        res.local.t = t;
+        res.local.step = step;
+        let blocked = crate::dist::comm::traffic().blocked_seconds();
+        let t_step = std::time::Instant::now();
+        let (_, global, drag) = Self::global_limits(world, phys, Some(&mut res.eng), true, step)?;
+        let (e, local) = (&mut res.eng, &mut res.local);
+        let r = take_planned(e, local, drv, (&global, drag), (t, step, t_target));
+        let plan = r.unwrap_or_else(|x| abort_job(world, step, &x));
+        let stepped = t_step.elapsed().as_secs_f64();
+        let busy = stepped - (crate::dist::comm::traffic().blocked_seconds() - blocked);
+        Ok((plan, global, stepped, busy))
+    }
+
+    /// The motion since the halo was built, and the largest h, over every rank (collective;
+    /// `stepped`: this rank's seconds in the step, averaged into the halo's step time): the
+    /// bound on the motion that matters ([`Bound`]); `trace` prints it.
+    fn motion_bound(
+        world: &World,
+        phys: &Physics,
+        res: &mut Resident,
+        stepped: f64,
+        step: u64,
+        trace: bool,
+    ) -> Bound {
+        // Each own particle's displacement binned by its cell at the build, in the same pass
+        // (on a GPU rank the positions cross to the host once).
+        let cells = &mut res.cells;
+        cells.clear();
+        let m = (res.eng.owned_motion(&mut |k, x, d| cells.add(k, x, d)))
+            .unwrap_or_else(|x| abort_job(world, step, &x))
+            .expect("a resident engine has its ghosts");
+        let mine = Worst {
+            largest: m.largest,
+            h_max: m.h_max,
+            stepped,
+            hi: m.hi,
+            neg_lo: [-m.lo[0], -m.lo[1], -m.lo[2]],
+        };
+        let worst = max_over(world, mine);
+        let lo = [-worst.neg_lo[0], -worst.neg_lo[1], -worst.neg_lo[2]];
+        let spread = relative_motion(worst.largest, lo, worst.hi);
+        let near = (crate::step::SUPPORT * worst.h_max).max(res.near);
+        // Where the global bound, growing as it has, would hold the halo another step, it
+        // serves; otherwise the pairs of cells of two ranks close enough to meet give twice
+        // the motion that matters, and the phases' own reach where they meet
+        // ([`MotionCells::bound`]).
+        let next = 2.0 * spread * (res.steps + 2) as f64 / (res.steps + 1) as f64;
+        let moved = if near + next <= res.reach {
+            spread
+        } else {
+            let cross = match phys.coupling {
+                crate::scene::Coupling::Kernel => near,
+                crate::scene::Coupling::Cell => phys.cell_diagonal().min(near),
+            };
+            0.5 * res.cells.bound(world, res.reach, near, cross, 2.0 * spread)
+        };
+        let need = near + 2.0 * moved;
+        if trace {
+            eprintln!(
+                "halo: step {step}: reach {:.4e}, near {near:.4e}, global bound {:.4e}, \
+                 used {:.4e}",
+                res.reach,
+                2.0 * spread,
+                2.0 * moved
+            );
+        }
+        // This step's motion (a cumulative largest displacement does not add up exactly; this
+        // estimate only sets when the halo is rebuilt, the test above keeps it exact).
+        let d = (moved - res.moved).max(moved / (res.steps + 1) as f64);
+        res.step_seconds += (worst.stepped - res.step_seconds) / (res.steps + 1) as f64;
+        let margin = Self::margin_for(d, res) + (need - 2.0 * moved - res.near);
+        Bound {
+            moved,
+            need,
+            d,
+            margin,
+        }
+    }
+}
+
+/// The maxima over the ranks of their owned particles' motion since the halo was built
+/// ([`RankStepper::motion_bound`]): the largest displacement, the largest h, the step's
+/// seconds, and the displacements' box (its lower corner negated, for the maximum).
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct Worst {
+    largest: f64,
+    h_max: f64,
+    stepped: f64,
+    hi: [f64; 3],
+    neg_lo: [f64; 3],
+}
+
+// SAFETY: `repr(C)` of f64 fields only (no padding), and every bit pattern is a valid f64.
+unsafe impl bytemuck::Zeroable for Worst {}
+unsafe impl bytemuck::Pod for Worst {}
+
+/// What the motion since the halo was built allows ([`RankStepper::motion_bound`]).
+struct Bound {
+    /// Half the largest change of any two particles' separation that matters to the halo.
+    moved: f64,
+    /// The reach the halo needs now: a neighbour pass's, and twice `moved`.
+    need: f64,
+    /// This step's motion (estimated).
+    d: f64,
+    /// The margin beyond the reach for a rebuilt halo.
+    margin: f64,
 }
 
 /// Per-particle values of an engine (gas, then every dust fraction together, in its order:
