@@ -48,13 +48,6 @@ pub const VARS: &[Var] = &[
               the same values (tests/mpi.rs streams small runs in many messages)",
     },
     Var {
-        name: "DUSTSPH_REBALANCE_AT",
-        role: Tuning,
-        why: "how far a rank's work may exceed the mean before the next cut shares out the \
-              measured costs (0: every judgement; inf: never): where the ranks cut, which \
-              moves the sums' round-off only (ranks match one process to 1e-12)",
-    },
-    Var {
         name: "DUSTSPH_ROW_BLOCK",
         role: Tuning,
         why: "rows per block of a shared read of an initial-conditions file: which rank reads \

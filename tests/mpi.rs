@@ -442,7 +442,7 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
             if disc {
                 // Every judgement of the ranks' balance re-weights the cut by their measured
                 // cost (the disc's halo is rebuilt every few steps, on cuts by cost).
-                cmd.env("DUSTSPH_REBALANCE_AT", "0");
+                cmd.args(["--set", "numerics.rebalance_at=0"]);
             }
             if ranks == 3 {
                 // The outputs' streams to rank 0 in many short messages, the last of each

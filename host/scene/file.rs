@@ -410,6 +410,12 @@ pub struct NumericsSection {
     /// particles in order), `atomic` (a thread per particle, atomic cursors, each row sorted).
     /// The rows, and so the results, are bit-identical either way (docs/method.md §K).
     pub deposit_rows: Option<DepositRows>,
+    /// Over MPI ranks: how far the busiest rank's work per step may exceed the mean before
+    /// the next cut shares out the ranks' measured cost per particle (default 0.05; 0: at
+    /// every judgement; `inf`: never, the cut by counts). Where the ranks cut moves only the
+    /// sums' round-off (ranks match one process to 1e-12); the cut by measured cost follows
+    /// the clock, so only `inf` makes runs over ranks repeat bit for bit.
+    pub rebalance_at: Option<f64>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]

@@ -408,4 +408,22 @@ mod tests {
         let l = load_shipped("configs/dusty_ball.toml", &[]).unwrap();
         assert_eq!(l.scene.idic.coupling, Coupling::Cell);
     }
+
+    /// `numerics.rebalance_at`: the ranks' default 0.05, `inf` (never) kept in the model and
+    /// its effective scene, a negative or NaN value refused naming the key.
+    #[test]
+    fn the_rebalance_threshold_is_a_scene_key() {
+        let l = load_shipped("configs/dustywave.toml", &[]).unwrap();
+        assert_eq!(l.scene.numerics.rebalance_at, 0.05);
+        let sets = ["numerics.rebalance_at=inf".to_string()];
+        let l = load_shipped("configs/dustywave.toml", &sets).unwrap();
+        assert_eq!(l.scene.numerics.rebalance_at, f64::INFINITY);
+        assert!(l.scene.to_toml().contains("rebalance_at = inf"));
+        assert_eq!(parse(&l.effective, &l.path, &[]).unwrap(), l.scene);
+        for bad in ["-0.1", "nan"] {
+            let sets = [format!("numerics.rebalance_at={bad}")];
+            let e = load_shipped("configs/dustywave.toml", &sets).unwrap_err();
+            assert_eq!(e.key.as_deref(), Some("numerics.rebalance_at"), "{e}");
+        }
+    }
 }

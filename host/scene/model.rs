@@ -400,6 +400,9 @@ pub struct Numerics {
     pub precision: Precision,
     pub neighbour_list: ListChoice,
     pub deposit_rows: DepositRows,
+    /// Over MPI ranks: the work imbalance above which the cut follows the measured cost
+    /// (`numerics.rebalance_at`; infinite: never).
+    pub rebalance_at: f64,
 }
 
 /// The problem's own parameters (`[dustybox]`, `[dustywave]`, …), selected by `scene.problem`.

@@ -175,6 +175,14 @@ impl Scene {
         }
         let time = time(&f.time)?;
         let numerics = f.numerics.as_ref();
+        if let Some(r) = numerics.and_then(|n| n.rebalance_at) {
+            if r.is_nan() || r < 0.0 {
+                return err(
+                    "numerics.rebalance_at",
+                    format!("must be a number ≥ 0, or inf for never (got {})", num(r)),
+                );
+            }
+        }
         let problem = problem(section, f, eos, dust.as_ref(), &external)?;
         Ok(Scene {
             name: f.scene.name.clone(),
@@ -196,6 +204,9 @@ impl Scene {
                 deposit_rows: numerics
                     .and_then(|n| n.deposit_rows)
                     .unwrap_or(DepositRows::Auto),
+                rebalance_at: numerics
+                    .and_then(|n| n.rebalance_at)
+                    .unwrap_or(crate::dist::ranks::REBALANCE_AT),
             },
             problem,
         })

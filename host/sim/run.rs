@@ -397,6 +397,7 @@ fn over_ranks(
         verbose,
     )
     .map_err(RunError::Input)?;
+    ranks.rebalance_at(loaded.scene.numerics.rebalance_at);
     let file = loaded.path.display().to_string();
     let checked = match crate::sim::output::output_times(loaded, state.t).get(1) {
         Some(&t1) if check_first => {

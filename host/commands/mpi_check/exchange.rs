@@ -275,6 +275,7 @@ pub fn step_over_ranks(
     if depth.is_some() {
         ranks.use_deep_halo();
     }
+    ranks.rebalance_at(scene.numerics.rebalance_at);
     let err = |e: crate::step::StepError| e.to_string();
     let stepper = Stepper::Ranks {
         ranks: Box::new(ranks),

@@ -3,8 +3,8 @@ use super::{max_over, sum_over, Comm, RankStepper};
 
 /// The ranks' work per step may exceed its mean by this much before the next cut shares out
 /// their measured cost per particle instead ([`RankStepper::judge_balance`]);
-/// `DUSTSPH_REBALANCE_AT` sets another (0: at every judgement; `inf`: never).
-pub(super) const REBALANCE_AT: f64 = 0.05;
+/// The scene key `numerics.rebalance_at` sets another (0: at every judgement; `inf`: never).
+pub const REBALANCE_AT: f64 = 0.05;
 
 /// Steps of work measured before the ranks' balance is judged (the cuts between keep the last
 /// cost): fewer are dominated by this machine's noise.

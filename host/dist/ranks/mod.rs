@@ -19,7 +19,7 @@ mod layer;
 mod output;
 mod resident;
 
-use self::balance::REBALANCE_AT;
+pub use self::balance::REBALANCE_AT;
 use self::devices::{rank_device, RankDevice};
 use self::resident::Resident;
 use super::comm::{Comm, World};
@@ -151,17 +151,6 @@ impl RankStepper {
         verbose: bool,
     ) -> Result<RankStepper, String> {
         let me = world.rank();
-        let rebalance_at = match crate::env::var("DUSTSPH_REBALANCE_AT") {
-            None => REBALANCE_AT,
-            Some(v) => match v.trim().parse::<f64>() {
-                Ok(x) if x >= 0.0 => x,
-                _ => {
-                    return Err(format!(
-                        "DUSTSPH_REBALANCE_AT = {v:?}: expected a number ≥ 0 (or inf)"
-                    ))
-                }
-            },
-        };
         // The shape of the state (phases, energy, fixed particles), without its particles.
         let template = full.shape();
         // `full` is left without particles: a share read from a file is this rank's as it
@@ -228,7 +217,7 @@ impl RankStepper {
             busy: 0.0,
             busy_steps: 0,
             cost: None,
-            rebalance_at,
+            rebalance_at: REBALANCE_AT,
             rebalances: 0,
         })
     }
@@ -269,6 +258,12 @@ impl RankStepper {
                 Err(_) => m,
             }),
         }
+    }
+
+    /// Cut by the ranks' measured cost once their work per step differs from the mean by more
+    /// than `at` (`numerics.rebalance_at`; [`REBALANCE_AT`] until set).
+    pub fn rebalance_at(&mut self, at: f64) {
+        self.rebalance_at = at;
     }
 
     /// Step with the deep halo (`depth` supports) even where the thin one would do.
