@@ -175,52 +175,12 @@ pub fn execute(a: BenchArgs) -> u8 {
         neighbour_list,
         stages,
     } = a;
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let bad = if steps == 0 {
-        Some("--steps must be at least 1".to_string())
-    } else if let Some(t) = threads.iter().find(|&&t| t == 0 || t > 16 * cores) {
-        Some(format!(
-            "--threads {t}: each count must be between 1 and {} (16 × the {cores} cores here)",
-            16 * cores
-        ))
-    } else {
-        box_n
-            .iter()
-            .find(|&&n| n < 2)
-            .map(|n| format!("--box-n {n}: at least 2 particles per side"))
-    };
+    let bad = check_args(steps, &threads, &box_n);
     if let Some(m) = bad {
         eprintln!("error: {m}");
         return 2;
     }
-    let mut cases: Vec<(String, &str, Vec<String>)> = box_n
-        .iter()
-        .map(|n| {
-            (
-                format!("box 3D n={n}, ~60 nb"),
-                "configs/dustybox.toml",
-                vec![
-                    "scene.dim=3".to_string(),
-                    format!("sph.n={n}"),
-                    "sph.hfact=1.215".into(),
-                    "dust.fractions=[{eps=0.5, t_stop=0.1}]".into(),
-                    "dustybox.u_dust=[1.0]".into(),
-                ],
-            )
-        })
-        .collect();
-    cases.push((
-        "ball 3D, n=20, h=0.1".into(),
-        "configs/dusty_ball.toml",
-        vec!["sph.n=20".into()],
-    ));
-    if full {
-        cases.push((
-            "ball 3D seed (n=39, h=0.1)".into(),
-            "configs/dusty_ball.toml",
-            vec![],
-        ));
-    }
+    let cases = bench_cases(&box_n, full);
     println!(
         "{:<28} {:>7} {:>9} {:>9} {:>10} {:>6} {:>9} {:>14} {:>14} {:>9}",
         "case",
@@ -249,25 +209,7 @@ pub fn execute(a: BenchArgs) -> u8 {
         for &t in &threads {
             match crate::commands::bench::bench(name, &loaded.scene, steps, t, device) {
                 Ok(r) => {
-                    println!(
-                        "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e} {:>9}",
-                        r.case,
-                        r.threads,
-                        r.gas,
-                        r.dust,
-                        r.mean_neighbours,
-                        r.steps,
-                        r.seconds,
-                        r.particle_steps_per_s(),
-                        r.interactions_per_s(),
-                        r.bytes_per_particle
-                            .map_or("-".into(), |b| format!("{b:.0}"))
-                    );
-                    if stages {
-                        for (stage, t) in &r.stages {
-                            println!("    {:>9.4} s {:>5.1} %  {stage}", t, 100.0 * t / r.seconds);
-                        }
-                    }
+                    print_row(&r, stages);
                     where_ = r.device;
                 }
                 Err(e) => {
@@ -279,4 +221,80 @@ pub fn execute(a: BenchArgs) -> u8 {
     }
     println!("device: {where_}");
     0
+}
+
+/// Why the arguments cannot be run, if they cannot: no steps, a thread count out of range, a
+/// box under 2 particles per side.
+fn check_args(steps: u64, threads: &[usize], box_n: &[usize]) -> Option<String> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if steps == 0 {
+        Some("--steps must be at least 1".to_string())
+    } else if let Some(t) = threads.iter().find(|&&t| t == 0 || t > 16 * cores) {
+        Some(format!(
+            "--threads {t}: each count must be between 1 and {} (16 × the {cores} cores here)",
+            16 * cores
+        ))
+    } else {
+        box_n
+            .iter()
+            .find(|&&n| n < 2)
+            .map(|n| format!("--box-n {n}: at least 2 particles per side"))
+    }
+}
+
+/// The benchmark's cases: (name, shipped scene, overrides) for each box size, the ball, and
+/// with `full` the ball's seed.
+fn bench_cases(box_n: &[usize], full: bool) -> Vec<(String, &'static str, Vec<String>)> {
+    let mut cases: Vec<(String, &str, Vec<String>)> = box_n
+        .iter()
+        .map(|n| {
+            (
+                format!("box 3D n={n}, ~60 nb"),
+                "configs/dustybox.toml",
+                vec![
+                    "scene.dim=3".to_string(),
+                    format!("sph.n={n}"),
+                    "sph.hfact=1.215".into(),
+                    "dust.fractions=[{eps=0.5, t_stop=0.1}]".into(),
+                    "dustybox.u_dust=[1.0]".into(),
+                ],
+            )
+        })
+        .collect();
+    cases.push((
+        "ball 3D, n=20, h=0.1".into(),
+        "configs/dusty_ball.toml",
+        vec!["sph.n=20".into()],
+    ));
+    if full {
+        cases.push((
+            "ball 3D seed (n=39, h=0.1)".into(),
+            "configs/dusty_ball.toml",
+            vec![],
+        ));
+    }
+    cases
+}
+
+/// One result's row of the table (and below it, with `stages`, its stages' times).
+fn print_row(r: &BenchResult, stages: bool) {
+    println!(
+        "{:<28} {:>7} {:>9} {:>9} {:>10.1} {:>6} {:>9.3} {:>14.3e} {:>14.3e} {:>9}",
+        r.case,
+        r.threads,
+        r.gas,
+        r.dust,
+        r.mean_neighbours,
+        r.steps,
+        r.seconds,
+        r.particle_steps_per_s(),
+        r.interactions_per_s(),
+        r.bytes_per_particle
+            .map_or("-".into(), |b| format!("{b:.0}"))
+    );
+    if stages {
+        for (stage, t) in &r.stages {
+            println!("    {:>9.4} s {:>5.1} %  {stage}", t, 100.0 * t / r.seconds);
+        }
+    }
 }

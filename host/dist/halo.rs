@@ -354,87 +354,159 @@ pub(super) fn shell(
     if xs.is_empty() {
         return (Vec::new(), vec![false; halo.len()]);
     }
-    // Cells of [`SHELL_CELL`] × the test radius (on a periodic axis a whole number per period, the
-    // indices wrapping): a halo particle scans only the cells across the edge of its sphere.
-    // They are held as one array over the box of the owned particles' cells (a lookup is an
-    // index, not a hash), made coarser where that box would hold many more cells than
-    // particles.
-    let axes_for = |cell: f64| -> [(f64, f64, Option<i64>); 3] {
-        [0, 1, 2].map(|k| match domain.periodic[k] {
-            Some((lo, len)) => {
-                let n = (len / cell).ceil().max(1.0) as i64;
-                (lo, len / n as f64, Some(n))
-            }
-            None => (0.0, cell, None),
+    let grid = ShellGrid::new(xs, inner, domain);
+    let mut scratch = (Vec::new(), Vec::new(), Vec::new());
+    let mut flags = Vec::with_capacity(halo.len());
+    let kept = (halo.iter())
+        .filter_map(|h| {
+            let x = full_pos(h);
+            let k = if grid.within(x, inner, &mut scratch) {
+                Some(*h)
+            } else {
+                (outer > inner && grid.within(x, outer, &mut scratch)).then(|| {
+                    let mut r = *h;
+                    r.fixed = 1;
+                    r
+                })
+            };
+            flags.push(k.is_some());
+            k
         })
-    };
-    let index_on = |axes: &[(f64, f64, Option<i64>); 3], k: usize, v: f64| -> i64 {
-        let (lo, size, n) = axes[k];
-        let i = ((v - lo) / size).floor() as i64;
-        n.map_or(i, |n| i.clamp(0, n - 1))
-    };
-    let mut cell = SHELL_CELL * inner;
-    let (axes, first, dims) = loop {
-        let axes = axes_for(cell);
-        let mut first = [i64::MAX; 3];
-        let mut last = [i64::MIN; 3];
-        for x in &xs {
+        .collect();
+    (kept, flags)
+}
+
+/// One axis of the shell test's cells: (origin, cell size, cells per period on a periodic
+/// axis).
+type ShellAxis = (f64, f64, Option<i64>);
+
+/// The axes of cells `cell` wide (on a periodic axis a whole number per period).
+fn shell_axes(domain: &crate::grid::Domain, cell: f64) -> [ShellAxis; 3] {
+    [0, 1, 2].map(|k| match domain.periodic[k] {
+        Some((lo, len)) => {
+            let n = (len / cell).ceil().max(1.0) as i64;
+            (lo, len / n as f64, Some(n))
+        }
+        None => (0.0, cell, None),
+    })
+}
+
+/// The index of coordinate v's cell along axis k (clamped into the period on a periodic
+/// axis).
+fn shell_index(axes: &[ShellAxis; 3], k: usize, v: f64) -> i64 {
+    let (lo, size, n) = axes[k];
+    let i = ((v - lo) / size).floor() as i64;
+    n.map_or(i, |n| i.clamp(0, n - 1))
+}
+
+/// The owned positions in cells of [`SHELL_CELL`] × the test radius (the indices wrapping on
+/// a periodic axis): a halo particle scans only the cells across the edge of its sphere. They
+/// are held as one array over the box of the owned particles' cells (a lookup is an index,
+/// not a hash), made coarser where that box would hold many more cells than particles.
+struct ShellGrid<'a> {
+    domain: &'a crate::grid::Domain,
+    axes: [ShellAxis; 3],
+    /// The box's first cell and its cells along each axis.
+    first: [i64; 3],
+    dims: [usize; 3],
+    /// Cell c holds pts[start[c]..start[c + 1]].
+    start: Vec<u32>,
+    pts: Vec<[f64; 3]>,
+}
+
+impl<'a> ShellGrid<'a> {
+    /// The grid of the owned positions `xs` (not empty) for the test radius `inner`.
+    fn new(xs: Vec<[f64; 3]>, inner: f64, domain: &'a crate::grid::Domain) -> ShellGrid<'a> {
+        let mut cell = SHELL_CELL * inner;
+        let (axes, first, dims) = loop {
+            let axes = shell_axes(domain, cell);
+            let mut first = [i64::MAX; 3];
+            let mut last = [i64::MIN; 3];
+            for x in &xs {
+                for k in 0..3 {
+                    let i = shell_index(&axes, k, x[k]);
+                    first[k] = first[k].min(i);
+                    last[k] = last[k].max(i);
+                }
+            }
             for k in 0..3 {
-                let i = index_on(&axes, k, x[k]);
-                first[k] = first[k].min(i);
-                last[k] = last[k].max(i);
+                if let Some(n) = axes[k].2 {
+                    (first[k], last[k]) = (0, n - 1);
+                }
             }
-        }
-        for k in 0..3 {
-            if let Some(n) = axes[k].2 {
-                (first[k], last[k]) = (0, n - 1);
+            let dims = [0, 1, 2].map(|k| (last[k] - first[k] + 1) as usize);
+            let cells = dims.iter().map(|&d| d as f64).product::<f64>();
+            if cells <= (8 * xs.len() + 4096) as f64 {
+                break (axes, first, dims);
             }
+            cell *= 2.0;
+        };
+        let mut grid = ShellGrid {
+            domain,
+            axes,
+            first,
+            dims,
+            start: Vec::new(),
+            pts: Vec::new(),
+        };
+        grid.sort(xs);
+        grid
+    }
+
+    /// Places the owned positions by cell (a counting sort).
+    fn sort(&mut self, xs: Vec<[f64; 3]>) {
+        let dims = self.dims;
+        let at: Vec<usize> = (xs.iter())
+            .map(|x| {
+                (self.flat([0, 1, 2].map(|k| self.index(k, x[k])))).expect("within the owned box")
+            })
+            .collect();
+        let mut start = vec![0u32; dims[0] * dims[1] * dims[2] + 1];
+        for &c in &at {
+            start[c + 1] += 1;
         }
-        let dims = [0, 1, 2].map(|k| (last[k] - first[k] + 1) as usize);
-        let cells = dims.iter().map(|&d| d as f64).product::<f64>();
-        if cells <= (8 * xs.len() + 4096) as f64 {
-            break (axes, first, dims);
+        for c in 1..start.len() {
+            start[c] += start[c - 1];
         }
-        cell *= 2.0;
-    };
-    let index = |k: usize, v: f64| index_on(&axes, k, v);
-    // A cell's place in the array, `None` outside the owned particles' box.
-    let flat = |c: [i64; 3]| -> Option<usize> {
+        let mut fill = start.clone();
+        let mut pts = vec![[0.0; 3]; xs.len()];
+        for (x, &c) in xs.iter().zip(&at) {
+            pts[fill[c] as usize] = *x;
+            fill[c] += 1;
+        }
+        drop((at, fill, xs));
+        (self.start, self.pts) = (start, pts);
+    }
+
+    /// The index of coordinate v's cell along axis k.
+    fn index(&self, k: usize, v: f64) -> i64 {
+        shell_index(&self.axes, k, v)
+    }
+
+    /// A cell's place in the array, `None` outside the owned particles' box.
+    fn flat(&self, c: [i64; 3]) -> Option<usize> {
+        let (first, dims) = (self.first, self.dims);
         let r = [0, 1, 2].map(|k| c[k] - first[k]);
         (0..3)
             .all(|k| r[k] >= 0 && (r[k] as usize) < dims[k])
             .then(|| (r[2] as usize * dims[1] + r[1] as usize) * dims[0] + r[0] as usize)
-    };
-    // The owned positions by cell (a counting sort): cell c holds pts[start[c]..start[c + 1]].
-    let at: Vec<usize> = (xs.iter())
-        .map(|x| flat([0, 1, 2].map(|k| index(k, x[k]))).expect("within the owned box"))
-        .collect();
-    let mut start = vec![0u32; dims[0] * dims[1] * dims[2] + 1];
-    for &c in &at {
-        start[c + 1] += 1;
     }
-    for c in 1..start.len() {
-        start[c] += start[c - 1];
+
+    /// The owned positions in cell c (none outside the box).
+    fn in_cell(&self, c: [i64; 3]) -> &[[f64; 3]] {
+        self.flat(c).map_or(&[], |c| {
+            &self.pts[self.start[c] as usize..self.start[c + 1] as usize]
+        })
     }
-    let mut fill = start.clone();
-    let mut pts = vec![[0.0; 3]; xs.len()];
-    for (x, &c) in xs.iter().zip(&at) {
-        pts[fill[c] as usize] = *x;
-        fill[c] += 1;
-    }
-    drop((at, fill, xs));
-    let in_cell = |c: [i64; 3]| -> &[[f64; 3]] {
-        flat(c).map_or(&[], |c| &pts[start[c] as usize..start[c + 1] as usize])
-    };
-    let sep2 = |a: [f64; 3], b: [f64; 3]| domain.distance2(a, b);
-    // Along axis k, the cells within `radius` of coordinate v: (index, lower bound of the
-    // distance, less a rounding margin, and upper bound, plus one); every cell of a period the
-    // reach spans whole (upper bound +∞ there).
-    let cells_along = |k: usize, v: f64, radius: f64, out: &mut Vec<(i64, f64, f64)>| {
+
+    /// Along axis k, the cells within `radius` of coordinate v: (index, lower bound of the
+    /// distance, less a rounding margin, and upper bound, plus one); every cell of a period the
+    /// reach spans whole (upper bound +∞ there).
+    fn cells_along(&self, k: usize, v: f64, radius: f64, out: &mut Vec<(i64, f64, f64)>) {
         out.clear();
         let r2 = radius * radius;
-        let (lo, size, n) = axes[k];
-        let c = index(k, v);
+        let (lo, size, n) = self.axes[k];
+        let c = self.index(k, v);
         let reach = (radius / size).ceil() as i64;
         if let Some(n) = n {
             if 2 * reach + 1 >= n {
@@ -458,47 +530,38 @@ pub(super) fn shell(
                 out.push((i, g * g, far * far));
             }
         }
-    };
-    let (mut cx, mut cy, mut cz) = (Vec::new(), Vec::new(), Vec::new());
-    // Whether an owned particle lies within `radius` of x: a cell wholly within it answers
-    // without a scan of its particles.
-    let mut within = |x: [f64; 3], radius: f64| -> bool {
+    }
+
+    /// Whether an owned particle lies within `radius` of x: a cell wholly within it answers
+    /// without a scan of its particles. `scratch` holds the cells along each axis.
+    fn within(&self, x: [f64; 3], radius: f64, scratch: &mut ShellScratch) -> bool {
+        let (cx, cy, cz) = scratch;
+        let sep2 = |a: [f64; 3], b: [f64; 3]| self.domain.distance2(a, b);
         let r2 = radius * radius;
-        cells_along(0, x[0], radius, &mut cx);
-        cells_along(1, x[1], radius, &mut cy);
-        cells_along(2, x[2], radius, &mut cz);
+        self.cells_along(0, x[0], radius, cx);
+        self.cells_along(1, x[1], radius, cy);
+        self.cells_along(2, x[2], radius, cz);
         cz.iter().any(|&(iz, gz, fz)| {
             cy.iter().any(|&(iy, gy, fy)| {
                 gz + gy <= r2
                     && cx.iter().any(|&(ix, gx, fx)| {
                         gz + gy + gx <= r2 && {
-                            let v = in_cell([ix, iy, iz]);
+                            let v = self.in_cell([ix, iy, iz]);
                             !v.is_empty()
                                 && (fz + fy + fx <= r2 || v.iter().any(|&o| sep2(o, x) <= r2))
                         }
                     })
             })
         })
-    };
-    let mut flags = Vec::with_capacity(halo.len());
-    let kept = (halo.iter())
-        .filter_map(|h| {
-            let x = full_pos(h);
-            let k = if within(x, inner) {
-                Some(*h)
-            } else {
-                (outer > inner && within(x, outer)).then(|| {
-                    let mut r = *h;
-                    r.fixed = 1;
-                    r
-                })
-            };
-            flags.push(k.is_some());
-            k
-        })
-        .collect();
-    (kept, flags)
+    }
 }
+
+/// The cells along x, y and z of one shell test (kept across tests).
+type ShellScratch = (
+    Vec<(i64, f64, f64)>,
+    Vec<(i64, f64, f64)>,
+    Vec<(i64, f64, f64)>,
+);
 
 #[cfg(test)]
 mod tests {

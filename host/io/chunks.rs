@@ -162,10 +162,67 @@ pub(crate) fn write_rows_shared<T: H5Type + Copy + Sync>(
     let cr = chunk_rows as u64;
     let me = share.me;
     let size = c.size() as usize;
-    // This process's rows by chunk: kept where it holds the chunk's first row, else sent to
-    // the process that does, as blocks (first row, rows, their bytes).
-    let mut pieces: std::collections::BTreeMap<u64, Vec<(usize, usize, Piece)>> =
-        std::collections::BTreeMap::new();
+    let (mut pieces, out) = sort_rows(bytes, row, cr, share, size);
+    let failed = |why: String| IoError::invalid(path, format!("{obj}: {why}"));
+    let got = if size > 1 {
+        let counts: Vec<usize> = out.iter().map(Vec::len).collect();
+        c.exchange_bytes(&out.concat(), &counts).map_err(failed)?
+    } else {
+        Vec::new()
+    };
+    drop(out);
+    receive_pieces(&got, row, cr, &mut pieces, &failed)?;
+    let raw = whole_chunks(&pieces, bytes, &got, row, cr, share.total, &failed)?;
+    let views: Vec<&[u8]> = raw.iter().map(|r| &r[..]).collect();
+    let chunk_bytes = chunk_rows * row;
+    let chunks: Vec<u64> = pieces.keys().copied().collect();
+    let stored = (filter.filter(&views, elem, chunk_bytes, level)).and_then(|v| match v.len() {
+        n if n == chunks.len() => Ok(v),
+        n => Err(format!("{n} of {} chunks filtered", chunks.len())),
+    });
+    drop(views);
+    drop(raw);
+    let Some(ds) = ds else {
+        if me != 0 {
+            c.send_to_root(&pack(&chunks, &stored));
+        }
+        return stored.map(|_| ()).map_err(failed);
+    };
+    // Process 0 reads every process's message even where it cannot store them (they wait).
+    let (ds, first_err) = match ds {
+        Ok(ds) => (Some(ds), None),
+        Err(e) => (None, Some(e)),
+    };
+    let mut root = RootStore {
+        ds,
+        first_err,
+        cr,
+        failed: &failed,
+    };
+    root.store(&pack(&chunks, &stored), 0);
+    drop(stored);
+    for q in 1..size {
+        root.store(&c.receive_from(q as u32), q);
+    }
+    root.first_err.map_or(Ok(()), Err)
+}
+
+/// The pieces of the chunks a process filters, by chunk: (first row within the chunk, rows,
+/// where they lie).
+type Pieces = std::collections::BTreeMap<u64, Vec<(usize, usize, Piece)>>;
+
+/// This process's rows (`bytes`, `row` bytes each) by chunk of `cr` rows: kept where it holds
+/// the chunk's first row, else sent to the process that does, as blocks (first row, rows,
+/// their bytes) in the returned messages, one per process.
+fn sort_rows(
+    bytes: &[u8],
+    row: usize,
+    cr: u64,
+    share: &RowShare,
+    size: usize,
+) -> (Pieces, Vec<Vec<u8>>) {
+    let me = share.me;
+    let mut pieces = Pieces::new();
     let mut out: Vec<Vec<u8>> = vec![Vec::new(); size];
     let mut local = 0usize;
     for &(start, len) in &share.runs[me] {
@@ -190,14 +247,18 @@ pub(crate) fn write_rows_shared<T: H5Type + Copy + Sync>(
             local += n as usize;
         }
     }
-    let failed = |why: String| IoError::invalid(path, format!("{obj}: {why}"));
-    let got = if size > 1 {
-        let counts: Vec<usize> = out.iter().map(Vec::len).collect();
-        c.exchange_bytes(&out.concat(), &counts).map_err(failed)?
-    } else {
-        Vec::new()
-    };
-    drop(out);
+    (pieces, out)
+}
+
+/// Adds the blocks of rows the other processes sent (`got`) to `pieces`; a cut block is an
+/// error.
+fn receive_pieces(
+    got: &[u8],
+    row: usize,
+    cr: u64,
+    pieces: &mut Pieces,
+    failed: &dyn Fn(String) -> IoError,
+) -> Result<(), IoError> {
     let mut at = 0;
     while at < got.len() {
         let word = |i: usize| -> Result<u64, IoError> {
@@ -214,10 +275,23 @@ pub(crate) fn write_rows_shared<T: H5Type + Copy + Sync>(
         (pieces.entry(ch).or_default()).push(((g - ch * cr) as usize, n, Piece::Received(at)));
         at += n * row;
     }
-    // Each chunk held here, whole: borrowed where this process's rows are all of it.
+    Ok(())
+}
+
+/// Each chunk held here, whole, from its pieces: borrowed where this process's rows are all
+/// of it; a chunk short of rows is an error.
+fn whole_chunks<'a>(
+    pieces: &Pieces,
+    bytes: &'a [u8],
+    got: &[u8],
+    row: usize,
+    cr: u64,
+    total: u64,
+    failed: &dyn Fn(String) -> IoError,
+) -> Result<Vec<std::borrow::Cow<'a, [u8]>>, IoError> {
     let mut raw: Vec<std::borrow::Cow<[u8]>> = Vec::with_capacity(pieces.len());
-    for (&ch, ps) in &pieces {
-        let rows = (cr.min(share.total - ch * cr)) as usize;
+    for (&ch, ps) in pieces {
+        let rows = (cr.min(total - ch * cr)) as usize;
         if let [(0, n, Piece::Local(l))] = ps[..] {
             if n == rows {
                 raw.push(std::borrow::Cow::Borrowed(&bytes[l * row..(l + n) * row]));
@@ -241,54 +315,52 @@ pub(crate) fn write_rows_shared<T: H5Type + Copy + Sync>(
         }
         raw.push(std::borrow::Cow::Owned(buf));
     }
-    let views: Vec<&[u8]> = raw.iter().map(|r| &r[..]).collect();
-    let chunk_bytes = chunk_rows * row;
-    let chunks: Vec<u64> = pieces.keys().copied().collect();
-    let stored = (filter.filter(&views, elem, chunk_bytes, level)).and_then(|v| match v.len() {
-        n if n == chunks.len() => Ok(v),
-        n => Err(format!("{n} of {} chunks filtered", chunks.len())),
-    });
-    drop(views);
-    drop(raw);
-    // Length-prefixed: a chunk's index, its stored length and bytes; a failed filter sends
-    // its message instead (process 0 stops the write, the others go on to the end of it).
-    let pack = |stored: &Result<Vec<Vec<u8>>, String>| -> Vec<u8> {
-        match stored {
-            Ok(v) => {
-                let mut m = vec![0u8];
-                for (ch, b) in chunks.iter().zip(v) {
-                    m.extend_from_slice(&ch.to_le_bytes());
-                    m.extend_from_slice(&(b.len() as u64).to_le_bytes());
-                    m.extend_from_slice(b);
-                }
-                m
+    Ok(raw)
+}
+
+/// A process's filtered chunks as a message for process 0, length-prefixed: a chunk's index,
+/// its stored length and bytes; a failed filter sends its message instead (process 0 stops
+/// the write, the others go on to the end of it).
+fn pack(chunks: &[u64], stored: &Result<Vec<Vec<u8>>, String>) -> Vec<u8> {
+    match stored {
+        Ok(v) => {
+            let mut m = vec![0u8];
+            for (ch, b) in chunks.iter().zip(v) {
+                m.extend_from_slice(&ch.to_le_bytes());
+                m.extend_from_slice(&(b.len() as u64).to_le_bytes());
+                m.extend_from_slice(b);
             }
-            Err(e) => [&[1u8][..], e.as_bytes()].concat(),
+            m
         }
-    };
-    let Some(ds) = ds else {
-        if me != 0 {
-            c.send_to_root(&pack(&stored));
-        }
-        return stored.map(|_| ()).map_err(failed);
-    };
-    // Process 0 reads every process's message even where it cannot store them (they wait).
-    let (ds, mut first_err) = match ds {
-        Ok(ds) => (Some(ds), None),
-        Err(e) => (None, Some(e)),
-    };
-    let mut store = |msg: &[u8], from: usize| {
-        let Some(ds) = ds else {
+        Err(e) => [&[1u8][..], e.as_bytes()].concat(),
+    }
+}
+
+/// Process 0's side of the write: the dataset (none where it could not be made), the first
+/// error met, the chunk's rows and how an error is told.
+struct RootStore<'a> {
+    ds: Option<&'a Dataset>,
+    first_err: Option<IoError>,
+    cr: u64,
+    failed: &'a dyn Fn(String) -> IoError,
+}
+
+impl RootStore<'_> {
+    /// Stores the chunks of one process's message (`from`), unless an error came first; the
+    /// first error (a failed filter, a cut message, HDF5's refusal) is kept.
+    fn store(&mut self, msg: &[u8], from: usize) {
+        let failed = self.failed;
+        let Some(ds) = self.ds else {
             return;
         };
-        if first_err.is_some() {
+        if self.first_err.is_some() {
             return;
         }
         match msg.first() {
             Some(0) => {}
             _ => {
                 let why = String::from_utf8_lossy(msg.get(1..).unwrap_or(&[])).to_string();
-                first_err = Some(failed(format!("process {from}: {why}")));
+                self.first_err = Some(failed(format!("process {from}: {why}")));
                 return;
             }
         }
@@ -298,27 +370,21 @@ pub(crate) fn write_rows_shared<T: H5Type + Copy + Sync>(
                 (msg.get(i..i + 8)).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
             };
             let (Some(ch), Some(n)) = (word(at), word(at + 8)) else {
-                first_err = Some(failed(format!("process {from} sent a cut chunk")));
+                self.first_err = Some(failed(format!("process {from} sent a cut chunk")));
                 return;
             };
             let (lo, hi) = (at + 16, at + 16 + n as usize);
             let Some(b) = msg.get(lo..hi) else {
-                first_err = Some(failed(format!("process {from} sent a cut chunk")));
+                self.first_err = Some(failed(format!("process {from} sent a cut chunk")));
                 return;
             };
-            if let Err(e) = write_chunk(ds, ch * cr, b) {
-                first_err = Some(failed(format!("HDF5 refused chunk {ch} ({e})")));
+            if let Err(e) = write_chunk(ds, ch * self.cr, b) {
+                self.first_err = Some(failed(format!("HDF5 refused chunk {ch} ({e})")));
                 return;
             }
             at = hi;
         }
-    };
-    store(&pack(&stored), 0);
-    drop(stored);
-    for q in 1..size {
-        store(&c.receive_from(q as u32), q);
     }
-    first_err.map_or(Ok(()), Err)
 }
 
 /// One chunk's stored bytes `buf` at row `row0` of `ds` (a chunked dataset).

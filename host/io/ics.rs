@@ -122,74 +122,13 @@ fn read_share(path: &Path, c: &dyn Comm, step: &std::cell::Cell<u64>) -> Result<
         )
     })?;
     let header = file.group(HEADER_GROUP).ok();
-    let attr_f64s = |name: &str| -> Result<Option<Vec<f64>>, IoError> {
-        let Some(h) = &header else { return Ok(None) };
-        if h.attr(name).is_err() {
-            return Ok(None);
-        }
-        let obj = format!("/{HEADER_GROUP}/{name}");
-        let v: Vec<f64> = h
-            .attr(name)
-            .and_then(|a| a.read_raw())
-            .map_err(h5err(path, &obj))?;
-        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-            return Err(IoError::invalid(
-                path,
-                format!("{obj}[{i}] is {} (must be finite)", v[i]),
-            ));
-        }
-        Ok(Some(v))
-    };
-    let time = match attr_f64s("Time")? {
-        None => 0.0,
-        Some(v) if v.len() == 1 => v[0],
-        Some(v) => return Err(one_value(path, "Time", v.len())),
-    };
-    let dim = match &header {
-        Some(h) if h.attr("Dimension").is_ok() => {
-            let d: i64 = get_scalar(h, "Dimension", path)?;
-            match u32::try_from(d) {
-                Ok(d @ 1..=3) => Some(d),
-                _ => {
-                    return Err(IoError::invalid(
-                        path,
-                        format!("/{HEADER_GROUP}/Dimension is {d} (must be 1, 2 or 3)"),
-                    ))
-                }
-            }
-        }
-        _ => None,
-    };
-    let three = |name: &str, v: Vec<f64>| -> Result<[f64; 3], IoError> {
-        match v.len() {
-            1 => Ok([v[0]; 3]),
-            3 => Ok([v[0], v[1], v[2]]),
-            n => Err(IoError::invalid(
-                path,
-                format!("/{HEADER_GROUP}/{name} has {n} values (expected 1 or 3)"),
-            )),
-        }
-    };
-    let box_size = match attr_f64s("BoxSizePerAxis")? {
-        Some(v) => Some(three("BoxSizePerAxis", v)?),
-        None => attr_f64s("BoxSize")?
-            .map(|v| three("BoxSize", v))
-            .transpose()?,
-    };
-    let offset = attr_f64s("CoordinateOffset")?
-        .map(|v| three("CoordinateOffset", v))
-        .transpose()?
-        .unwrap_or([0.0; 3]);
-    let per_h = match attr_f64s("SmoothingLengthPerH")? {
-        None => DEFAULT_SMOOTHING_LENGTH_PER_H,
-        Some(v) if v.len() == 1 && v[0] > 0.0 => v[0],
-        Some(v) => {
-            return Err(IoError::invalid(
-                path,
-                format!("/{HEADER_GROUP}/SmoothingLengthPerH must be one value > 0 (got {v:?})"),
-            ))
-        }
-    };
+    let IcHeader {
+        time,
+        dim,
+        box_size,
+        offset,
+        per_h,
+    } = read_ic_header(header.as_ref(), path)?;
     if !file.link_exists(GAS_GROUP) {
         return Err(IoError::invalid(
             path,
@@ -210,24 +149,7 @@ fn read_share(path: &Path, c: &dyn Comm, step: &std::cell::Cell<u64>) -> Result<
         None
     };
     if let Some(h) = &header {
-        if h.attr("NumPart_Total").is_ok() {
-            let obj = format!("/{HEADER_GROUP}/NumPart_Total");
-            let n: Vec<u64> = h
-                .attr("NumPart_Total")
-                .and_then(|a| a.read_raw())
-                .map_err(h5err(path, &obj))?;
-            let found = [(0, gas.total), (3, dust.as_ref().map_or(0, |d| d.total))];
-            for (k, len) in found {
-                if let Some(&c) = n.get(k) {
-                    if c != len as u64 {
-                        return Err(IoError::invalid(
-                            path,
-                            format!("{obj}[{k}] = {c} but PartType{k} holds {len} particles"),
-                        ));
-                    }
-                }
-            }
-        }
+        check_num_part(h, path, gas.total, dust.as_ref().map_or(0, |d| d.total))?;
     }
     Ok(Ics {
         time,
@@ -237,6 +159,126 @@ fn read_share(path: &Path, c: &dyn Comm, step: &std::cell::Cell<u64>) -> Result<
         gas,
         dust,
     })
+}
+
+/// The header's attributes an initial-conditions file may give: its time, dimension, box,
+/// coordinate offset and smoothing length per h.
+struct IcHeader {
+    time: f64,
+    dim: Option<u32>,
+    box_size: Option<[f64; 3]>,
+    offset: [f64; 3],
+    per_h: f64,
+}
+
+/// Reads and checks the header's attributes (`header`: none where the file has no header).
+fn read_ic_header(header: Option<&Group>, path: &Path) -> Result<IcHeader, IoError> {
+    let time = match header_f64s(header, path, "Time")? {
+        None => 0.0,
+        Some(v) if v.len() == 1 => v[0],
+        Some(v) => return Err(one_value(path, "Time", v.len())),
+    };
+    let dim = match header {
+        Some(h) if h.attr("Dimension").is_ok() => {
+            let d: i64 = get_scalar(h, "Dimension", path)?;
+            match u32::try_from(d) {
+                Ok(d @ 1..=3) => Some(d),
+                _ => {
+                    return Err(IoError::invalid(
+                        path,
+                        format!("/{HEADER_GROUP}/Dimension is {d} (must be 1, 2 or 3)"),
+                    ))
+                }
+            }
+        }
+        _ => None,
+    };
+    let box_size = match header_f64s(header, path, "BoxSizePerAxis")? {
+        Some(v) => Some(three_values(path, "BoxSizePerAxis", v)?),
+        None => header_f64s(header, path, "BoxSize")?
+            .map(|v| three_values(path, "BoxSize", v))
+            .transpose()?,
+    };
+    let offset = header_f64s(header, path, "CoordinateOffset")?
+        .map(|v| three_values(path, "CoordinateOffset", v))
+        .transpose()?
+        .unwrap_or([0.0; 3]);
+    let per_h = match header_f64s(header, path, "SmoothingLengthPerH")? {
+        None => DEFAULT_SMOOTHING_LENGTH_PER_H,
+        Some(v) if v.len() == 1 && v[0] > 0.0 => v[0],
+        Some(v) => {
+            return Err(IoError::invalid(
+                path,
+                format!("/{HEADER_GROUP}/SmoothingLengthPerH must be one value > 0 (got {v:?})"),
+            ))
+        }
+    };
+    Ok(IcHeader {
+        time,
+        dim,
+        box_size,
+        offset,
+        per_h,
+    })
+}
+
+/// A header attribute's values, each finite (`None` where the header or attribute is absent).
+fn header_f64s(
+    header: Option<&Group>,
+    path: &Path,
+    name: &str,
+) -> Result<Option<Vec<f64>>, IoError> {
+    let Some(h) = header else { return Ok(None) };
+    if h.attr(name).is_err() {
+        return Ok(None);
+    }
+    let obj = format!("/{HEADER_GROUP}/{name}");
+    let v: Vec<f64> = h
+        .attr(name)
+        .and_then(|a| a.read_raw())
+        .map_err(h5err(path, &obj))?;
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(IoError::invalid(
+            path,
+            format!("{obj}[{i}] is {} (must be finite)", v[i]),
+        ));
+    }
+    Ok(Some(v))
+}
+
+/// A header attribute of one value per axis, or one for all three.
+fn three_values(path: &Path, name: &str, v: Vec<f64>) -> Result<[f64; 3], IoError> {
+    match v.len() {
+        1 => Ok([v[0]; 3]),
+        3 => Ok([v[0], v[1], v[2]]),
+        n => Err(IoError::invalid(
+            path,
+            format!("/{HEADER_GROUP}/{name} has {n} values (expected 1 or 3)"),
+        )),
+    }
+}
+
+/// The header's `NumPart_Total`, where given, agrees with the gas's and the dust's rows.
+fn check_num_part(h: &Group, path: &Path, gas: usize, dust: usize) -> Result<(), IoError> {
+    if h.attr("NumPart_Total").is_ok() {
+        let obj = format!("/{HEADER_GROUP}/NumPart_Total");
+        let n: Vec<u64> = h
+            .attr("NumPart_Total")
+            .and_then(|a| a.read_raw())
+            .map_err(h5err(path, &obj))?;
+        let found = [(0, gas), (3, dust)];
+        for (k, len) in found {
+            if let Some(&c) = n.get(k) {
+                if c != len as u64 {
+                    return Err(IoError::invalid(
+                        path,
+                        format!("{obj}[{k}] = {c} but PartType{k} holds {len} particles"),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 fn one_value(path: &Path, name: &str, n: usize) -> IoError {
@@ -313,23 +355,7 @@ fn read_phase(
     let h = scalar(SMOOTHING_LENGTH, true)?.map(|s| s.into_iter().map(|s| s / per_h).collect());
     let e = scalar(INTERNAL_ENERGY, false)?;
     next();
-    let id = if g.link_exists(PARTICLE_IDS) {
-        let v: Vec<i64> = column(&g, PARTICLE_IDS, total, n, 1, path)?;
-        if let Some(i) = v.iter().position(|&x| x < 0) {
-            return Err(IoError::invalid(
-                path,
-                format!(
-                    "{}[{}] is {} (must be ≥ 0)",
-                    obj(PARTICLE_IDS),
-                    first + i,
-                    v[i]
-                ),
-            ));
-        }
-        Some(v.into_iter().map(|x| x as u64).collect())
-    } else {
-        None
-    };
+    let id = read_ids(&g, &obj(PARTICLE_IDS), total, n, path)?;
     next();
     let fraction = if g.link_exists(FRACTION_INDEX) {
         Some(column::<i64>(&g, FRACTION_INDEX, total, n, 1, path)?)
@@ -348,6 +374,29 @@ fn read_phase(
         first,
         total,
     })
+}
+
+/// The optional particle ids of this process's rows `n` of a phase's `total`, each ≥ 0
+/// (`obj`: the column's name in messages).
+fn read_ids(
+    g: &Group,
+    obj: &str,
+    total: usize,
+    n: (usize, usize),
+    path: &Path,
+) -> Result<Option<Vec<u64>>, IoError> {
+    if !g.link_exists(PARTICLE_IDS) {
+        return Ok(None);
+    }
+    let first = n.0;
+    let v: Vec<i64> = column(g, PARTICLE_IDS, total, n, 1, path)?;
+    if let Some(i) = v.iter().position(|&x| x < 0) {
+        return Err(IoError::invalid(
+            path,
+            format!("{}[{}] is {} (must be ≥ 0)", obj, first + i, v[i]),
+        ));
+    }
+    Ok(Some(v.into_iter().map(|x| x as u64).collect()))
 }
 
 /// The number of rows of a dataset that must be (N, `width`) (or (N) for width 1).

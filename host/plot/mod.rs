@@ -398,17 +398,7 @@ pub fn fig_speed_tstop(
         })
     };
     let (vg, vd) = (pts(gas, &ig), pts(dust, &id));
-    // Stopping times: a subsample of the dust particles with usable values.
-    let ts: Vec<(f64, f64)> = dust.map_or(Vec::new(), |d| {
-        let t = d.t_stop.as_deref().unwrap_or(&[]);
-        let usable: Vec<usize> = (0..t.len())
-            .filter(|&i| t[i].is_finite() && t[i] > 0.0)
-            .collect();
-        subsample(usable.len(), MAX_SCATTER_POINTS)
-            .into_iter()
-            .map(|k| (radius(d.x[usable[k]]), t[usable[k]]))
-            .collect()
-    });
+    let ts = stopping_times(dust);
     let ref_r = reference.map_or(&[][..], |rc| &rc.r[..]);
     let r_hi = finite_span(
         vg.iter()
@@ -418,19 +408,7 @@ pub fn fig_speed_tstop(
     )
     .map_or(1.0, |(_, hi)| hi);
     let x_range = 0.0..r_hi * 1.03;
-    let ref_speeds: Vec<RefLine> = reference.map_or(Vec::new(), |rc| {
-        let line = |y: &[f64]| -> Vec<(f64, f64)> {
-            rc.r.iter()
-                .zip(y)
-                .filter(|(r, y)| r.is_finite() && y.is_finite())
-                .map(|(&r, &y)| (r, y.abs()))
-                .collect()
-        };
-        vec![
-            ("reference gas", line(&rc.v), GAS_REF),
-            ("reference dust", line(&rc.u), DUST_REF),
-        ]
-    });
+    let ref_speeds = reference_speeds(reference);
     let n_shown = vg.len() + vd.len();
     let n_all = n(gas) + n(dust);
     render_png(path, (1400, 1000), |root| {
@@ -497,6 +475,38 @@ pub fn fig_speed_tstop(
             .draw()?;
 
         tstop_panel(&bottom, x_range.clone(), &ts)
+    })
+}
+
+/// The stopping-time panel's points (radius, t_s): a subsample of the dust particles with
+/// usable (finite, positive) values.
+fn stopping_times(dust: Option<&PhaseData>) -> Vec<(f64, f64)> {
+    dust.map_or(Vec::new(), |d| {
+        let t = d.t_stop.as_deref().unwrap_or(&[]);
+        let usable: Vec<usize> = (0..t.len())
+            .filter(|&i| t[i].is_finite() && t[i] > 0.0)
+            .collect();
+        subsample(usable.len(), MAX_SCATTER_POINTS)
+            .into_iter()
+            .map(|k| (radius(d.x[usable[k]]), t[usable[k]]))
+            .collect()
+    })
+}
+
+/// The reference's |v| and |u| against radius, as lines (none without a reference).
+fn reference_speeds(reference: Option<&RadialCurve>) -> Vec<RefLine> {
+    reference.map_or(Vec::new(), |rc| {
+        let line = |y: &[f64]| -> Vec<(f64, f64)> {
+            rc.r.iter()
+                .zip(y)
+                .filter(|(r, y)| r.is_finite() && y.is_finite())
+                .map(|(&r, &y)| (r, y.abs()))
+                .collect()
+        };
+        vec![
+            ("reference gas", line(&rc.v), GAS_REF),
+            ("reference dust", line(&rc.u), DUST_REF),
+        ]
     })
 }
 

@@ -14,169 +14,28 @@ use crate::scene::{DiscCfg, DustStart, GasEos};
 use dustsph_device::sub;
 
 pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
-    let GasEos::LocallyIsothermal { cs0, q, r_ref, .. } = scene.gas.eos else {
-        return Err(SetupError {
-            key: "gas.eos".into(),
-            msg: "the disc's gas is locally isothermal".into(),
-        });
-    };
-    let grav = scene.gravity.ok_or_else(|| SetupError {
-        key: "gravity".into(),
-        msg: "the disc needs a point mass".into(),
-    })?;
-    let dim = scene.dim();
-    let gm = grav.central_mass;
-    let centre = grav.position;
-    let sigma = |r: f64| d.sigma_ref * d.sigma_shape(r, r_ref);
-    let cs = |r: f64| cs0 * (r / r_ref).powf(-q);
-    let omega = |r: f64| (gm / (r * r * r)).sqrt();
-    // The scale height H = c_s/Ω and the midplane density Σ/(√(2π) H) of the 3D disc.
-    let height = |r: f64| cs(r) / omega(r);
-    let rho_mid = |r: f64| sigma(r) / ((2.0 * std::f64::consts::PI).sqrt() * height(r));
-    let disc_mass = d.mass_between(d.r_in, d.r_out, r_ref, d.sigma_ref);
-    // The particle mass: the disc's over `dustydisc.particles`, or from spacing 1/n at r_ref
-    // (in the midplane in 3D): Σ_ref/n² or ρ_mid,ref/n³.
-    let m = match d.particles {
-        Some(n) => disc_mass / n as f64,
-        None => {
-            let s = 1.0 / scene.sph.n as f64;
-            if dim == 3 {
-                rho_mid(r_ref) * s.powi(3)
-            } else {
-                d.sigma_ref * s * s
-            }
-        }
-    };
-    let local_spacing = |r: f64| {
-        if dim == 3 {
-            (m / rho_mid(r)).cbrt()
-        } else {
-            (m / sigma(r)).sqrt()
-        }
-    };
-    // The reference spacing (for h): the local one at r_ref.
-    let spacing = local_spacing(r_ref);
-    let size_key = match d.particles {
-        Some(_) => "dustydisc.particles",
-        None => "sph.n",
-    };
-    super::check_size(
-        disc_mass / m,
-        1 + scene.n_fractions(),
-        size_key,
-        &["dustydisc.r_out"],
-    )?;
-    let rings = rings(d, &sigma, &local_spacing);
+    let p = Profile::of(scene, d)?;
+    let size = Sizing::of(&p)?;
+    let rings = rings(d, &|r| p.sigma(r), &|r| p.local_spacing(size.m, r));
     if rings.is_empty() {
         return Err(SetupError {
             key: "sph.n".into(),
             msg: "no ring of particles fits between dustydisc.r_in and r_out; raise sph.n".into(),
         });
     }
-    let dln_sigma = |r: f64| d.dln_sigma(r);
-    // The layers: each ring holds columns of n_z particles at the Gaussian's quantiles (one
-    // layer, at z = 0, in 2D), alternate rings turned by half a spacing.
-    let mut layers: Vec<Layer> = Vec::new();
-    for (i, ring) in rings.iter().enumerate() {
-        let (r, hz) = (ring.r, height(ring.r));
-        let n_z = if dim == 3 {
-            ((ring.mass / (ring.count as f64 * m)).round() as usize).max(1)
-        } else {
-            1
-        };
-        for k in 0..n_z {
-            layers.push(Layer {
-                r,
-                z: if dim == 3 {
-                    hz * normal_quantile((k as f64 + 0.5) / n_z as f64)
-                } else {
-                    0.0
-                },
-                count: ring.count,
-                turn: if i % 2 == 0 { 0.0 } else { 0.5 },
-                mass: ring.mass / (ring.count * n_z) as f64,
-            });
-        }
-    }
-    // The gas's density at a layer's (R, z): Σ in 2D, the Gaussian in 3D.
-    let rho_at = |r: f64, z: f64| {
-        if dim == 3 {
-            rho_mid(r) * (-0.5 * z * z / (height(r) * height(r))).exp()
-        } else {
-            sigma(r)
-        }
+    let (lattice, gas) = Lattice::lay(&p, &rings, size.m);
+    let h = smoothing_length(scene, size.spacing);
+    let res = Resolution {
+        p: &p,
+        m: size.m,
+        h,
     };
-    let mut gas = Phase::default();
-    let mut layer_of: Vec<usize> = Vec::new();
-    for (l, ly) in layers.iter().enumerate() {
-        place(
-            &mut gas,
-            ly,
-            0.0,
-            centre,
-            [0.0; 3],
-            ly.mass,
-            rho_at(ly.r, ly.z),
-        );
-        layer_of.extend(std::iter::repeat_n(l, ly.count));
-    }
-    gas.id = (0..gas.len() as u64).collect();
-    let h = smoothing_length(scene, spacing);
-    // The resolution of the scale height: h/H of the midplane at the inner and outer rings and
-    // at r_ref (variable h: the h of the set-up's density).
-    let h_over_h = |r: f64| {
-        let hr = match scene.sph.smoothing.variable_hfact() {
-            Some(hf) => dustsph_device::kernel::h_of_density(m, rho_at(r, 0.0), hf, dim, h),
-            None => h,
-        };
-        hr / height(r)
-    };
-    // A disc whose scale height the kernel does not resolve over most of its mass is no disc
-    // (its pressure support, drift and settling are set by h, not by H).
-    let unresolved: f64 = rings
-        .iter()
-        .filter(|g| h_over_h(g.r) > 1.0)
-        .map(|g| g.mass)
-        .fold(0.0, |a, m| a + m) // from +0: an empty f64 sum is −0
-        / rings.iter().map(|g| g.mass).sum::<f64>();
-    if unresolved > 0.5 {
-        return Err(SetupError {
-            key: size_key.into(),
-            msg: format!(
-                "h/H > 1 over {:.0} % of the disc's mass (h/H {:.2} at r_ref): the kernel does \
-                 not resolve the scale height; raise {size_key}",
-                100.0 * unresolved,
-                h_over_h(r_ref)
-            ),
-        });
-    }
+    let unresolved = res.unresolved(&rings, size.key)?;
     let domain = crate::grid::Domain {
-        dim,
+        dim: p.dim,
         periodic: [None; 3],
     };
-    // Each gas particle's radial pull −A_R (gravity and pressure) per unit R, v_φ² = R·(−A_R)
-    // at balance: from the run's own SPH forces when relaxed, else from the analytic profile.
-    let mut relax_note = String::new();
-    let pull: Vec<f64> = if d.relax {
-        let (relaxed, acc, note) = relax(scene, gas, h, domain, spacing)?;
-        gas = relaxed;
-        relax_note = note;
-        (0..gas.len())
-            .map(|i| {
-                let x = sub(gas.x[i], centre);
-                let r = x[0].hypot(x[1]);
-                -(x[0] * acc[i][0] + x[1] * acc[i][1]) / (r * r)
-            })
-            .collect()
-    } else {
-        (0..gas.len())
-            .map(|i| {
-                let ly = &layers[layer_of[gas.id[i] as usize]];
-                let (vk, dlnp) = kepler_and_slope(gm, ly.r, ly.z, height(ly.r), q, dln_sigma);
-                (vk * vk + cs(ly.r).powi(2) * dlnp) / (ly.r * ly.r)
-            })
-            .collect()
-    };
+    let (mut gas, pull, relax_note) = balance(&p, gas, &lattice, h, domain, size.spacing)?;
     // The leapfrog's circular orbit at its synchronised times is slower than the continuous
     // balance by (Ωτ)²/8 (method.md §D, "The set-up's ringing"): started on the continuous
     // one, every ring would ring at 2 (Ωτ)²/8 v_K. Every particle starts on the discrete orbit
@@ -185,34 +44,355 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
         crate::scene::Integrator::Kdk => first_step(scene, &gas, h, domain)?,
         crate::scene::Integrator::FirstOrder => 0.0,
     };
-    let orbit_factor = |r: f64, vphi: f64| {
-        let w = vphi * tau / r;
-        1.0 - w * w / 8.0
-    };
-    // The layers' mean height and η v_K = (v_K² − v_φ²)/(2 v_K) from the balance.
-    let mut sums = vec![(0.0, 0.0, 0usize); layers.len()];
-    for i in 0..gas.len() {
-        let s = &mut sums[layer_of[gas.id[i] as usize]];
-        s.0 += gas.x[i][2] - centre[2];
-        s.1 += pull[i];
-        s.2 += 1;
+    let sums = lattice.sums(&gas, &pull, p.centre);
+    let unstable = rayleigh_unstable(&lattice.layers, &sums, p.gm);
+    let (mut dust, layer_drift) = place_dust(&p, &lattice.layers, &sums, tau);
+    gas.v = gas_velocities(&p, &gas, &lattice, &sums, &layer_drift, tau);
+    let ng = gas.len() as u64;
+    let mut next = ng;
+    for ph in &mut dust {
+        ph.id = (next..next + ph.len() as u64).collect();
+        next += ph.len() as u64;
     }
-    let unstable = rayleigh_unstable(&layers, &sums, gm);
-    let fr = scene.fractions();
+    let report = Report {
+        rings: &rings,
+        layers: lattice.layers.len(),
+        ng,
+        size: &size,
+        unresolved,
+        relax_note,
+        tau,
+        unstable,
+    };
+    let notes = report.notes(&res);
+    let mut su = Setup::at_start(
+        gas_phase(gas, None),
+        dust,
+        h,
+        domain,
+        size.spacing,
+        2.0 * d.r_out,
+    );
+    su.notes.extend(notes);
+    Ok(su)
+}
+
+/// The disc's analytic profile about its point mass: Σ, c_s, Ω, H and the gas's density.
+struct Profile<'a> {
+    scene: &'a Scene,
+    d: &'a DiscCfg,
+    cs0: f64,
+    q: f64,
+    r_ref: f64,
+    gm: f64,
+    centre: [f64; 3],
+    dim: u32,
+}
+
+impl<'a> Profile<'a> {
+    /// The scene's disc: its gas must be locally isothermal, about a point mass.
+    fn of(scene: &'a Scene, d: &'a DiscCfg) -> Result<Profile<'a>, SetupError> {
+        let GasEos::LocallyIsothermal { cs0, q, r_ref, .. } = scene.gas.eos else {
+            return Err(SetupError {
+                key: "gas.eos".into(),
+                msg: "the disc's gas is locally isothermal".into(),
+            });
+        };
+        let grav = scene.gravity.ok_or_else(|| SetupError {
+            key: "gravity".into(),
+            msg: "the disc needs a point mass".into(),
+        })?;
+        Ok(Profile {
+            scene,
+            d,
+            cs0,
+            q,
+            r_ref,
+            gm: grav.central_mass,
+            centre: grav.position,
+            dim: scene.dim(),
+        })
+    }
+
+    /// The surface density Σ(R).
+    fn sigma(&self, r: f64) -> f64 {
+        self.d.sigma_ref * self.d.sigma_shape(r, self.r_ref)
+    }
+
+    /// The locally isothermal sound speed c_s(R).
+    fn cs(&self, r: f64) -> f64 {
+        self.cs0 * (r / self.r_ref).powf(-self.q)
+    }
+
+    /// The Keplerian angular speed Ω(R) in the midplane.
+    fn omega(&self, r: f64) -> f64 {
+        (self.gm / (r * r * r)).sqrt()
+    }
+
+    /// The scale height H = c_s/Ω of the 3D disc.
+    fn height(&self, r: f64) -> f64 {
+        self.cs(r) / self.omega(r)
+    }
+
+    /// The midplane density Σ/(√(2π) H) of the 3D disc.
+    fn rho_mid(&self, r: f64) -> f64 {
+        self.sigma(r) / ((2.0 * std::f64::consts::PI).sqrt() * self.height(r))
+    }
+
+    /// The gas's density at a layer's (R, z): Σ in 2D, the Gaussian in 3D.
+    fn rho_at(&self, r: f64, z: f64) -> f64 {
+        if self.dim == 3 {
+            self.rho_mid(r) * (-0.5 * z * z / (self.height(r) * self.height(r))).exp()
+        } else {
+            self.sigma(r)
+        }
+    }
+
+    /// The local spacing of particles of mass `m` at R: √(m/Σ) in 2D, the midplane's
+    /// (m/ρ)^{1/3} in 3D.
+    fn local_spacing(&self, m: f64, r: f64) -> f64 {
+        if self.dim == 3 {
+            (m / self.rho_mid(r)).cbrt()
+        } else {
+            (m / self.sigma(r)).sqrt()
+        }
+    }
+
+    /// [`kepler_and_slope`] at (R, z) with this disc's H(R) and Σ's slope.
+    fn kepler(&self, r: f64, z: f64) -> (f64, f64) {
+        kepler_and_slope(self.gm, r, z, self.height(r), self.q, |r: f64| {
+            self.d.dln_sigma(r)
+        })
+    }
+}
+
+/// The particle mass, the disc's mass and reference spacing, and the key that sets them.
+struct Sizing {
+    disc_mass: f64,
+    m: f64,
+    spacing: f64,
+    key: &'static str,
+}
+
+impl Sizing {
+    /// The particle mass: the disc's over `dustydisc.particles`, or from spacing 1/n at r_ref
+    /// (in the midplane in 3D): Σ_ref/n² or ρ_mid,ref/n³; refused when it makes too many.
+    fn of(p: &Profile) -> Result<Sizing, SetupError> {
+        let (scene, d) = (p.scene, p.d);
+        let disc_mass = d.mass_between(d.r_in, d.r_out, p.r_ref, d.sigma_ref);
+        let m = match d.particles {
+            Some(n) => disc_mass / n as f64,
+            None => {
+                let s = 1.0 / scene.sph.n as f64;
+                if p.dim == 3 {
+                    p.rho_mid(p.r_ref) * s.powi(3)
+                } else {
+                    d.sigma_ref * s * s
+                }
+            }
+        };
+        // The reference spacing (for h): the local one at r_ref.
+        let spacing = p.local_spacing(m, p.r_ref);
+        let key = match d.particles {
+            Some(_) => "dustydisc.particles",
+            None => "sph.n",
+        };
+        super::check_size(
+            disc_mass / m,
+            1 + scene.n_fractions(),
+            key,
+            &["dustydisc.r_out"],
+        )?;
+        Ok(Sizing {
+            disc_mass,
+            m,
+            spacing,
+            key,
+        })
+    }
+}
+
+/// The rings' layers, and each gas particle's layer by its id (the relaxation's engine sorts
+/// the particles).
+struct Lattice {
+    layers: Vec<Layer>,
+    layer_of: Vec<usize>,
+}
+
+impl Lattice {
+    /// The layers and the gas on them: each ring holds columns of n_z particles at the
+    /// Gaussian's quantiles (one layer, at z = 0, in 2D), alternate rings turned by half a
+    /// spacing.
+    fn lay(p: &Profile, rings: &[Ring], m: f64) -> (Lattice, Phase) {
+        let mut layers: Vec<Layer> = Vec::new();
+        for (i, ring) in rings.iter().enumerate() {
+            let (r, hz) = (ring.r, p.height(ring.r));
+            let n_z = if p.dim == 3 {
+                ((ring.mass / (ring.count as f64 * m)).round() as usize).max(1)
+            } else {
+                1
+            };
+            for k in 0..n_z {
+                layers.push(Layer {
+                    r,
+                    z: if p.dim == 3 {
+                        hz * normal_quantile((k as f64 + 0.5) / n_z as f64)
+                    } else {
+                        0.0
+                    },
+                    count: ring.count,
+                    turn: if i % 2 == 0 { 0.0 } else { 0.5 },
+                    mass: ring.mass / (ring.count * n_z) as f64,
+                });
+            }
+        }
+        let mut gas = Phase::default();
+        let mut layer_of: Vec<usize> = Vec::new();
+        for (l, ly) in layers.iter().enumerate() {
+            place(
+                &mut gas,
+                ly,
+                0.0,
+                p.centre,
+                [0.0; 3],
+                ly.mass,
+                p.rho_at(ly.r, ly.z),
+            );
+            layer_of.extend(std::iter::repeat_n(l, ly.count));
+        }
+        gas.id = (0..gas.len() as u64).collect();
+        (Lattice { layers, layer_of }, gas)
+    }
+
+    /// The layer of the gas's particle `i` (by its id).
+    fn layer(&self, gas: &Phase, i: usize) -> usize {
+        self.layer_of[gas.id[i] as usize]
+    }
+
+    /// Each layer's (Σ height above the centre, Σ pull, particles): the layers' mean height
+    /// and, from the mean pull, η v_K = (v_K² − v_φ²)/(2 v_K) of the balance.
+    fn sums(&self, gas: &Phase, pull: &[f64], centre: [f64; 3]) -> Vec<(f64, f64, usize)> {
+        let mut sums = vec![(0.0, 0.0, 0usize); self.layers.len()];
+        for i in 0..gas.len() {
+            let s = &mut sums[self.layer(gas, i)];
+            s.0 += gas.x[i][2] - centre[2];
+            s.1 += pull[i];
+            s.2 += 1;
+        }
+        sums
+    }
+}
+
+/// The kernel's resolution of the scale height, h/H.
+struct Resolution<'a> {
+    p: &'a Profile<'a>,
+    m: f64,
+    h: f64,
+}
+
+impl Resolution<'_> {
+    /// h/H of the midplane at R (variable h: the h of the set-up's density).
+    fn h_over_h(&self, r: f64) -> f64 {
+        let p = self.p;
+        let hr = match p.scene.sph.smoothing.variable_hfact() {
+            Some(hf) => {
+                dustsph_device::kernel::h_of_density(self.m, p.rho_at(r, 0.0), hf, p.dim, self.h)
+            }
+            None => self.h,
+        };
+        hr / p.height(r)
+    }
+
+    /// The share of the disc's mass in rings with h/H > 1: refused over half (a disc whose
+    /// scale height the kernel does not resolve is no disc: its pressure support, drift and
+    /// settling are set by h, not by H).
+    fn unresolved(&self, rings: &[Ring], size_key: &str) -> Result<f64, SetupError> {
+        let unresolved: f64 = rings
+            .iter()
+            .filter(|g| self.h_over_h(g.r) > 1.0)
+            .map(|g| g.mass)
+            .fold(0.0, |a, m| a + m) // from +0: an empty f64 sum is −0
+            / rings.iter().map(|g| g.mass).sum::<f64>();
+        if unresolved > 0.5 {
+            return Err(SetupError {
+                key: size_key.into(),
+                msg: format!(
+                    "h/H > 1 over {:.0} % of the disc's mass (h/H {:.2} at r_ref): the kernel \
+                     does not resolve the scale height; raise {size_key}",
+                    100.0 * unresolved,
+                    self.h_over_h(self.p.r_ref)
+                ),
+            });
+        }
+        Ok(unresolved)
+    }
+}
+
+/// Each gas particle's radial pull −A_R (gravity and pressure) per unit R, v_φ² = R·(−A_R)
+/// at balance: from the run's own SPH forces when relaxed (the gas returned relaxed, with the
+/// relaxation's note), else from the analytic profile.
+fn balance(
+    p: &Profile,
+    gas: Phase,
+    lattice: &Lattice,
+    h: f64,
+    domain: crate::grid::Domain,
+    spacing: f64,
+) -> Result<(Phase, Vec<f64>, String), SetupError> {
+    if p.d.relax {
+        let (gas, acc, note) = relax(p.scene, gas, h, domain, spacing)?;
+        let pull = (0..gas.len())
+            .map(|i| {
+                let x = sub(gas.x[i], p.centre);
+                let r = x[0].hypot(x[1]);
+                -(x[0] * acc[i][0] + x[1] * acc[i][1]) / (r * r)
+            })
+            .collect();
+        Ok((gas, pull, note))
+    } else {
+        let pull = (0..gas.len())
+            .map(|i| {
+                let ly = &lattice.layers[lattice.layer(&gas, i)];
+                let (vk, dlnp) = p.kepler(ly.r, ly.z);
+                (vk * vk + p.cs(ly.r).powi(2) * dlnp) / (ly.r * ly.r)
+            })
+            .collect();
+        Ok((gas, pull, String::new()))
+    }
+}
+
+/// The factor the leapfrog's circular orbit at its synchronised times, for the first step τ,
+/// is below the continuous balance's v_φ: 1 − (Ωτ)²/8.
+fn orbit_factor(tau: f64, r: f64, vphi: f64) -> f64 {
+    let w = vphi * tau / r;
+    1.0 - w * w / 8.0
+}
+
+/// The dust phases on the gas's layers at their mean heights (turned by half a spacing, with
+/// ε_k times the gas's masses), each on the layer's steady drift of gas and species from its
+/// local ε and St (Keplerian without `dust_velocity = "drift"`); and each layer's drift, for
+/// the gas's back-reaction.
+fn place_dust(
+    p: &Profile,
+    layers: &[Layer],
+    sums: &[(f64, f64, usize)],
+    tau: f64,
+) -> (Vec<Phase>, Vec<Option<(f64, f64)>>) {
+    let (gm, centre) = (p.gm, p.centre);
+    let fr = p.scene.fractions();
     let eps: Vec<f64> = fr.iter().map(|f| f.eps).collect();
-    let drift_start = d.dust_velocity == DustStart::Drift;
+    let drift_start = p.d.dust_velocity == DustStart::Drift;
     let mut dust: Vec<Phase> = fr.iter().map(|_| Phase::default()).collect();
-    let mut gas_v = vec![[0.0; 3]; gas.len()];
     let mut layer_drift = Vec::with_capacity(layers.len());
     for (l, ly) in layers.iter().enumerate() {
-        let (r, c) = (ly.r, cs(ly.r));
+        let (r, c) = (ly.r, p.cs(ly.r));
         let (z, mean_pull) = (sums[l].0 / sums[l].2 as f64, sums[l].1 / sums[l].2 as f64);
-        let (vk, _) = kepler_and_slope(gm, r, z, height(r), q, dln_sigma);
+        let (vk, _) = p.kepler(r, z);
         let eta_vk = (vk * vk - r * r * mean_pull) / (2.0 * vk);
-        let rho_g = rho_at(r, z);
+        let rho_g = p.rho_at(r, z);
         let st: Vec<f64> = fr
             .iter()
-            .map(|f| omega(r) * f.law.stopping_time(rho_g, f.eps * rho_g, c))
+            .map(|f| p.omega(r) * f.law.stopping_time(rho_g, f.eps * rho_g, c))
             .collect();
         let drift = (!fr.is_empty() && drift_start)
             .then(|| steady_drift(&eps, &st))
@@ -223,7 +403,7 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
                     let (ur, up) = s.dust[j];
                     // The slow root of z̈ = −Ω_z² z − ż/t: the settling mode, ż ≈ −z Ω St for
                     // St ≪ 1; none for St ≥ 1/2 (the grains oscillate about the midplane).
-                    let t = st[j] / omega(r);
+                    let t = st[j] / p.omega(r);
                     let omega_z2 = gm / (r * r + z * z).powf(1.5);
                     let disc = 1.0 - 4.0 * omega_z2 * t * t;
                     let vz = if disc > 0.0 {
@@ -232,123 +412,170 @@ pub(super) fn build(scene: &Scene, d: &DiscCfg) -> Result<Setup, SetupError> {
                         0.0
                     };
                     let vphi = vk + up * eta_vk;
-                    [ur * eta_vk, vphi * orbit_factor(r, vphi), vz]
+                    [ur * eta_vk, vphi * orbit_factor(tau, r, vphi), vz]
                 }
-                None => [0.0, vk * orbit_factor(r, vk), 0.0],
+                None => [0.0, vk * orbit_factor(tau, r, vk), 0.0],
             };
             let at = Layer { z, ..*ly };
             place(ph, &at, 0.5, centre, v, eps[j] * ly.mass, eps[j] * rho_g);
         }
         layer_drift.push(drift.map(|s| s.gas));
     }
-    // The gas: its layer's balance v_φ = √(R² ⟨pull⟩) (a layer is one ring at one height:
-    // axisymmetric, so its mean is the balance without the lattice's particle noise), plus
-    // the dust's back-reaction (the steady drift's gas velocities less the pressure support
-    // −η v_K they contain).
-    for i in 0..gas.len() {
-        // The layer by particle id: the relaxation's engine sorted the particles.
-        let l = layer_of[gas.id[i] as usize];
-        let x = sub(gas.x[i], centre);
-        let r = x[0].hypot(x[1]);
-        let mean_pull = sums[l].1 / sums[l].2 as f64;
-        let (vk, _) = kepler_and_slope(gm, layers[l].r, x[2], height(layers[l].r), q, dln_sigma);
-        let vphi_p = (r * r * mean_pull).max(0.0).sqrt();
-        let eta_vk = (vk * vk - vphi_p * vphi_p) / (2.0 * vk);
-        let (vr, vphi) = match layer_drift[l] {
-            Some((gr, gp)) => (gr * eta_vk, vphi_p + (gp + 1.0) * eta_vk),
-            None => (0.0, vphi_p),
-        };
-        let vphi = vphi * orbit_factor(r, vphi);
-        let (s, co) = (x[1] / r, x[0] / r);
-        gas_v[i] = [vr * co - vphi * s, vr * s + vphi * co, 0.0];
-    }
-    gas.v = gas_v;
-    let ng = gas.len() as u64;
-    let mut next = ng;
-    for ph in &mut dust {
-        ph.id = (next..next + ph.len() as u64).collect();
-        next += ph.len() as u64;
-    }
-    let n_rings = rings.len();
-    let resolution = format!(
-        "; h/H {:.2} at the inner ring, {:.2} at r_ref, {:.2} at the outer, > 1 over {:.0} % of \
-         the mass; disc mass {disc_mass:.4e}, gas particle mass {m:.4e}",
-        h_over_h(rings[0].r),
-        h_over_h(r_ref),
-        h_over_h(rings[n_rings - 1].r),
-        100.0 * unresolved
-    );
-    // Each grain's Stokes number in the midplane at the inner ring, r_ref and the outer ring.
-    let stokes: Vec<String> = fr
-        .iter()
-        .enumerate()
-        .map(|(k, f)| {
-            let st = |r: f64| {
-                let rho = rho_at(r, 0.0);
-                omega(r) * f.law.stopping_time(rho, f.eps * rho, cs(r))
+    (dust, layer_drift)
+}
+
+/// The gas's velocities: its layer's balance v_φ = √(R² ⟨pull⟩) (a layer is one ring at one
+/// height: axisymmetric, so its mean is the balance without the lattice's particle noise),
+/// plus the dust's back-reaction (the steady drift's gas velocities less the pressure support
+/// −η v_K they contain), on the leapfrog's orbit.
+fn gas_velocities(
+    p: &Profile,
+    gas: &Phase,
+    lattice: &Lattice,
+    sums: &[(f64, f64, usize)],
+    layer_drift: &[Option<(f64, f64)>],
+    tau: f64,
+) -> Vec<[f64; 3]> {
+    (0..gas.len())
+        .map(|i| {
+            // The layer by particle id: the relaxation's engine sorted the particles.
+            let l = lattice.layer(gas, i);
+            let x = sub(gas.x[i], p.centre);
+            let r = x[0].hypot(x[1]);
+            let mean_pull = sums[l].1 / sums[l].2 as f64;
+            let (vk, _) = p.kepler(lattice.layers[l].r, x[2]);
+            let vphi_p = (r * r * mean_pull).max(0.0).sqrt();
+            let eta_vk = (vk * vk - vphi_p * vphi_p) / (2.0 * vk);
+            let (vr, vphi) = match layer_drift[l] {
+                Some((gr, gp)) => (gr * eta_vk, vphi_p + (gp + 1.0) * eta_vk),
+                None => (0.0, vphi_p),
             };
+            let vphi = vphi * orbit_factor(tau, r, vphi);
+            let (s, co) = (x[1] / r, x[0] / r);
+            [vr * co - vphi * s, vr * s + vphi * co, 0.0]
+        })
+        .collect()
+}
+
+/// What the set-up measured, for the run's log.
+struct Report<'a> {
+    rings: &'a [Ring],
+    layers: usize,
+    ng: u64,
+    size: &'a Sizing,
+    unresolved: f64,
+    relax_note: String,
+    tau: f64,
+    unstable: Vec<(f64, f64)>,
+}
+
+impl Report<'_> {
+    /// The disc's lines for the run's log: its rings and resolution, the first step's orbit,
+    /// the midplane Stokes numbers and any Rayleigh-unstable rings.
+    fn notes(&self, res: &Resolution) -> Vec<String> {
+        let p = res.p;
+        let mut notes = vec![self.summary(res)];
+        if self.tau > 0.0 {
+            notes.push(format!(
+                "disc: every particle on the leapfrog's circular orbit for the first step τ = {:.4e} \
+                 ((Ωτ)²/8 below the continuous balance: {:.2e} of v_φ at r_ref)",
+                self.tau,
+                1.0 - orbit_factor(self.tau, p.r_ref, (p.gm / p.r_ref).sqrt())
+            ));
+        }
+        if let Some(stokes) = self.stokes(p) {
+            notes.push(stokes);
+        }
+        if !self.unstable.is_empty() {
+            notes.push(self.rayleigh(p));
+        }
+        notes
+    }
+
+    /// The disc's rings, layers, particles, H/R and h/H (and the relaxation's note).
+    fn summary(&self, res: &Resolution) -> String {
+        let (p, d, rings) = (res.p, res.p.d, self.rings);
+        let n_rings = rings.len();
+        let resolution = format!(
+            "; h/H {:.2} at the inner ring, {:.2} at r_ref, {:.2} at the outer, > 1 over {:.0} % \
+             of the mass; disc mass {:.4e}, gas particle mass {:.4e}",
+            res.h_over_h(rings[0].r),
+            res.h_over_h(p.r_ref),
+            res.h_over_h(rings[n_rings - 1].r),
+            100.0 * self.unresolved,
+            self.size.disc_mass,
+            self.size.m
+        );
+        let drift_start = d.dust_velocity == DustStart::Drift;
+        format!(
+            "disc: {n_rings} rings, {} layers, {} gas particles between R = {} and {}, H/R = {:.4} at r_ref = {}{resolution}{}{}",
+            self.layers,
+            self.ng,
+            d.r_in,
+            d.r_out,
+            p.cs0 / (p.gm / p.r_ref).sqrt(),
+            p.r_ref,
+            self.relax_note,
+            if drift_start { "" } else { "; dust on Keplerian orbits (no drift)" }
+        )
+    }
+
+    /// Each grain's Stokes number in the midplane at the inner ring, r_ref and the outer ring
+    /// (none without dust).
+    fn stokes(&self, p: &Profile) -> Option<String> {
+        let (rings, r_ref) = (self.rings, p.r_ref);
+        let n_rings = rings.len();
+        let stokes: Vec<String> = p
+            .scene
+            .fractions()
+            .iter()
+            .enumerate()
+            .map(|(k, f)| {
+                let st = |r: f64| {
+                    let rho = p.rho_at(r, 0.0);
+                    p.omega(r) * f.law.stopping_time(rho, f.eps * rho, p.cs(r))
+                };
+                format!(
+                    "fraction {k} (ε {:.3e}): St {:.3e} / {:.3e} / {:.3e}",
+                    f.eps,
+                    st(rings[0].r),
+                    st(r_ref),
+                    st(rings[n_rings - 1].r)
+                )
+            })
+            .collect();
+        (!stokes.is_empty()).then(|| {
             format!(
-                "fraction {k} (ε {:.3e}): St {:.3e} / {:.3e} / {:.3e}",
-                f.eps,
-                st(rings[0].r),
-                st(r_ref),
-                st(rings[n_rings - 1].r)
+                "disc: midplane Stokes numbers at R = {:.4} / {r_ref} / {:.4}: {}",
+                rings[0].r,
+                rings[n_rings - 1].r,
+                stokes.join("; ")
             )
         })
-        .collect();
-    let mut su = Setup::at_start(
-        gas_phase(gas, None),
-        dust,
-        h,
-        domain,
-        spacing,
-        2.0 * d.r_out,
-    );
-    su.notes.push(format!(
-        "disc: {n_rings} rings, {} layers, {ng} gas particles between R = {} and {}, H/R = {:.4} at r_ref = {r_ref}{resolution}{}{}",
-        layers.len(),
-        d.r_in,
-        d.r_out,
-        cs0 / (gm / r_ref).sqrt(),
-        relax_note,
-        if drift_start { "" } else { "; dust on Keplerian orbits (no drift)" }
-    ));
-    if tau > 0.0 {
-        su.notes.push(format!(
-            "disc: every particle on the leapfrog's circular orbit for the first step τ = {tau:.4e} \
-             ((Ωτ)²/8 below the continuous balance: {:.2e} of v_φ at r_ref)",
-            1.0 - orbit_factor(r_ref, (gm / r_ref).sqrt())
-        ));
     }
-    if !stokes.is_empty() {
-        su.notes.push(format!(
-            "disc: midplane Stokes numbers at R = {:.4} / {r_ref} / {:.4}: {}",
-            rings[0].r,
-            rings[n_rings - 1].r,
-            stokes.join("; ")
-        ));
-    }
-    if !unstable.is_empty() {
-        // Rings inside an edge damping zone have their radial motion damped: said per ring,
-        // and the line is a note, not a warning, when every such ring is in a zone.
-        let pm = scene.gravity.map(|g| g.point_mass()).unwrap_or_default();
-        let at: Vec<String> = unstable
+
+    /// The Rayleigh-unstable rings. Rings inside an edge damping zone have their radial
+    /// motion damped: said per ring, and the line is a note, not a warning, when every such
+    /// ring is in a zone.
+    fn rayleigh(&self, p: &Profile) -> String {
+        let pm = p.scene.gravity.map(|g| g.point_mass()).unwrap_or_default();
+        let at: Vec<String> = self
+            .unstable
             .iter()
             .map(|(r, g)| match pm.damp_weight(*r) {
                 0.0 => format!("{r:.4} ({g:.2})"),
                 w => format!("{r:.4} ({g:.2}; in a damping zone, weight {w:.2})"),
             })
             .collect();
-        let held = unstable.iter().all(|(r, _)| pm.damp_weight(*r) > 0.0);
-        su.notes.push(format!(
+        let held = self.unstable.iter().all(|(r, _)| pm.damp_weight(*r) > 0.0);
+        format!(
             "{}: disc: R v_φ falls outward at R = {} (in brackets the growth rate of a \
              displacement there over Ω: Rayleigh-unstable rings, an SPH edge's pressure gradient \
              acting over h; method.md §D, \"The discs' edges\")",
             if held { "note" } else { "warning" },
             at.join(", ")
-        ));
+        )
     }
-    Ok(su)
 }
 
 /// The rings where the specific angular momentum of the balance falls outward (Rayleigh:
@@ -488,8 +715,6 @@ fn relax(
     let mut phys = gas_physics(scene, h, domain);
     // The balance is measured at rest: no zone damping.
     phys.gravity.damp_per_omega = 0.0;
-    let centre = phys.gravity.pos;
-    let gm = phys.gravity.gm;
     let dim = domain.dim;
     let mut moved = vec![0.0; gas.len()];
     let mut g = gas;
@@ -531,20 +756,7 @@ fn relax(
         if dim < 3 {
             return Ok((g, acc, String::new()));
         }
-        // Vertical balance within two scale heights: the gas's A_z (pressure + pull) against
-        // the pull alone (a column's few outermost particles, SPH's free surface, never balance).
-        let (mut a2, mut g2) = (0.0, 0.0);
-        for (xi, a) in g.x.iter().zip(&acc) {
-            let x = sub(*xi, centre);
-            let r = x[0].hypot(x[1]);
-            if x[2].abs() > 2.0 * phys.local_cs.at(*xi) * (r * r * r / gm).sqrt() {
-                continue;
-            }
-            let pull = gm * x[2] / (r * r + x[2] * x[2]).powf(1.5);
-            a2 += a[2] * a[2];
-            g2 += pull * pull;
-        }
-        let residual = (a2 / g2.max(f64::MIN_POSITIVE)).sqrt();
+        let residual = vertical_residual(&g, &acc, &phys);
         if best.as_ref().is_none_or(|b| residual < b.0) {
             best = Some((residual, g.clone(), acc.clone(), it));
         }
@@ -554,26 +766,57 @@ fn relax(
         if it == RELAX_ITERATIONS {
             return done(best, " (not converged)");
         }
-        // Heavy-ball descent: each move keeps a share of the particle's last one (by id: the
-        // engine sorts), which speeds up the slow large-scale mode of the column.
-        // Particles beyond 2H stay where the Gaussian put them: SPH's free surface would push
-        // a column's outermost ones outward without end.
-        for ((x, a), id) in g.x.iter_mut().zip(&acc).zip(&g.id) {
-            let id = *id as usize;
-            let d = sub(*x, centre);
-            let r = d[0].hypot(d[1]);
-            let c = phys.local_cs.at(*x);
-            if d[2].abs() > 2.0 * c * (r * r * r / gm).sqrt() {
-                moved[id] = 0.0;
-                continue;
-            }
-            let dz = (RELAX_KAPPA * h * h * a[2] / (c * c) + RELAX_MOMENTUM * moved[id])
-                .clamp(-0.1 * spacing, 0.1 * spacing);
-            moved[id] = dz;
-            x[2] += dz;
-        }
+        relax_move(&mut g, &acc, &mut moved, &phys, h, spacing);
     }
     unreachable!("the loop returns at its last iteration")
+}
+
+/// The gas's vertical balance within two scale heights: the rms of its A_z (pressure + pull)
+/// over the rms of the pull alone (a column's few outermost particles, SPH's free surface,
+/// never balance).
+fn vertical_residual(g: &Phase, acc: &[[f64; 3]], phys: &crate::step::Physics) -> f64 {
+    let (centre, gm) = (phys.gravity.pos, phys.gravity.gm);
+    let (mut a2, mut g2) = (0.0, 0.0);
+    for (xi, a) in g.x.iter().zip(acc) {
+        let x = sub(*xi, centre);
+        let r = x[0].hypot(x[1]);
+        if x[2].abs() > 2.0 * phys.local_cs.at(*xi) * (r * r * r / gm).sqrt() {
+            continue;
+        }
+        let pull = gm * x[2] / (r * r + x[2] * x[2]).powf(1.5);
+        a2 += a[2] * a[2];
+        g2 += pull * pull;
+    }
+    (a2 / g2.max(f64::MIN_POSITIVE)).sqrt()
+}
+
+/// One move of the relaxation's heavy-ball descent: each move keeps a share of the particle's
+/// last one (`moved`, by id: the engine sorts), which speeds up the slow large-scale mode of
+/// the column. Particles beyond 2H stay where the Gaussian put them: SPH's free surface would
+/// push a column's outermost ones outward without end.
+fn relax_move(
+    g: &mut Phase,
+    acc: &[[f64; 3]],
+    moved: &mut [f64],
+    phys: &crate::step::Physics,
+    h: f64,
+    spacing: f64,
+) {
+    let (centre, gm) = (phys.gravity.pos, phys.gravity.gm);
+    for ((x, a), id) in g.x.iter_mut().zip(acc).zip(&g.id) {
+        let id = *id as usize;
+        let d = sub(*x, centre);
+        let r = d[0].hypot(d[1]);
+        let c = phys.local_cs.at(*x);
+        if d[2].abs() > 2.0 * c * (r * r * r / gm).sqrt() {
+            moved[id] = 0.0;
+            continue;
+        }
+        let dz = (RELAX_KAPPA * h * h * a[2] / (c * c) + RELAX_MOMENTUM * moved[id])
+            .clamp(-0.1 * spacing, 0.1 * spacing);
+        moved[id] = dz;
+        x[2] += dz;
+    }
 }
 
 /// Φ⁻¹(p): the standard normal quantile, by bisection on Φ(x) = ½ erfc(−x/√2) to round-off.

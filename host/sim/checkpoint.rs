@@ -157,9 +157,6 @@ fn verify_resume(
     accreted: &super::accretion::Accreted,
 ) -> Result<(), String> {
     let scene = &loaded.scene;
-    let counts = |s: &State| -> (usize, Vec<usize>) {
-        (s.gas.ph.len(), s.dust.iter().map(|d| d.len()).collect())
-    };
     let have = (whole[0], whole[1..].to_vec());
     let taken_dust = |k: usize| accreted.dust_particles.get(k).copied().unwrap_or(0);
     let with_accreted = (
@@ -173,26 +170,65 @@ fn verify_resume(
     // A run from a file is not set up again (the file may have moved): its counts are held to
     // its own snapshots below.
     if !matches!(scene.problem, crate::scene::ProblemCfg::File(_)) {
-        // Set up by share where the scene allows (each process its share, counted together).
-        let su = crate::setup::build_on(scene, c)
-            .map_err(|e| format!("its scene cannot be set up: {e}"))?;
-        let mut want = counts(&su.state);
-        if su.share {
-            let mut n: Vec<u64> = std::iter::once(want.0)
-                .chain(want.1.iter().copied())
-                .map(|n| n as u64)
-                .collect();
-            c.sum_u64(&mut n);
-            want = (n[0] as usize, n[1..].iter().map(|&n| n as usize).collect());
-        }
-        if want != with_accreted {
+        verify_scene_counts(scene, c, (&have, &with_accreted), accreted)?;
+    }
+    verify_dim(state, scene, c)?;
+    if let Some(&t_end) = output_times(loaded, outputs.start_time).last() {
+        if state.t >= t_end {
             return Err(format!(
-                "its particles (gas {}, dust {:?}, with {} gas and {:?} dust accreted) do not \
-                 match its own scene (gas {}, dust {:?})",
-                have.0, have.1, accreted.gas_particles, accreted.dust_particles, want.0, want.1
+                "its run already reached t_end = {t_end} (t = {}): nothing to resume, and the \
+                 output stays as it is (to run further, start a new run with a later \
+                 time.t_end)",
+                state.t
             ));
         }
     }
+    verify_listed_snapshots(dir, state, loaded, outputs, (&have, &with_accreted))?;
+    verify_no_other_snapshot(dir, state, loaded, outputs)
+}
+
+/// Particle counts: the gas's, then each fraction's.
+type Counts = (usize, Vec<usize>);
+
+/// The checkpoint's counts, with the accreted particles (`with_accreted`), are those its
+/// scene sets up (by share where the scene allows: each process its share, counted
+/// together; collective over `c`).
+fn verify_scene_counts(
+    scene: &crate::scene::Scene,
+    c: &dyn crate::dist::Comm,
+    (have, with_accreted): (&Counts, &Counts),
+    accreted: &super::accretion::Accreted,
+) -> Result<(), String> {
+    let counts =
+        |s: &State| -> Counts { (s.gas.ph.len(), s.dust.iter().map(|d| d.len()).collect()) };
+    let su =
+        crate::setup::build_on(scene, c).map_err(|e| format!("its scene cannot be set up: {e}"))?;
+    let mut want = counts(&su.state);
+    if su.share {
+        let mut n: Vec<u64> = std::iter::once(want.0)
+            .chain(want.1.iter().copied())
+            .map(|n| n as u64)
+            .collect();
+        c.sum_u64(&mut n);
+        want = (n[0] as usize, n[1..].iter().map(|&n| n as usize).collect());
+    }
+    if want != *with_accreted {
+        return Err(format!(
+            "its particles (gas {}, dust {:?}, with {} gas and {:?} dust accreted) do not \
+             match its own scene (gas {}, dust {:?})",
+            have.0, have.1, accreted.gas_particles, accreted.dust_particles, want.0, want.1
+        ));
+    }
+    Ok(())
+}
+
+/// No process's particle has a coordinate the scene's dimension leaves unused (collective
+/// over `c`).
+fn verify_dim(
+    state: &State,
+    scene: &crate::scene::Scene,
+    c: &dyn crate::dist::Comm,
+) -> Result<(), String> {
     let dim = scene.dim() as usize;
     let phases = std::iter::once(&state.gas.ph).chain(&state.dust);
     let mut off_axis = [(dim < 3
@@ -205,16 +241,20 @@ fn verify_resume(
             "its particles are not {dim}-dimensional as its scene (scene.dim = {dim}) says"
         ));
     }
-    if let Some(&t_end) = output_times(loaded, outputs.start_time).last() {
-        if state.t >= t_end {
-            return Err(format!(
-                "its run already reached t_end = {t_end} (t = {}): nothing to resume, and the \
-                 output stays as it is (to run further, start a new run with a later \
-                 time.t_end)",
-                state.t
-            ));
-        }
-    }
+    Ok(())
+}
+
+/// Every snapshot the checkpoint's progress lists is in `dir`, written by the same effective
+/// scene with the same particle counts (between the state's and those with the accreted),
+/// no later than the checkpoint and at the time the run wrote it.
+fn verify_listed_snapshots(
+    dir: &Path,
+    state: &State,
+    loaded: &LoadedScene,
+    outputs: &OutputRecord,
+    (have, with_accreted): (&Counts, &Counts),
+) -> Result<(), String> {
+    let dim = loaded.scene.dim() as usize;
     let n_dust: usize = have.1.iter().sum();
     for (k, name) in outputs.snapshots.iter().enumerate() {
         let p = dir.join(name);
@@ -256,6 +296,16 @@ fn verify_resume(
             }
         }
     }
+    Ok(())
+}
+
+/// No snapshot in `dir` but those the checkpoint's run wrote: resuming would overwrite it.
+fn verify_no_other_snapshot(
+    dir: &Path,
+    state: &State,
+    loaded: &LoadedScene,
+    outputs: &OutputRecord,
+) -> Result<(), String> {
     let listed: std::collections::HashSet<&str> =
         outputs.snapshots.iter().map(|s| s.as_str()).collect();
     let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
