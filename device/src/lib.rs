@@ -29,6 +29,7 @@ pub mod kernels;
 pub mod real;
 pub mod sph;
 pub mod threads;
+pub mod timestep;
 pub mod update;
 
 #[cfg(target_arch = "nvptx64")]

@@ -1,5 +1,6 @@
 //! Comparison with exact solutions (method.md §8) and conservation diagnostics.
 pub mod ball;
+pub mod bins;
 pub mod disc;
 pub mod norms;
 pub mod profiles;

@@ -46,6 +46,10 @@ pub struct OutputRecord {
     /// The ball: the undisturbed core at each snapshot time (docs/method.md §6.1).
     #[serde(default)]
     pub ball_core: Vec<analysis::ball::CoreCheck>,
+    /// The time bins individual steps would give each snapshot's state after the first
+    /// (`analysis::bins`; CFL steps on a whole state only).
+    #[serde(default)]
+    pub time_bins: Vec<analysis::bins::BinCensus>,
     /// The time the run started at: 0, or an initial-conditions file's `Header/Time`.
     #[serde(default)]
     pub start_time: f64,
@@ -176,6 +180,17 @@ impl Outputs {
         let c = &crate::dist::Alone;
         if let Some(core) = ball_core(&self.loaded, &sim.state, &sim.phys, c) {
             self.record.ball_core.push(core);
+        }
+        // Last: it brings the state into the engine's order, which the stopping times the
+        // snapshot took over ranks do not follow.
+        if sim.state.step > 0 && fixed_dt.is_none() {
+            let limits = (sim.stepper.particle_limits(&mut sim.state))
+                .map_err(|e| RunError::Step(e.to_string()))?;
+            let time = &self.loaded.scene.time;
+            let lim = (limits.0.as_slice(), limits.1.as_slice());
+            self.record
+                .time_bins
+                .extend(analysis::bins::census(&sim.state, &sim.phys, time, lim));
         }
         self.write_series((sim.state.t, sim.state.step), name)
     }

@@ -173,6 +173,19 @@ impl Stepper {
         eng.dust_stopping_times(state)
     }
 
+    /// Each gas particle's |A| and signal speed for the synced state, which is brought into
+    /// the engine's order (rank 0 only over ranks; after the output's fields, whose stopping
+    /// times follow the gathered order).
+    pub fn particle_limits(
+        &mut self,
+        state: &mut State,
+    ) -> Result<(Vec<[f64; 3]>, Vec<f64>), StepError> {
+        let eng = self.engine(state)?;
+        let limits = eng.particle_limits()?;
+        eng.sync(state)?;
+        Ok(limits)
+    }
+
     /// The dust densities of the synced state (over ranks, the sync computed them).
     pub fn refresh_dust_density(&mut self, state: &mut State) -> Result<(), StepError> {
         if let Stepper::Ranks {

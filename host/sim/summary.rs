@@ -146,6 +146,11 @@ pub struct Summary {
     pub rank_traffic: Option<Vec<crate::dist::Traffic>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ball: Option<BallReport>,
+    /// At each snapshot after the first: the time bins individual steps would give its state,
+    /// and the particle updates the global step took per update they would take
+    /// (method.md §T; CFL steps only).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub time_bins: Vec<crate::analysis::bins::BinCensus>,
 }
 
 /// The conservation of a run from its diagnostics and the sums over its final state; masses count
@@ -290,6 +295,7 @@ pub fn finish(
         particle_steps_per_second: d.counts.total() as f64 * state.step as f64 / wall.max(1e-12),
         conservation: conservation(&d, &totals, &phys),
         errors: outputs.errors,
+        time_bins: outputs.time_bins,
         snapshots: outputs.snapshots,
         stage_seconds: timers.entries().to_vec(),
         output_seconds: output_timers.entries().to_vec(),

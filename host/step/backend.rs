@@ -371,6 +371,12 @@ impl Backend {
         each!(self, e => e.accelerations())
     }
 
+    /// Each gas particle's |A| and signal speed at the current layer, in the engine's order
+    /// (the time bins' census; the step that follows is unchanged).
+    pub fn particle_limits(&mut self) -> Result<(Vec<[f64; 3]>, Vec<f64>), StepError> {
+        each!(self, e => e.particle_limits())
+    }
+
     /// The gas particles that set the time step (largest |A|, largest c_s), for messages.
     pub fn dt_culprits(&mut self) -> Result<String, StepError> {
         each!(self, e => e.dt_culprits())

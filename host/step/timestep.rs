@@ -4,6 +4,7 @@
 //! for every way of stepping: one process, MPI ranks (with the maxima over the ranks), parity.
 use super::Forces;
 use crate::scene::{StepRule, Time, MAX_FIXED_STEPS};
+use dustsph_device::timestep::{cfl_limit, force_limit};
 
 /// What the planner chose for one step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,17 +48,32 @@ pub struct StepPlanner {
 
 /// Time-step limits from the forces: (CFL with factor 1, force limit with factor 1).
 pub fn dt_limits(h: f64, f: &Forces) -> (f64, f64) {
-    let dt_cfl = if f.vsig_max > 0.0 {
-        h / f.vsig_max
+    (cfl_limit(h, f.vsig_max), force_limit(h, f.acc_max))
+}
+
+/// The edge zones' limit 1/rate (+∞ outside them).
+pub fn damp_limit(rate: f64) -> f64 {
+    if rate > 0.0 {
+        1.0 / rate
     } else {
         f64::INFINITY
-    };
-    let dt_force = if f.acc_max > 0.0 {
-        (h / f.acc_max).sqrt()
-    } else {
-        f64::INFINITY
-    };
-    (dt_cfl, dt_force)
+    }
+}
+
+/// One particle's own step under a CFL rule: [`step_size`] with its own smoothing length, signal
+/// speed, |acceleration| and damping rate (`None` for a fixed `time.dt`, the same for all).
+pub fn own_step(time: &Time, h: f64, vsig: f64, acc: f64, damp_rate: f64) -> Option<f64> {
+    time.fixed_dt().is_none().then(|| {
+        let limits = (cfl_limit(h, vsig), force_limit(h, acc));
+        step_size(
+            time,
+            limits.0,
+            limits.1,
+            damp_limit(damp_rate),
+            f64::INFINITY,
+        )
+        .0
+    })
 }
 
 /// The step size τ: the fixed `time.dt`, or `time.cfl` × min(CFL limit, force limit) capped by
@@ -104,11 +120,7 @@ impl StepPlanner {
         t_target: f64,
     ) -> Result<Plan, PlanError> {
         let (dt_cfl, dt_force) = dt_limits(self.h, forces);
-        let dt_damp = if forces.damp_rate_max > 0.0 {
-            1.0 / forces.damp_rate_max
-        } else {
-            f64::INFINITY
-        };
+        let dt_damp = damp_limit(forces.damp_rate_max);
         let (dt_free, by_drag) = step_size(&self.time, dt_cfl, dt_force, dt_damp, dt_drag);
         if !(dt_free.is_finite() && dt_free > 0.0) {
             return Err(PlanError::NoLimit(format!(

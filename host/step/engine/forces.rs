@@ -24,6 +24,30 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         Ok(self.d.get_v3(&self.acc, self.gas.n)?)
     }
 
+    /// Each gas particle's |A| and signal speed at the current layer (the time bins' census,
+    /// [`crate::analysis::bins`]): under the leapfrog its closing forces as they stand (the next
+    /// step's; recomputing them from v^{n+1} instead of v* would change the run), else the
+    /// forces computed here, as the next step will compute them.
+    pub fn particle_limits(&mut self) -> Result<(Vec<V3>, Vec<f64>), StepError> {
+        let n = self.gas.n;
+        if let (true, Some(_), Some(vsig)) = (self.stages.kdk, self.kdk.closing, &self.kdk.vsig) {
+            return Ok((self.d.get_v3(&self.acc, n)?, self.d.get_f64(vsig, n)?));
+        }
+        let kept = self.kdk.vsig.is_some();
+        if !kept {
+            self.kdk.vsig = Some(self.d.buf(n.max(1))?);
+        }
+        let acc = self.accelerations();
+        let vsig = match &self.kdk.vsig {
+            Some(v) => self.d.get_f64(v, n).map_err(StepError::from),
+            None => unreachable!("set above"),
+        };
+        if !kept {
+            self.kdk.vsig = None;
+        }
+        Ok((acc?, vsig?))
+    }
+
     /// The gas particles that set the time step: the largest |A| (force limit) and the largest
     /// sound speed (CFL limit), with their ids and positions, for a collapsing step's message.
     pub fn dt_culprits(&mut self) -> Result<String, StepError> {

@@ -1,0 +1,239 @@
+//! The time bins individual steps would give a state (method.md §T): each particle's own step
+//! from its own limits ([`crate::step::timestep::own_step`]: CFL with its h and signal speed,
+//! force, the edge zones, `time.dt_max`), its power-of-two bin
+//! ([`dustsph_device::timestep::bin_of`]), then the neighbour limiter of Saitoh & Makino (2009,
+//! ApJ 697, L99): no particle steps more than [`NEIGHBOUR_SPAN`] bins slower than a particle
+//! of its phase within its kernel support, and a grain steps no slower than the gas within its
+//! support, its drag partners ([`PARTNER_SPAN`]). What it measures: the particle updates a
+//! global step takes for each one individual steps would, on the run's own state.
+use crate::particles::State;
+use crate::scene::Time;
+use crate::step::timestep::own_step;
+use crate::step::Physics;
+use dustsph_device::timestep::bin_of;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+/// Bins counted: steps from dt_min to 2^(MAX_BIN) dt_min.
+pub const MAX_BIN: u32 = 15;
+/// The limiter's span: a particle's bin at most this many bins above any neighbour's of its
+/// own phase.
+pub const NEIGHBOUR_SPAN: u32 = 2;
+/// A grain steps no slower than the gas within its support (its drag partners): the dust has
+/// no pressure to set its step, the drag with its gas does (method.md §T). Not the other way:
+/// over overlapping supports a two-way rule would chain every particle to the shortest bin.
+pub const PARTNER_SPAN: u32 = 0;
+
+/// The bins of one state.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct BinCensus {
+    pub t: f64,
+    /// The shortest own step of any particle: bin j steps 2^j dt_min.
+    pub dt_min: f64,
+    /// Gas particles per bin (j = 0 first).
+    pub gas: Vec<u64>,
+    /// Dust particles per bin (all fractions; particles held fixed left out).
+    pub dust: Vec<u64>,
+    /// Particles whose bin the neighbour limiter shortened.
+    pub limited: u64,
+    /// Σ 1 / Σ 2^-j over the particles: the updates a global step at dt_min takes per update
+    /// of individual steps, to the same time (synchronisation at outputs not counted).
+    pub update_ratio: f64,
+    /// The run's own global step at this state ([`crate::step::timestep::StepPlanner`]'s rule:
+    /// the reference h with the largest signal speed and |A|; variable h's smaller h at high
+    /// density makes it longer than dt_min).
+    pub dt_global: f64,
+    /// The updates the run's global step takes per update of individual steps:
+    /// update_ratio × dt_min / dt_global.
+    pub update_ratio_vs_run: f64,
+}
+
+/// Each particle's bin before the limiter, and its kernel support, gas first then each dust
+/// fraction's moving particles.
+struct Own {
+    x: Vec<[f64; 3]>,
+    support: Vec<f64>,
+    dt: Vec<f64>,
+    n_gas: usize,
+    /// The global step's rule on the same limits.
+    dt_global: f64,
+}
+
+/// The census of `state` (synced) with each gas particle's |A| and signal speed in the same
+/// order; `None` for a fixed `time.dt` (every particle takes the same step) or no particles.
+pub fn census(
+    state: &State,
+    phys: &Physics,
+    time: &Time,
+    (acc, vsig): (&[[f64; 3]], &[f64]),
+) -> Option<BinCensus> {
+    let own = own_steps(state, phys, time, (acc, vsig))?;
+    let dt_min = own.dt.iter().copied().fold(f64::INFINITY, f64::min);
+    if !(dt_min.is_finite() && dt_min > 0.0) {
+        return None;
+    }
+    let mut bins: Vec<u32> = own.dt.iter().map(|&d| bin_of(d, dt_min, MAX_BIN)).collect();
+    let before = bins.clone();
+    limit_by_neighbours(&own, &mut bins);
+    let mut gas = vec![0u64; MAX_BIN as usize + 1];
+    let mut dust = gas.clone();
+    for (i, &j) in bins.iter().enumerate() {
+        let c = if i < own.n_gas { &mut gas } else { &mut dust };
+        c[j as usize] += 1;
+    }
+    let trim = |c: &mut Vec<u64>| {
+        while c.last() == Some(&0) {
+            c.pop();
+        }
+    };
+    trim(&mut gas);
+    trim(&mut dust);
+    let updates: f64 = bins.iter().map(|&j| 0.5f64.powi(j as i32)).sum();
+    let update_ratio = bins.len() as f64 / updates;
+    let dt_global = own.dt_global;
+    Some(BinCensus {
+        t: state.t,
+        dt_min,
+        gas,
+        dust,
+        limited: bins.iter().zip(&before).filter(|(a, b)| a != b).count() as u64,
+        update_ratio,
+        dt_global,
+        update_ratio_vs_run: update_ratio * dt_min / dt_global,
+    })
+}
+
+fn own_steps(
+    state: &State,
+    phys: &Physics,
+    time: &Time,
+    (acc, vsig): (&[[f64; 3]], &[f64]),
+) -> Option<Own> {
+    let g = &state.gas;
+    let pm = &phys.gravity;
+    let norm = |a: [f64; 3]| dustsph_device::dot(a, a).sqrt();
+    let mut own = Own {
+        x: Vec::new(),
+        support: Vec::new(),
+        dt: Vec::new(),
+        n_gas: g.ph.len(),
+        dt_global: 0.0,
+    };
+    let (mut vsig_max, mut acc_max, mut damp_max) = (0.0f64, 0.0f64, 0.0f64);
+    for i in 0..g.ph.len() {
+        let h = g.h.as_ref().map_or(phys.h, |h| h[i]);
+        let x = g.ph.x[i];
+        let (a, rate) = (norm(acc[i]), pm.damp_rate(x));
+        own.dt.push(own_step(time, h, vsig[i], a, rate)?);
+        (vsig_max, acc_max) = (vsig_max.max(vsig[i]), acc_max.max(a));
+        damp_max = damp_max.max(rate);
+        own.x.push(x);
+        own.support.push(2.0 * h);
+    }
+    let dim = phys.dim as i32;
+    for ph in &state.dust {
+        for i in 0..ph.len() {
+            if ph.fixed.as_ref().is_some_and(|f| f[i]) {
+                continue;
+            }
+            let x = ph.x[i];
+            // Variable h: the dust's h from its density, as the snapshots write it.
+            let h = match phys.variable_h {
+                Some(hfact) if ph.rho[i] > 0.0 => {
+                    hfact * (ph.m[i] / ph.rho[i]).powf(1.0 / dim as f64)
+                }
+                _ => phys.h,
+            };
+            let a = norm(dustsph_device::add(pm.accel(x), phys.ext_dust));
+            let rate = pm.damp_rate(x);
+            own.dt.push(own_step(time, h, 0.0, a, rate)?);
+            (acc_max, damp_max) = (acc_max.max(a), damp_max.max(rate));
+            own.x.push(x);
+            own.support.push(2.0 * h);
+        }
+    }
+    own.dt_global = own_step(time, phys.h, vsig_max, acc_max, damp_max)?;
+    (!own.dt.is_empty()).then_some(own)
+}
+
+/// Lower each bin to at most [`NEIGHBOUR_SPAN`] above the lowest bin of its phase, and a
+/// grain's to the lowest gas bin, within the particle's support (|x_b − x_a| < 2h_a), repeated
+/// until nothing changes (a lowered bin lowers its neighbours' in turn; each pass reads the last
+/// pass's bins, so the result does not depend on the threads). Cells of half the median support: those wholly inside the support count by their lowest bins, those it cuts
+/// particle by particle.
+fn limit_by_neighbours(own: &Own, bins: &mut [u32]) {
+    let mut s: Vec<f64> = own.support.clone();
+    s.sort_by(f64::total_cmp);
+    let cell = (0.5 * s[s.len() / 2]).max(f64::MIN_POSITIVE);
+    let key = |x: [f64; 3]| x.map(|c| (c / cell).floor() as i64);
+    let mut members: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (a, &x) in own.x.iter().enumerate() {
+        members.entry(key(x)).or_default().push(a);
+    }
+    let phase = |a: usize| (a >= own.n_gas) as usize;
+    loop {
+        // Each cell's lowest bin of each phase (gas, dust).
+        let lowest: HashMap<[i64; 3], [u32; 2]> = (members.iter())
+            .map(|(k, m)| {
+                let mut l = [u32::MAX; 2];
+                for &a in m {
+                    l[phase(a)] = l[phase(a)].min(bins[a]);
+                }
+                (*k, l)
+            })
+            .collect();
+        let old: &[u32] = bins;
+        let limited: Vec<u32> = (0..old.len())
+            .into_par_iter()
+            .map(|a| {
+                let (xa, r) = (own.x[a], own.support[a]);
+                let reach = (r / cell).ceil() as i64;
+                let k = key(xa);
+                let mut l = [u32::MAX; 2];
+                for dx in -reach..=reach {
+                    for dy in -reach..=reach {
+                        for dz in -reach..=reach {
+                            let c = [k[0] + dx, k[1] + dy, k[2] + dz];
+                            let Some(m) = members.get(&c) else {
+                                continue;
+                            };
+                            // Nearest and farthest distance² from x_a to the cell's box.
+                            let (mut near, mut far) = (0.0, 0.0);
+                            for i in 0..3 {
+                                let (lo, hi) = (c[i] as f64 * cell, (c[i] + 1) as f64 * cell);
+                                let gap = (lo - xa[i]).max(xa[i] - hi).max(0.0);
+                                let span = (xa[i] - lo).abs().max((hi - xa[i]).abs());
+                                (near, far) = (near + gap * gap, far + span * span);
+                            }
+                            if near >= r * r {
+                                continue;
+                            }
+                            if far < r * r {
+                                let lc = lowest[&c];
+                                l = [l[0].min(lc[0]), l[1].min(lc[1])];
+                                continue;
+                            }
+                            for &b in m {
+                                let d = dustsph_device::sub(own.x[b], xa);
+                                if dustsph_device::dot(d, d) < r * r {
+                                    l[phase(b)] = l[phase(b)].min(old[b]);
+                                }
+                            }
+                        }
+                    }
+                }
+                let p = phase(a);
+                let mut most = l[p].saturating_add(NEIGHBOUR_SPAN);
+                if p == 1 {
+                    most = most.min(l[0].saturating_add(PARTNER_SPAN));
+                }
+                old[a].min(most)
+            })
+            .collect();
+        if limited == bins {
+            break;
+        }
+        bins.copy_from_slice(&limited);
+    }
+}
