@@ -237,3 +237,61 @@ fn limit_by_neighbours(own: &Own, bins: &mut [u32]) {
         bins.copy_from_slice(&limited);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Particles on a line at unit spacing, support 2.5 (two neighbours each side): gas with
+    /// own steps `gas_dt`, then dust at the same places with `dust_dt`.
+    fn line(gas_dt: &[f64], dust_dt: &[f64]) -> (Own, Vec<u32>) {
+        let at = |i: usize| [i as f64, 0.0, 0.0];
+        let x: Vec<[f64; 3]> = (0..gas_dt.len()).map(at).chain((0..dust_dt.len()).map(at)).collect();
+        let dt: Vec<f64> = gas_dt.iter().chain(dust_dt).copied().collect();
+        let bins = dt.iter().map(|&d| bin_of(d, 1.0, MAX_BIN)).collect();
+        let own = Own {
+            support: vec![2.5; x.len()],
+            x,
+            dt,
+            n_gas: gas_dt.len(),
+            dt_global: 1.0,
+        };
+        (own, bins)
+    }
+
+    #[test]
+    fn the_limiter_keeps_a_particle_within_two_bins_of_its_neighbours_and_grains_with_their_gas() {
+        // Gas: 20 particles at bin 0, then 40 that alone could take bin 10; dust everywhere
+        // alone at bin 12 (no force), except one grain at bin 0 among the slow gas.
+        let gas: Vec<f64> = (0..60).map(|i| if i < 20 { 1.0 } else { 1024.0 }).collect();
+        let mut dust = vec![4096.0; 60];
+        dust[50] = 1.0;
+        let (own, mut bins) = line(&gas, &dust);
+        let alone = bins.clone();
+        limit_by_neighbours(&own, &mut bins);
+        let n = own.n_gas;
+        for a in 0..bins.len() {
+            assert!(bins[a] <= alone[a], "particle {a}: the limiter lengthened its step");
+            for b in 0..bins.len() {
+                let d = (own.x[a][0] - own.x[b][0]).abs();
+                if d >= own.support[a] {
+                    continue;
+                }
+                if (a < n) == (b < n) {
+                    assert!(bins[a] <= bins[b] + NEIGHBOUR_SPAN, "{a} vs {b}: {bins:?}");
+                } else if a >= n {
+                    assert!(bins[a] <= bins[b], "grain {a} slower than gas {b}: {bins:?}");
+                }
+            }
+        }
+        // The ramp away from the fast gas: two bins per two particles (the support reaches two
+        // neighbours), and the far gas keeps its own bin 10.
+        assert_eq!(&bins[20..26], &[2, 2, 4, 4, 6, 6]);
+        assert_eq!(bins[59], 10);
+        // The fast grain does not shorten the gas around it.
+        assert_eq!(bins[49], 10);
+        // A grain takes its gas's bin, not its own bin 12.
+        assert_eq!(bins[n + 59], 10);
+        assert_eq!(bins[n + 50], 0, "a grain's own short step stays");
+    }
+}
