@@ -41,8 +41,8 @@ pub struct BinCensus {
     /// of individual steps, to the same time (synchronisation at outputs not counted).
     pub update_ratio: f64,
     /// The run's own global step at this state ([`crate::step::timestep::StepPlanner`]'s rule:
-    /// the reference h with the largest signal speed and |A|; variable h's smaller h at high
-    /// density makes it longer than dt_min).
+    /// the reference h with the largest signal speed and |A|). Under variable h it differs from
+    /// dt_min either way: the particles' own h are smaller or larger than the reference.
     pub dt_global: f64,
     /// The updates the run's global step takes per update of individual steps:
     /// update_ratio × dt_min / dt_global.
@@ -60,26 +60,67 @@ struct Own {
     dt_global: f64,
 }
 
+/// Each particle's own step and bin, gas first then each fraction's moving grains.
+#[derive(Debug, Clone)]
+pub struct Bins {
+    /// The particle's own step ([`own_step`]).
+    pub own: Vec<f64>,
+    /// Its bin after the limiters: it steps 2^bin dt_min.
+    pub bin: Vec<u32>,
+    /// Its bin from its own step alone.
+    pub alone: Vec<u32>,
+    pub dt_min: f64,
+    /// The run's global step rule on the same state.
+    pub dt_global: f64,
+    pub n_gas: usize,
+}
+
+impl Bins {
+    /// The step particle `a` takes.
+    pub fn step(&self, a: usize) -> f64 {
+        self.dt_min * 2f64.powi(self.bin[a] as i32)
+    }
+}
+
+/// The bins of `state` (synced) with each gas particle's |A| and signal speed in the same
+/// order; `None` for a fixed `time.dt` (every particle takes the same step) or no particles.
+pub fn particle_bins(
+    state: &State,
+    phys: &Physics,
+    time: &Time,
+    (acc, vsig): (&[[f64; 3]], &[f64]),
+) -> Option<Bins> {
+    let own = own_steps(state, phys, time, (acc, vsig))?;
+    let dt_min = own.dt.iter().copied().fold(f64::INFINITY, f64::min);
+    if !(dt_min.is_finite() && dt_min > 0.0) {
+        return None;
+    }
+    let alone: Vec<u32> = own.dt.iter().map(|&d| bin_of(d, dt_min, MAX_BIN)).collect();
+    let mut bin = alone.clone();
+    limit_by_neighbours(&own, &mut bin);
+    Some(Bins {
+        bin,
+        alone,
+        dt_min,
+        dt_global: own.dt_global,
+        n_gas: own.n_gas,
+        own: own.dt,
+    })
+}
+
 /// The census of `state` (synced) with each gas particle's |A| and signal speed in the same
 /// order; `None` for a fixed `time.dt` (every particle takes the same step) or no particles.
 pub fn census(
     state: &State,
     phys: &Physics,
     time: &Time,
-    (acc, vsig): (&[[f64; 3]], &[f64]),
+    limits: (&[[f64; 3]], &[f64]),
 ) -> Option<BinCensus> {
-    let own = own_steps(state, phys, time, (acc, vsig))?;
-    let dt_min = own.dt.iter().copied().fold(f64::INFINITY, f64::min);
-    if !(dt_min.is_finite() && dt_min > 0.0) {
-        return None;
-    }
-    let mut bins: Vec<u32> = own.dt.iter().map(|&d| bin_of(d, dt_min, MAX_BIN)).collect();
-    let before = bins.clone();
-    limit_by_neighbours(&own, &mut bins);
+    let b = particle_bins(state, phys, time, limits)?;
     let mut gas = vec![0u64; MAX_BIN as usize + 1];
     let mut dust = gas.clone();
-    for (i, &j) in bins.iter().enumerate() {
-        let c = if i < own.n_gas { &mut gas } else { &mut dust };
+    for (i, &j) in b.bin.iter().enumerate() {
+        let c = if i < b.n_gas { &mut gas } else { &mut dust };
         c[j as usize] += 1;
     }
     let trim = |c: &mut Vec<u64>| {
@@ -89,18 +130,17 @@ pub fn census(
     };
     trim(&mut gas);
     trim(&mut dust);
-    let updates: f64 = bins.iter().map(|&j| 0.5f64.powi(j as i32)).sum();
-    let update_ratio = bins.len() as f64 / updates;
-    let dt_global = own.dt_global;
+    let updates: f64 = b.bin.iter().map(|&j| 0.5f64.powi(j as i32)).sum();
+    let update_ratio = b.bin.len() as f64 / updates;
     Some(BinCensus {
         t: state.t,
-        dt_min,
+        dt_min: b.dt_min,
         gas,
         dust,
-        limited: bins.iter().zip(&before).filter(|(a, b)| a != b).count() as u64,
+        limited: b.bin.iter().zip(&b.alone).filter(|(a, c)| a != c).count() as u64,
         update_ratio,
-        dt_global,
-        update_ratio_vs_run: update_ratio * dt_min / dt_global,
+        dt_global: b.dt_global,
+        update_ratio_vs_run: update_ratio * b.dt_min / b.dt_global,
     })
 }
 
@@ -246,7 +286,10 @@ mod tests {
     /// own steps `gas_dt`, then dust at the same places with `dust_dt`.
     fn line(gas_dt: &[f64], dust_dt: &[f64]) -> (Own, Vec<u32>) {
         let at = |i: usize| [i as f64, 0.0, 0.0];
-        let x: Vec<[f64; 3]> = (0..gas_dt.len()).map(at).chain((0..dust_dt.len()).map(at)).collect();
+        let x: Vec<[f64; 3]> = (0..gas_dt.len())
+            .map(at)
+            .chain((0..dust_dt.len()).map(at))
+            .collect();
         let dt: Vec<f64> = gas_dt.iter().chain(dust_dt).copied().collect();
         let bins = dt.iter().map(|&d| bin_of(d, 1.0, MAX_BIN)).collect();
         let own = Own {
@@ -271,7 +314,10 @@ mod tests {
         limit_by_neighbours(&own, &mut bins);
         let n = own.n_gas;
         for a in 0..bins.len() {
-            assert!(bins[a] <= alone[a], "particle {a}: the limiter lengthened its step");
+            assert!(
+                bins[a] <= alone[a],
+                "particle {a}: the limiter lengthened its step"
+            );
             for b in 0..bins.len() {
                 let d = (own.x[a][0] - own.x[b][0]).abs();
                 if d >= own.support[a] {
@@ -280,7 +326,10 @@ mod tests {
                 if (a < n) == (b < n) {
                     assert!(bins[a] <= bins[b] + NEIGHBOUR_SPAN, "{a} vs {b}: {bins:?}");
                 } else if a >= n {
-                    assert!(bins[a] <= bins[b], "grain {a} slower than gas {b}: {bins:?}");
+                    assert!(
+                        bins[a] <= bins[b],
+                        "grain {a} slower than gas {b}: {bins:?}"
+                    );
                 }
             }
         }
