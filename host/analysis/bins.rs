@@ -166,7 +166,9 @@ fn own_steps(
         let x = g.ph.x[i];
         let (a, rate) = (norm(acc[i]), pm.damp_rate(x));
         own.dt.push(own_step(time, h, vsig[i], a, rate)?);
-        (vsig_max, acc_max) = (vsig_max.max(vsig[i]), acc_max.max(a));
+        // The global rule's maxima, each with the particle's own h (method.md §T).
+        let scale = phys.h / h;
+        (vsig_max, acc_max) = (vsig_max.max(vsig[i] * scale), acc_max.max(a * scale));
         damp_max = damp_max.max(rate);
         own.x.push(x);
         own.support.push(2.0 * h);

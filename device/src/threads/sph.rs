@@ -86,6 +86,8 @@ pub struct ForcesArgs<R> {
     pub iad: *const Sym3<R>,
     /// Per-particle signal speed (the leapfrog keeps its closing forces whole); null: not kept.
     pub vsig: *mut R,
+    /// 1: the step's limits with each particle's own h from `kernel_at` (variable h).
+    pub own_h: u32,
     pub p: Params<R>,
 }
 
@@ -138,8 +140,15 @@ pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
         *a.vsig.add(t) = r.vsig;
     }
     let am = Real::sqrt(dot(acc, acc));
-    atomic_max_u64(a.limits, kernels::ordered_bits(r.vsig));
-    atomic_max_u64(a.limits.add(1), kernels::ordered_bits(am));
+    // Variable h: the limits with each particle's own h (method.md §T), as maxima scaled by
+    // h_ref/h_a, so that h_ref / max = min h_a/v_sig,a (and the same for the force limit).
+    let scale = if a.own_h != 0 {
+        a.p.h / sl(a.kernel_at, n)[t].h
+    } else {
+        R::ONE
+    };
+    atomic_max_u64(a.limits, kernels::ordered_bits(r.vsig * scale));
+    atomic_max_u64(a.limits.add(1), kernels::ordered_bits(am * scale));
     if rate > 0.0 {
         atomic_max_u64(a.limits.add(2), kernels::ordered_bits(R::from_f64(rate)));
     }

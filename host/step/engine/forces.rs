@@ -144,6 +144,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
             pt: d.ptr(&self.sm.pt),
             iad: d.ptr(&self.sm.iad),
             vsig: d.opt(&self.kdk.vsig),
+            own_h: u32::from(self.stages.variable_h),
             p: p.dev,
         };
         let name = match (self.phys.av.is_some(), mode) {
