@@ -289,7 +289,20 @@ fn a_blow_up_stops_naming_step_particle_and_field_and_keeps_good_snapshots() {
         Path::new(&out).join("snapshot_0000.h5").exists(),
         "earlier snapshots are kept"
     );
-    assert!(!Path::new(&out).join("summary.json").exists());
+    // The summary of the state reached says the run failed, and where.
+    let s: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(Path::new(&out).join("summary.json")).unwrap(),
+    )
+    .unwrap();
+    let ending = s["ending"].as_str().unwrap();
+    assert!(
+        ending.starts_with("failed: step ") && ending.contains("has a bad"),
+        "{ending}"
+    );
+    assert_ne!(
+        s["t_final"], 2.0,
+        "a failed run's summary is not a finished one's"
+    );
     // Every snapshot left behind is complete and readable.
     for e in std::fs::read_dir(&out).unwrap() {
         let p = e.unwrap().path();

@@ -160,10 +160,16 @@ fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
         "interrupted at step {}",
         ck.step
     );
+    // The summary of the state reached, saying so.
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let ending = s["ending"].as_str().unwrap();
     assert!(
-        !out.join("summary.json").exists(),
-        "no summary for an unfinished run"
+        ending.starts_with(&format!("interrupted at step {}", ck.step))
+            && ending.contains("dustsph resume"),
+        "{ending}"
     );
+    assert_eq!(s["t_final"], ck.t);
     let o = Command::new(bin)
         .args(["resume", &out_s, "-q"])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
@@ -173,6 +179,7 @@ fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
     let s: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(s["t_final"], 0.4);
+    assert_eq!(s["ending"], "finished");
     assert_eq!(s["snapshots"].as_array().unwrap().len(), 9);
 }
 

@@ -102,26 +102,45 @@ fn drive(
         Ok(r) => r,
         Err(e) => return fail(e),
     };
+    let out = r.out_dir().to_path_buf();
+    let root = r.is_root();
     match r.advance(stop_after, checkpoint_every, Some(&stop)) {
         Ok(Stop::Finished) => {}
-        Ok(Stop::Interrupted { .. }) if !r.is_root() => return 130,
         Ok(Stop::Interrupted { .. }) => {
             let (step, t) = (r.sim.state.step, r.sim.state.t);
-            if r.checkpointed_now() {
-                eprintln!(
+            let how = if r.checkpointed_now() {
+                format!(
                     "interrupted at step {step}, t = {t}: checkpoint written; continue with \
                      `dustsph resume {}`",
-                    r.out_dir().display()
-                );
+                    out.display()
+                )
             } else {
-                eprintln!("stopped at step {step}, t = {t}, without a checkpoint of this state");
+                format!("stopped at step {step}, t = {t}, without a checkpoint of this state")
+            };
+            // The summary of the state reached (collective over ranks); the stop is said
+            // whether or not it could be written.
+            let written = r.finish_as(how.clone());
+            if root {
+                eprintln!("{how}");
+                match written {
+                    Ok(_) => eprintln!("summary: {}", out.join("summary.json").display()),
+                    Err(e) => eprintln!("warning: no summary of the state reached: {e}"),
+                }
             }
             return 130;
         }
-        Err(e) => return fail(e),
+        Err(e) => {
+            // One process: the summary of the last state the engine holds, saying the failure
+            // (over ranks a failed rank may not take part in the summary's reductions).
+            if r.sim.stepper.local().is_some() {
+                let how = format!("failed: {e}");
+                if let Err(w) = r.finish_as(how) {
+                    eprintln!("warning: no summary of the state reached: {w}");
+                }
+            }
+            return fail(e);
+        }
     }
-    let out = r.out_dir().to_path_buf();
-    let root = r.is_root();
     match r.finish() {
         Ok((s, _)) => {
             if root {

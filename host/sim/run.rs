@@ -331,7 +331,13 @@ impl Run {
     }
 
     /// The summary (also written to `DIR/summary.json`) and the final state.
-    pub fn finish(mut self) -> Result<(Summary, State), RunError> {
+    pub fn finish(self) -> Result<(Summary, State), RunError> {
+        self.finish_as(FINISHED.to_string())
+    }
+
+    /// The summary of the state a run stopped at (`ending` says why it stopped there), written
+    /// as [`Run::finish`] writes it (collective over ranks).
+    pub fn finish_as(mut self, ending: String) -> Result<(Summary, State), RunError> {
         let wall = self.checkpoints.wall_before + self.checkpoints.started.elapsed().as_secs_f64();
         let ball = self.ball.take().map(|b| b.record);
         summary::finish(
@@ -340,10 +346,13 @@ impl Run {
             &self.outputs.dir,
             std::mem::take(&mut self.outputs.record),
             ball,
-            wall,
+            (wall, ending),
         )
     }
 }
+
+/// A summary's `ending` for a run that reached t_end.
+pub const FINISHED: &str = "finished";
 
 /// How a run over ranks starts ([`over_ranks`]).
 struct Start {

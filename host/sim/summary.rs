@@ -124,6 +124,9 @@ pub struct Summary {
     /// The time the run started at (0, or the initial conditions' `Header/Time`).
     pub t_start: f64,
     pub t_final: f64,
+    /// How the run ended: "finished" (at t_end), or why it stopped at t_final (interrupted,
+    /// with or without a checkpoint; a failed step, with its message).
+    pub ending: String,
     pub dt_min: f64,
     pub dt_max: f64,
     /// Largest τ·v_sig/h of the run.
@@ -206,7 +209,7 @@ pub fn finish(
     dir: &Path,
     outputs: OutputRecord,
     ball: Option<BallRecord>,
-    wall: f64,
+    (wall, ending): (f64, String),
 ) -> Result<(Summary, crate::particles::State), RunError> {
     // Where the outputs are written by share, no rank gathers the whole state: the sums
     // are reduced over the ranks.
@@ -288,6 +291,7 @@ pub fn finish(
         steps: state.step,
         t_start: outputs.start_time,
         t_final: state.t,
+        ending,
         dt_min: d.dt_min,
         dt_max: d.dt_max,
         cfl_max: d.cfl_max,
