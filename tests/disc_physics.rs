@@ -497,9 +497,17 @@ fn the_disc_starts_with_its_surface_density_on_the_steady_drift() {
 /// gas's v_φ − v_K within 10 %.
 #[test]
 fn the_profile_of_a_disc_bins_it_against_the_steady_drift() {
+    // First order: the set-up puts the gas on the continuous balance (under the leapfrog it
+    // starts on the discrete orbit of its first step, (Ωτ)²/8 v_K slower, which at this
+    // resolution is a tenth of the pressure support at R ≈ 1.5: method.md §D).
     common::run_scene_in(
         "dustydisc",
-        &["sph.n=24", "time.t_end=1e-3", "time.output_dt="],
+        &[
+            "sph.n=24",
+            "time.t_end=1e-3",
+            "time.output_dt=",
+            "time.integrator=\"first_order\"",
+        ],
         |dir| {
             let snap = dir.join("snapshot_0000.h5");
             let report = dustsph::commands::profile::post_process(&snap, 100).unwrap();
@@ -953,4 +961,26 @@ fn a_discs_time_bins_never_step_past_a_particles_own_limit() {
     // R 0.5–2 (measured: gas 5195, 5554 in bins 0, 1; ratio 1.31).
     assert!(c.gas.len() >= 2, "the disc's gas in {} bins", c.gas.len());
     assert!(c.update_ratio > 1.2, "update ratio {}", c.update_ratio);
+}
+
+/// The start's neighbour count on a variable-h disc is each particle's own (within its own
+/// 2h_a): as many as h_fact sets, (4π/3)(2 h_fact)³ in 3D. The shipped 3D disc's h varies
+/// with its density from 10 to 100 au: its reference h counts far fewer.
+#[test]
+fn a_discs_neighbour_count_is_within_each_particles_own_support() {
+    let sets = ["dustydisc.relax=false".to_string()];
+    let loaded = dustsph::scene::load(&common::config("dustydisc3d"), &sets).unwrap();
+    let cpu = dustsph::step::backend::DeviceChoice::Cpu;
+    let (mut sim, _) = dustsph::sim::Simulation::of_scene(&loaded.scene, cpu).unwrap();
+    sim.sync().unwrap();
+    let hfact = sim.phys.variable_h.expect("the 3D disc has variable h");
+    let nb = dustsph::commands::bench::mean_gas_neighbours(&sim.phys, &sim.state).unwrap();
+    let expected = 4.0 / 3.0 * std::f64::consts::PI * (2.0 * hfact).powi(3);
+    eprintln!("{nb} neighbours, h_fact {hfact}: {expected}");
+    // Measured: 49.4 (the disc's surfaces and edges hold fewer: their kernels are cut); the
+    // reference h counts 15.1.
+    assert!(
+        (nb / expected - 1.0).abs() < 0.25,
+        "{nb} against {expected}"
+    );
 }

@@ -180,13 +180,19 @@ pub fn start_warnings(
     }
     // Fewer neighbours than a kernel of half the usual width would hold (hfact ≈ 0.6).
     let least = [2.0, 5.0, 12.0][(phys.domain.dim as usize).clamp(1, 3) - 1];
+    let own_h = phys.variable_h.is_some() && state.gas.h.is_some();
     if let Ok(nb) = crate::commands::bench::mean_gas_neighbours(phys, state) {
         if !state.gas.ph.x.is_empty() && nb < least {
             out.push(format!(
-                "the gas particles have {nb:.1} neighbours each within 2h on average (fewer than \
-                 {least} in {}D): the SPH sums are noise at this resolution; raise sph.hfact (or \
-                 sph.h)",
-                phys.domain.dim
+                "the gas particles have {nb:.1} neighbours each within {} on average (fewer \
+                 than {least} in {}D): the SPH sums are noise at this resolution; raise {}",
+                if own_h { "its own 2h" } else { "2h" },
+                phys.domain.dim,
+                if own_h {
+                    "sph.hfact"
+                } else {
+                    "sph.hfact (or sph.h)"
+                }
             ));
         }
     }

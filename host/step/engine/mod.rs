@@ -259,7 +259,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 ListChoice::Off => false,
                 ListChoice::Auto => d.launcher.lists_by_default(),
             },
-            kdk: LeapfrogBuffers::new(&d, &phys, &stages, rows, ng, dust.n)?,
+            kdk: LeapfrogBuffers::new(&d, &phys, &stages, rows, g.h.as_deref(), ng, dust.n)?,
             sm: SmoothingBuffers::new(&d, &stages, g, ng, dust.n)?,
             phys,
             stages,
