@@ -641,3 +641,54 @@ fn profile_and_parity_refuse_what_is_not_there_with_exit_2() {
         assert_eq!(err.matches("error:").count(), 1, "{err}");
     }
 }
+
+/// A run logged to a file (stderr not a terminal) prints plain progress lines: the step, the
+/// simulated time, dt and what limits it, the step rate and the time left.
+#[test]
+fn a_logged_run_prints_progress_lines_with_its_rate_and_what_limits_its_step() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = out_dir(tmp.path());
+    let o = dustsph(&[
+        "run",
+        "configs/dustywave.toml",
+        "--set",
+        "time.t_end=0.05",
+        "--progress-every",
+        "0",
+        "--out",
+        &out,
+    ]);
+    assert_eq!(o.status.code(), Some(0));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| l.contains("steps/s")).collect();
+    assert!(lines.len() >= 3, "{err}");
+    for l in &lines {
+        assert!(
+            l.contains("particle-steps/s") && l.contains("dt = ") && l.contains("left"),
+            "{l}"
+        );
+    }
+    // The wave's steps are set by the CFL limit, its last one by landing on t_end.
+    assert!(lines[0].contains("(CFL)"), "{}", lines[0]);
+    assert!(
+        lines
+            .last()
+            .unwrap()
+            .contains("(landing on an output time)"),
+        "{err}"
+    );
+    // Quiet: none.
+    let o = dustsph(&[
+        "run",
+        "configs/dustywave.toml",
+        "--set",
+        "time.t_end=0.05",
+        "--progress-every",
+        "0",
+        "--out",
+        &format!("{out}_quiet"),
+        "-q",
+    ]);
+    assert_eq!(o.status.code(), Some(0));
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("steps/s"));
+}

@@ -30,6 +30,9 @@ pub struct RunArgs {
     /// No progress output
     #[arg(long, short)]
     quiet: bool,
+    /// Seconds between progress lines where stderr is not a terminal (a log, a batch job)
+    #[arg(long, value_name = "SECONDS", default_value_t = crate::sim::progress::LOG_EVERY_SECONDS)]
+    progress_every: f64,
     /// Where to step: a CUDA GPU if usable, else the CPU (auto); the CPU's cores (cpu); a
     /// CUDA GPU (cuda). The same step and kernels on either.
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
@@ -48,8 +51,18 @@ pub struct ResumeArgs {
     checkpoint_every: Option<u64>,
     #[arg(long, short)]
     quiet: bool,
+    /// Seconds between progress lines where stderr is not a terminal (a log, a batch job)
+    #[arg(long, value_name = "SECONDS", default_value_t = crate::sim::progress::LOG_EVERY_SECONDS)]
+    progress_every: f64,
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
+}
+
+/// When a run writes checkpoints and progress lines, and when it stops early.
+struct Cadence {
+    checkpoint_every: Option<u64>,
+    stop_after: Option<u64>,
+    progress_every: f64,
 }
 
 /// MPI for a run started as one of several ranks (`None` otherwise). A rank that panics must
@@ -72,11 +85,12 @@ fn ranks_world() -> Option<Result<crate::dist::comm::World, RunError>> {
 /// Start the run (`start`: set-up and the first snapshot) and step it to the end. Ctrl-C is
 /// caught from before the start: pressed during the set-up, the run stops at its first step
 /// with a checkpoint (exit 130), as later.
-fn drive(
-    start: impl FnOnce() -> Result<Run, RunError>,
-    checkpoint_every: Option<u64>,
-    stop_after: Option<u64>,
-) -> u8 {
+fn drive(start: impl FnOnce() -> Result<Run, RunError>, cadence: Cadence) -> u8 {
+    let Cadence {
+        checkpoint_every,
+        stop_after,
+        progress_every,
+    } = cadence;
     let fail = |e: RunError| {
         if !matches!(e, RunError::InputReported) {
             eprintln!("error: {e}");
@@ -102,6 +116,7 @@ fn drive(
         Ok(r) => r,
         Err(e) => return fail(e),
     };
+    r.progress_every = progress_every;
     let out = r.out_dir().to_path_buf();
     let root = r.is_root();
     match r.advance(stop_after, checkpoint_every, Some(&stop)) {
@@ -197,9 +212,15 @@ pub fn execute(a: RunArgs) -> u8 {
         checkpoint_every,
         stop_after,
         quiet,
+        progress_every,
         device,
         precision,
     } = a;
+    let cadence = Cadence {
+        checkpoint_every,
+        stop_after,
+        progress_every,
+    };
     let loaded = crate::scene::load(&scene, &set).and_then(|l| l.with_numerics(precision, None));
     let loaded = match loaded {
         Ok(l) => l,
@@ -223,9 +244,9 @@ pub fn execute(a: RunArgs) -> u8 {
     // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
     if let Some(world) = ranks_world() {
         let start = || world.and_then(|w| Run::start_over_ranks(&loaded, &opts, w));
-        return drive(start, checkpoint_every, stop_after);
+        return drive(start, cadence);
     }
-    drive(|| Run::start(&loaded, &opts), checkpoint_every, stop_after)
+    drive(|| Run::start(&loaded, &opts), cadence)
 }
 
 pub fn execute_resume(a: ResumeArgs) -> u8 {
@@ -233,8 +254,14 @@ pub fn execute_resume(a: ResumeArgs) -> u8 {
         dir,
         checkpoint_every,
         quiet,
+        progress_every,
         device,
     } = a;
+    let cadence = Cadence {
+        checkpoint_every,
+        stop_after: None,
+        progress_every,
+    };
     let quiet = quiet || crate::dist::launched().is_some_and(|(r, _)| r != 0);
     if !quiet {
         eprintln!("dustsph: resuming {}", dir.display());
@@ -242,7 +269,7 @@ pub fn execute_resume(a: ResumeArgs) -> u8 {
     // Started as one of several MPI ranks: the rest of the run is split over them.
     if let Some(world) = ranks_world() {
         let start = || world.and_then(|w| Run::resume_over_ranks(&dir, !quiet, device, w));
-        return drive(start, checkpoint_every, None);
+        return drive(start, cadence);
     }
-    drive(|| Run::resume(&dir, !quiet, device), checkpoint_every, None)
+    drive(|| Run::resume(&dir, !quiet, device), cadence)
 }

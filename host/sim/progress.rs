@@ -2,18 +2,36 @@
 //! a step budget).
 use super::{Flow, Observer, RunError, Simulation};
 use crate::step::timestep::Taken;
+use std::io::IsTerminal;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
-/// A progress bar in units of 1e-4 of t_end (hidden unless asked for and stderr is a
-/// terminal: indicatif checks the latter).
+/// How often a run whose stderr is not a terminal (a log, a batch job) prints a progress line
+/// (`dustsph run --progress-every`).
+pub const LOG_EVERY_SECONDS: f64 = 60.0;
+
+/// The run's progress for a person watching it (shown unless quiet): on a terminal a live bar
+/// (1e-4 of t_end per tick) with the step, the simulated time (and in years under
+/// `[units]`), the step size and what limits it, steps/s and particle-steps/s and the time
+/// left; elsewhere the same as a plain line every `every` seconds.
 pub struct ProgressBar {
     bar: indicatif::ProgressBar,
     t_end: f64,
+    /// Plain lines instead of the bar.
+    lines: bool,
+    /// Seconds per code time unit (`[units]`), for the time in years.
+    time_s: Option<f64>,
+    /// This session's start: wall clock, simulated time, steps.
+    started: (Instant, f64, u64),
+    last_line: Instant,
+    /// Seconds between plain lines.
+    pub every: f64,
 }
 
 impl ProgressBar {
-    pub fn new(visible: bool, t_end: f64) -> ProgressBar {
-        let bar = if visible {
+    pub fn new(visible: bool, t_end: f64, time_s: Option<f64>, start: (f64, u64)) -> ProgressBar {
+        let terminal = std::io::stderr().is_terminal();
+        let bar = if visible && terminal {
             indicatif::ProgressBar::new(10_000)
         } else {
             indicatif::ProgressBar::hidden()
@@ -22,12 +40,40 @@ impl ProgressBar {
             indicatif::ProgressStyle::with_template("{bar:30} {percent:>3}% {msg}  ETA {eta}")
                 .expect("a valid template"),
         );
-        ProgressBar { bar, t_end }
+        let now = Instant::now();
+        ProgressBar {
+            bar,
+            t_end,
+            lines: visible && !terminal,
+            time_s,
+            started: (now, start.0, start.1),
+            last_line: now,
+            every: LOG_EVERY_SECONDS,
+        }
     }
 
     /// Run `f` with the bar out of the way (a line printed while it shows).
     pub fn suspend<T>(&self, f: impl FnOnce() -> T) -> T {
         self.bar.suspend(f)
+    }
+
+    /// The progress after a step, in words.
+    fn describe(&self, sim: &Simulation, taken: &Taken) -> String {
+        let (t, step) = (sim.state.t, sim.state.step);
+        let wall = self.started.0.elapsed().as_secs_f64().max(1e-9);
+        let steps_per_s = (step - self.started.2) as f64 / wall;
+        let particles = sim.diagnostics.counts.total() as f64;
+        let years = self.time_s.map_or(String::new(), |s| {
+            format!(" ({:.4e} yr)", t * s / (365.25 * 86400.0))
+        });
+        let why = (sim.planner.what_limits(&taken.forces, &taken.plan))
+            .map_or(String::new(), |w| format!(" ({w})"));
+        format!(
+            "step {step}  t = {t:.6e}{years}  dt = {:.3e}{why}  {steps_per_s:.2} steps/s, \
+             {:.3e} particle-steps/s",
+            taken.plan.dt,
+            steps_per_s * particles
+        )
     }
 }
 
@@ -39,12 +85,26 @@ impl Drop for ProgressBar {
 
 impl Observer for ProgressBar {
     fn after_step(&mut self, sim: &mut Simulation, taken: &Taken) -> Result<Flow, RunError> {
-        self.bar
-            .set_position((sim.state.t / self.t_end * 1e4) as u64);
-        self.bar.set_message(format!(
-            "step {} t = {:.5} dt = {:.3e}",
-            sim.state.step, sim.state.t, taken.plan.dt
-        ));
+        let now = Instant::now();
+        if self.lines && now.duration_since(self.last_line).as_secs_f64() >= self.every {
+            self.last_line = now;
+            let (t, t0) = (sim.state.t, self.started.1);
+            let wall = self.started.0.elapsed().as_secs_f64();
+            let left = if t > t0 {
+                format!(", about {:.0} s left", (self.t_end - t) * wall / (t - t0))
+            } else {
+                String::new()
+            };
+            eprintln!(
+                "  {:5.1} %  {}{left}",
+                100.0 * t / self.t_end,
+                self.describe(sim, taken)
+            );
+        } else if !self.bar.is_hidden() {
+            self.bar
+                .set_position((sim.state.t / self.t_end * 1e4) as u64);
+            self.bar.set_message(self.describe(sim, taken));
+        }
         Ok(Flow::Continue)
     }
 }

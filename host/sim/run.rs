@@ -52,6 +52,8 @@ pub struct Run {
     ball: Option<BallChecks>,
     checkpoints: RunCheckpoints,
     verbose: bool,
+    /// Seconds between progress lines where stderr is not a terminal.
+    pub progress_every: f64,
 }
 
 impl Run {
@@ -183,6 +185,7 @@ impl Run {
             loaded: loaded.clone(),
             sim,
             verbose,
+            progress_every: crate::sim::progress::LOG_EVERY_SECONDS,
         }
     }
 
@@ -302,7 +305,10 @@ impl Run {
         } else {
             t_end
         };
-        let mut bar = ProgressBar::new(self.verbose, t_end);
+        let time_s = self.loaded.scene.units.map(|u| u.time_s());
+        let start = (self.sim.state.t, self.sim.state.step);
+        let mut bar = ProgressBar::new(self.verbose, t_end, time_s, start);
+        bar.every = self.progress_every;
         let mut every = checkpoint_every.map(CheckpointEvery);
         let mut interrupt = Interrupt {
             flag: stop,

@@ -102,6 +102,32 @@ pub fn step_size(
 }
 
 impl StepPlanner {
+    /// What set a planned step, for a person watching the run: `time.dt`, landing on an
+    /// output, the explicit drag, the CFL or force limit, the edge zones, `time.dt_max`; `None`
+    /// where the maxima at hand match none (over ranks only the signal speed is reported).
+    pub fn what_limits(&self, forces: &Forces, plan: &Plan) -> Option<&'static str> {
+        if plan.landing && plan.dt < plan.dt_free {
+            return Some("landing on an output time");
+        }
+        if plan.by_drag {
+            return Some("explicit drag");
+        }
+        let StepRule::Cfl { cfl, dt_max } = self.time.step else {
+            return Some("time.dt");
+        };
+        let (dt_cfl, dt_force) = dt_limits(self.h, forces);
+        let same = |x: f64| (x - plan.dt_free).abs() <= 1e-12 * plan.dt_free;
+        [
+            (cfl * dt_cfl, "CFL"),
+            (cfl * dt_force, "force"),
+            (damp_limit(forces.damp_rate_max), "edge zones"),
+            (dt_max.unwrap_or(f64::INFINITY), "time.dt_max"),
+        ]
+        .into_iter()
+        .find(|(x, _)| same(*x))
+        .map(|(_, name)| name)
+    }
+
     pub fn new(time: &Time, h: f64) -> StepPlanner {
         StepPlanner {
             time: time.clone(),
