@@ -714,6 +714,33 @@ fn a_dust_free_disc_keeps_its_angular_momentum_and_accretion_hands_it_to_the_sta
     let last = dir.path().join("b").join(s.snapshots.last().unwrap());
     let snap = dustsph::io::snapshot::read_snapshot(&last).unwrap();
     assert_eq!(snap.gas.unwrap().x.len(), st.gas.ph.len());
+    // The time series has a row per snapshot, in which the gas plus what the star took keeps
+    // the mass, and the particles' L plus the star's the angular momentum, to round-off.
+    let ev = std::fs::read_to_string(dir.path().join("b").join("evolution.csv")).unwrap();
+    let mut lines = ev.lines();
+    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), s.snapshots.len());
+    let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
+    let (m, ma, lz, laz) = (
+        col("mass_gas"),
+        col("accreted_gas"),
+        col("L_z"),
+        col("L_accreted_z"),
+    );
+    let (first, last) = (&rows[0], rows.last().unwrap());
+    assert!(last[ma] > 0.0, "the star took nothing: {ev}");
+    assert!(
+        ((last[m] + last[ma]) / first[m] - 1.0).abs() < 1e-13,
+        "{ev}"
+    );
+    assert!(
+        ((last[lz] + last[laz]) / first[lz] - 1.0).abs() < 1e-13,
+        "{ev}"
+    );
+    assert_eq!(last[col("t")], s.t_final);
 }
 
 /// The rms over the gas particles with R in [lo, hi) of v_R over the local c_s (the shipped

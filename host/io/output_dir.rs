@@ -31,6 +31,7 @@ fn is_ours(name: &str) -> bool {
         .unwrap_or(name);
     if final_name == SUMMARY_NAME
         || final_name == super::xdmf::SERIES_NAME
+        || final_name == crate::sim::evolution::EVOLUTION_NAME
         || final_name == super::checkpoint::CHECKPOINT_NAME
         || is_snapshot_name(final_name)
     {

@@ -7,6 +7,7 @@
 pub mod accretion;
 pub mod checkpoint;
 pub mod diagnostics;
+pub mod evolution;
 pub mod output;
 pub mod progress;
 pub mod run;

@@ -50,6 +50,9 @@ pub struct OutputRecord {
     /// (`analysis::bins`; CFL steps on a whole state only).
     #[serde(default)]
     pub time_bins: Vec<analysis::bins::BinCensus>,
+    /// The sums at each output (`DIR/evolution.csv`).
+    #[serde(default)]
+    pub evolution: Vec<super::evolution::Row>,
     /// The time the run started at: 0, or an initial-conditions file's `Header/Time`.
     #[serde(default)]
     pub start_time: f64,
@@ -82,6 +85,16 @@ impl Outputs {
     /// series. Over ranks every rank goes on, or none.
     pub fn write_next(&mut self, sim: &mut Simulation) -> Result<(), RunError> {
         let name = io::snapshot_name(self.record.snapshots.len());
+        // The sums of the output (collective where the ranks hold shares); rank 0 writes them.
+        let totals = sim.stepper.totals(&sim.state);
+        if sim.is_root() {
+            let when = (sim.state.t, sim.state.step);
+            let pm = sim.phys.gravity.is_on();
+            let row = super::evolution::Row::of(when, &totals, &sim.diagnostics, pm);
+            self.record.evolution.push(row);
+            super::evolution::write(&self.dir, &self.record.evolution)
+                .map_err(|e| RunError::Io(e.to_string()))?;
+        }
         if self.write_by_share(sim, &name)? {
             return Ok(());
         }
