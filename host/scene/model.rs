@@ -202,7 +202,7 @@ pub struct Dust {
     pub epstein: Option<EpsteinForm>,
     /// Grains given by size: the cross-section σ (cm²) and mean molecular weight μ of the
     /// mean free path λ = μ m_H/(ρ_g σ) that starts the Stokes regime (each fraction's
-    /// `stokes` holds 4s/(9λρ_g) in code units).
+    /// `stokes_regime_coefficient` holds 4s/(9λρ_g) in code units).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cross_section: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -235,8 +235,10 @@ impl Serialize for Fraction {
             StoppingLaw::ConstantK { k } => st.serialize_field("k", &k)?,
             StoppingLaw::Epstein { s_rho, stokes } => {
                 st.serialize_field("s_rho", &s_rho)?;
+                // Not a Stokes number: the Stokes drag regime's onset, t_k's factor
+                // max(1, coefficient × ρ_g) (method.md §1.2).
                 if stokes > 0.0 {
-                    st.serialize_field("stokes", &stokes)?;
+                    st.serialize_field("stokes_regime_coefficient", &stokes)?;
                 }
             }
         }

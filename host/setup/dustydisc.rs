@@ -692,6 +692,8 @@ fn gas_physics(scene: &Scene, h: f64, domain: crate::grid::Domain) -> crate::ste
 /// gas's vertical acceleration below this share of the rms of the star's vertical pull.
 const RELAX_ITERATIONS: usize = 200;
 const RELAX_TOL: f64 = 0.02;
+/// Seconds between the balance's progress lines.
+const RELAX_REPORT_SECONDS: f64 = 10.0;
 /// A relaxation move: κ h² A_z/c_s² (at most a tenth of a spacing).
 const RELAX_KAPPA: f64 = 0.25;
 /// The share of its last move a particle keeps (heavy-ball momentum).
@@ -727,6 +729,8 @@ fn relax(
         );
         Ok((g, acc, note))
     };
+    // A long balance (a fine 3D disc: minutes) says how it goes every RELAX_REPORT_SECONDS.
+    let mut said = std::time::Instant::now();
     for it in 0..=RELAX_ITERATIONS {
         let mut st = State {
             t: 0.0,
@@ -757,6 +761,13 @@ fn relax(
             return Ok((g, acc, String::new()));
         }
         let residual = vertical_residual(&g, &acc, &phys);
+        if said.elapsed().as_secs_f64() >= RELAX_REPORT_SECONDS {
+            said = std::time::Instant::now();
+            eprintln!(
+                "dustsph: disc: balancing the gas vertically: iteration {it} of at most \
+                 {RELAX_ITERATIONS}, rms A_z/g_z within 2H {residual:.2e} (done below {RELAX_TOL})"
+            );
+        }
         if best.as_ref().is_none_or(|b| residual < b.0) {
             best = Some((residual, g.clone(), acc.clone(), it));
         }
