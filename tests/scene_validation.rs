@@ -408,3 +408,32 @@ fn a_file_scene_refuses_what_the_file_gives_and_names_the_key() {
     );
     assert_eq!(err("dustybox", &["sph.n="]).key.as_deref(), Some("sph.n"));
 }
+
+/// The ball given by its gas particle count: the lattice's particles per unit length follow,
+/// and about that many are placed (the integer lattice rounds: within 10 %), the same in each
+/// dust fraction; the count and `sph.n` together are refused, naming the key.
+#[test]
+fn a_ball_given_by_its_particle_count_places_about_that_many() {
+    for (asked, dim) in [(30_000u64, "3"), (5_000, "2")] {
+        let sets: Vec<String> = [
+            "sph.n=".to_string(),
+            format!("dustyball.particles={asked}"),
+            "sph.h=0.2".into(),
+            format!("scene.dim={dim}"),
+        ]
+        .into();
+        let l =
+            dustsph::scene::load(&config("dusty_ball"), &sets).unwrap_or_else(|e| panic!("{e}"));
+        let su = dustsph::setup::build(&l.scene).unwrap();
+        let placed = su.state.gas.ph.len() as f64;
+        assert!(
+            (placed / asked as f64 - 1.0).abs() < 0.1,
+            "{dim}D: {placed} placed for {asked}"
+        );
+        assert_eq!(su.state.dust[0].len(), su.state.gas.ph.len());
+    }
+    let e = err("dusty_ball", &["dustyball.particles=30000"]);
+    assert_eq!(e.key.as_deref(), Some("dustyball.particles"));
+    let e = err("dusty_ball", &["sph.n=", "dustyball.particles=10"]);
+    assert_eq!(e.key.as_deref(), Some("dustyball.particles"));
+}

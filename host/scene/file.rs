@@ -608,6 +608,9 @@ pub struct SettleSection {
 #[serde(deny_unknown_fields)]
 pub struct BallSection {
     pub radius: Option<f64>,
+    /// The gas particles wanted (instead of `sph.n`): the lattice's particles per unit length
+    /// follow (each dust fraction has as many).
+    pub particles: Option<u64>,
 }
 
 /// `[file]`: initial conditions from an HDF5 file in the layout dustsph writes (GADGET/SWIFT:

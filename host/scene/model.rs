@@ -498,6 +498,9 @@ pub struct BallCfg {
     #[serde(skip)]
     pub background: GasState,
     pub radius: f64,
+    /// The gas particles asked for (`sph.n` then follows from them).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub particles: Option<u64>,
 }
 
 /// DUSTYSETTLE: an isothermal column (its gas's c_s here, the same as the scene's

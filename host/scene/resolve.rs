@@ -87,6 +87,47 @@ fn required(key: &str, v: Option<f64>, why: &str) -> VResult<f64> {
     v.ok_or_else(|| (key.to_string(), why.to_string()))
 }
 
+/// The ball given by its particle count (`dustyball.particles`): `[sph]` with the lattice's
+/// particles per unit length n that put about that many gas particles in the ball, N ≈ V_d(R)
+/// n^d (V_d(R) the ball's volume, length or area); `None` without the key.
+fn ball_lattice(f: &SceneFile) -> VResult<Option<SphSection>> {
+    let Some(b) = f
+        .dustyball
+        .as_ref()
+        .filter(|_| f.scene.problem == Problem::Dustyball)
+    else {
+        return Ok(None);
+    };
+    let Some(count) = b.particles else {
+        return Ok(None);
+    };
+    if f.sph.n.is_some() {
+        return err(
+            "dustyball.particles",
+            "the ball's resolution is given twice: keep dustyball.particles or sph.n",
+        );
+    }
+    if count < 100 {
+        return err(
+            "dustyball.particles",
+            format!("{count} gas particles do not make a ball (at least 100)"),
+        );
+    }
+    let r = b.radius.unwrap_or(1.0);
+    let volume = match f.scene.dim {
+        1 => 2.0 * r,
+        2 => std::f64::consts::PI * r * r,
+        _ => 4.0 / 3.0 * std::f64::consts::PI * r * r * r,
+    };
+    let n = (count as f64 / volume)
+        .powf(1.0 / f.scene.dim as f64)
+        .round() as usize;
+    Ok(Some(SphSection {
+        n: Some(n.max(2)),
+        ..f.sph.clone()
+    }))
+}
+
 impl Scene {
     /// The scene a file describes, or the first thing wrong with it as (key, message).
     pub fn from_file(f: &SceneFile) -> VResult<Scene> {
@@ -106,7 +147,12 @@ impl Scene {
         // A disc given by its particle count has no `sph.n`.
         let counted = f.scene.problem == Problem::Dustydisc
             && f.dustydisc.as_ref().is_some_and(|d| d.particles.is_some());
-        let sph = sph(&f.sph, f.scene.problem == Problem::File, counted)?;
+        let sph_file = ball_lattice(f)?;
+        let sph = sph(
+            sph_file.as_ref().unwrap_or(&f.sph),
+            f.scene.problem == Problem::File,
+            counted,
+        )?;
         let idic_file = f.idic.as_ref();
         let cell = idic_file.and_then(|i| i.cell).unwrap_or(0.5);
         positive("idic.cell", cell)?;

@@ -42,6 +42,13 @@ pub(super) fn build(
         .filter(move |q| q[0] * q[0] + q[1] * q[1] + q[2] * q[2] <= r2)
     };
     let n = sites().count() as u64;
+    if let Some(asked) = b.particles {
+        eprintln!(
+            "dustsph: ball: {asked} gas particles asked for: {} per unit length (spacing \
+             {dx:.4e}, h = {h:.4e}), {n} placed (and as many per dust fraction)",
+            scene.sph.n
+        );
+    }
     // m = ρΔ^d makes the interior SPH density exactly ρ on the lattice; the total mass then
     // differs from ρ·V_ball by the lattice's volume error (0.02% at the seed's Δ = 2/78).
     // Each fraction k sits on the gas's sites with ε_k of its mass and density, ids after the

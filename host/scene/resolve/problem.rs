@@ -176,7 +176,11 @@ pub(super) fn problem(
         Section::Ball(b, background) => {
             let radius = b.radius.unwrap_or(1.0);
             positive("dustyball.radius", radius)?;
-            ProblemCfg::Dustyball(BallCfg { background, radius })
+            ProblemCfg::Dustyball(BallCfg {
+                background,
+                radius,
+                particles: b.particles,
+            })
         }
         Section::Disc(d) => ProblemCfg::Dustydisc(disc(d, f, eos)?),
         Section::File(s) => ProblemCfg::File(FileCfg {
