@@ -23,6 +23,19 @@ pub fn force_limit<R: Real>(h: R, acc: R) -> R {
     }
 }
 
+/// A grain's |B| for the force limit: the external acceleration plus the point mass's pull (the
+/// edge zones' damping is limited by its rate instead, τ ≤ 1/rate). Positions alone: a
+/// checkpoint's or a rank's rebuilt engine recomputes it exactly.
+#[inline(always)]
+pub fn dust_pull(
+    pm: &crate::gravity::PointMass,
+    ext: crate::Vec3<f64>,
+    x: crate::Vec3<f64>,
+) -> f64 {
+    let b = crate::add(ext, pm.accel(x));
+    crate::dot(b, b).sqrt()
+}
+
 /// The bin of a particle whose own step is `dt_own`, bins being 2^j × `dt_min` (j = 0 the
 /// shortest): the largest j ≤ `max_bin` with 2^j dt_min ≤ dt_own, so that a particle never
 /// steps longer than its own limit (0 when dt_own ≤ dt_min).

@@ -187,7 +187,7 @@ fn own_steps(
                 }
                 _ => phys.h,
             };
-            let a = norm(dustsph_device::add(pm.accel(x), phys.ext_dust));
+            let a = dustsph_device::timestep::dust_pull(pm, phys.ext_dust, x);
             let rate = pm.damp_rate(x);
             own.dt.push(own_step(time, h, 0.0, a, rate)?);
             (acc_max, damp_max) = (acc_max.max(a), damp_max.max(rate));

@@ -21,10 +21,12 @@ pub struct Forces {
 impl Forces {
     /// From per-particle rows (A_x, A_y, A_z, ė, v_sig); no damping rate (the rows do not
     /// hold it). `own_h`: variable h's (h_ref, each particle's h), the maxima scaled by
-    /// h_ref/h_a as the forces kernel takes them (method.md §T).
+    /// h_ref/h_a as the forces kernel takes them (method.md §T); particles held `fixed` left
+    /// out, as the kernel leaves them.
     pub fn from_rows(
         rows: &[crate::particles::ClosingForces],
         own_h: Option<(f64, &[f64])>,
+        fixed: Option<&[bool]>,
     ) -> Forces {
         let mut f = Forces {
             vsig_max: 0.0,
@@ -32,6 +34,9 @@ impl Forces {
             damp_rate_max: 0.0,
         };
         for (i, r) in rows.iter().enumerate() {
+            if fixed.is_some_and(|f| f[i]) {
+                continue;
+            }
             let scale = own_h.map_or(1.0, |(h, hs)| h / hs[i]);
             f.acc_max = f.acc_max.max(dot(r.acc, r.acc).sqrt() * scale);
             f.vsig_max = f.vsig_max.max(r.vsig * scale);

@@ -52,15 +52,17 @@ pub struct DustLimitArgs<R> {
     pub limits: *mut u64,
 }
 
-/// |B| of dust particle t into the step's acceleration limit (the force limit √(h/|A|) then
-/// holds for the dust under a point mass too), and its edge zones' damping rate.
+/// |B| of dust particle t without the zones' damping ([`crate::timestep::dust_pull`]) into the
+/// step's acceleration limit (the force limit √(h/|A|) then holds for the dust under a point
+/// mass too), and its edge zones' damping rate.
 pub unsafe fn dust_accel_limit<R: Real>(t: usize, a: &DustLimitArgs<R>) {
     let d = &a.acc.ph;
     if t >= d.len() || kernels::is_fixed(d.fixed(), t) {
         return;
     }
-    let b = dust_external(t, &a.acc);
-    let m = Real::sqrt(crate::dot(b, b));
+    let p = &a.acc.p;
+    let ext = p.ext_dust.map(|c| c.to_f64());
+    let m = R::from_f64(crate::timestep::dust_pull(&p.gravity, ext, d.x()[t]));
     atomic_max_u64(a.limits.add(1), kernels::ordered_bits(m));
     let rate = a.acc.p.gravity.damp_rate(d.x()[t]);
     if rate > 0.0 {

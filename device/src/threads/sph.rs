@@ -139,6 +139,11 @@ pub unsafe fn forces<R: Real>(t: usize, a: &ForcesArgs<R>) {
     if !a.vsig.is_null() {
         *a.vsig.add(t) = r.vsig;
     }
+    // Fixed particles (walls; over ranks the ghosts, whose kernels this rank does not solve)
+    // stay out of the step's maxima: their owners count them.
+    if kernels::is_fixed(view.fixed, t) {
+        return;
+    }
     let am = Real::sqrt(dot(acc, acc));
     // Variable h: the limits with each particle's own h (method.md §T), as maxima scaled by
     // h_ref/h_a, so that h_ref / max = min h_a/v_sig,a (and the same for the force limit).

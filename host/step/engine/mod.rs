@@ -259,7 +259,15 @@ impl<L: Launcher, R: Float> Engine<L, R> {
                 ListChoice::Off => false,
                 ListChoice::Auto => d.launcher.lists_by_default(),
             },
-            kdk: LeapfrogBuffers::new(&d, &phys, &stages, rows, g.h.as_deref(), ng, dust.n)?,
+            kdk: LeapfrogBuffers::new(
+                &d,
+                &phys,
+                &stages,
+                rows,
+                (g.h.as_deref(), g.ph.fixed.as_deref()),
+                ng,
+                dust.n,
+            )?,
             sm: SmoothingBuffers::new(&d, &stages, g, ng, dust.n)?,
             phys,
             stages,
@@ -279,19 +287,21 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         };
         if let Some(f) = &mut eng.kdk.closing {
             // The rows hold no damping rate: the closing layer's, from its positions as the
-            // forces kernels take it (every gas particle, the dust not held fixed).
+            // forces kernels take it (the particles not held fixed).
             let pm = &eng.phys.gravity;
-            let gas = state.gas.ph.x.iter();
-            let dust = state.dust.iter().flat_map(|ph| {
-                let fixed = ph.fixed.as_deref();
-                (ph.x.iter().enumerate())
-                    .filter(move |(i, _)| !fixed.is_some_and(|f| f[*i]))
-                    .map(|(_, x)| x)
-            });
+            let gas = moving_positions(&state.gas.ph);
+            let dust = state.dust.iter().flat_map(moving_positions);
             f.damp_rate_max = gas
-                .chain(dust)
+                .chain(dust.clone())
                 .map(|x| pm.damp_rate(*x))
                 .fold(0.0, f64::max);
+            // Nor the grains' pull, which the forces pass adds to the force limit (the rows are
+            // the gas's): from their positions as its kernel takes them.
+            if pm.is_on() {
+                let ext = eng.phys.ext_dust;
+                let pull = dust.map(|x| dustsph_device::timestep::dust_pull(pm, ext, *x));
+                f.acc_max = pull.fold(f.acc_max, f64::max);
+            }
         }
         eng.first_layer(state, layer)?;
         Ok(eng)
@@ -585,4 +595,12 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         }
         Ok(())
     }
+}
+
+/// The positions of a phase's particles not held fixed.
+fn moving_positions(ph: &crate::particles::Phase) -> impl Iterator<Item = &[f64; 3]> + Clone {
+    let fixed = ph.fixed.as_deref();
+    (ph.x.iter().enumerate())
+        .filter(move |(i, _)| !fixed.is_some_and(|f| f[*i]))
+        .map(|(_, x)| x)
 }

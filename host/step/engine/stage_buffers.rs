@@ -272,14 +272,14 @@ impl<L: Launcher, R: Float> LeapfrogBuffers<L, R> {
         phys: &Physics,
         stages: &Stages,
         rows: Option<&[crate::particles::ClosingForces]>,
-        gas_h: Option<&[f64]>,
+        (gas_h, gas_fixed): (Option<&[f64]>, Option<&[bool]>),
         ng: usize,
         nd: usize,
     ) -> Result<Self, GpuError> {
         let k = stages.kdk;
         let save = k || phys.position_update == PositionUpdate::Old;
         let own_h = gas_h.filter(|_| stages.variable_h).map(|hs| (phys.h, hs));
-        let closing = rows.map(|r| Forces::from_rows(r, own_h));
+        let closing = rows.map(|r| Forces::from_rows(r, own_h, gas_fixed));
         let vsig = rows.map(|r| r.iter().map(|x| x.vsig).collect::<Vec<f64>>());
         Ok(LeapfrogBuffers {
             closing,
