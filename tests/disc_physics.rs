@@ -513,6 +513,12 @@ fn the_profile_of_a_disc_bins_it_against_the_steady_drift() {
             let report = dustsph::commands::profile::post_process(&snap, 100).unwrap();
             let csv = dir.join("snapshot_0000_disc.csv");
             assert!(report.files.contains(&csv), "{:?}", report.files);
+            // Fewer bins than asked are said, with why.
+            assert!(
+                report.notes.iter().any(|n| n.contains("not the 100 asked")),
+                "{:?}",
+                report.notes
+            );
             assert!(dir.join("snapshot_0000_disc.png").exists());
             let text = std::fs::read_to_string(&csv).unwrap();
             let mut lines = text.lines();

@@ -32,6 +32,8 @@ pub struct PostReport {
     pub files: Vec<PathBuf>,
     pub errors: Vec<ExactErrors>,
     pub symmetry: Option<Symmetry>,
+    /// What the user should know about how it was made (fewer disc bins than asked, and why).
+    pub notes: Vec<String>,
 }
 
 /// Particle state back from a snapshot (for the error norms, which work on a [`State`]).
@@ -161,6 +163,9 @@ fn sibling(path: &Path, suffix: &str) -> PathBuf {
 
 /// Profiles CSV and three figures next to the snapshot; for the ball also the reference errors
 /// and the symmetry check. `scene` is parsed from the snapshot's own `Scene` attribute.
+/// A disc's radial bins at most.
+pub const MAX_DISC_BINS: usize = 40;
+
 pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
     let snap = read_snapshot(path)?;
     let scene: Option<Scene> = crate::scene::parse(&snap.scene_text, path, &[]).ok();
@@ -195,10 +200,18 @@ pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
     plot::fig_scatter_xy(&f, &snap, h, &title)?;
     files.push(f);
     // A disc (a point mass and locally isothermal gas): its bins against the steady drift.
+    let mut notes = Vec::new();
     if let Some(d) = scene
         .as_ref()
-        .and_then(|s| crate::analysis::disc::disc_bins(&snap, s, bins.min(40)))
+        .and_then(|s| crate::analysis::disc::disc_bins(&snap, s, bins.min(MAX_DISC_BINS)))
     {
+        if d.r.len() < bins {
+            notes.push(format!(
+                "disc: {} radial bins, not the {bins} asked: at most {MAX_DISC_BINS}, each at \
+                 least 4 h wide (the median gas h; narrower bins alias with the particles' rings)",
+                d.r.len()
+            ));
+        }
         let csv = sibling(path, "disc.csv");
         std::fs::write(&csv, crate::analysis::disc::disc_csv(&d))
             .map_err(|e| IoError::io(&csv, e))?;
@@ -219,6 +232,7 @@ pub fn post_process(path: &Path, bins: usize) -> Result<PostReport, IoError> {
         files,
         errors,
         symmetry,
+        notes,
     })
 }
 
@@ -309,6 +323,9 @@ pub fn execute(a: ProfileArgs) -> u8 {
         Ok(r) => {
             for f in &r.files {
                 println!("wrote {}", f.display());
+            }
+            for n in &r.notes {
+                eprintln!("dustsph: note: {n}");
             }
             for e in &r.errors {
                 print_errors(e);
