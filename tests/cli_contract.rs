@@ -647,19 +647,18 @@ fn profile_and_parity_refuse_what_is_not_there_with_exit_2() {
 #[test]
 fn a_logged_run_prints_progress_lines_with_its_rate_and_what_limits_its_step() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = out_dir(tmp.path());
-    let o = dustsph(&[
-        "run",
-        "configs/dustywave.toml",
-        "--set",
-        "time.t_end=0.05",
-        "--progress-every",
-        "0",
-        "--out",
-        &out,
-    ]);
-    assert_eq!(o.status.code(), Some(0));
-    let err = String::from_utf8_lossy(&o.stderr);
+    let run = |dir: &str, quiet: bool| {
+        let out = tmp.path().join(dir).display().to_string();
+        let mut a = vec!["run", "configs/dustywave.toml", "--set", "time.t_end=0.05"];
+        a.extend(["--progress-every", "0", "--out", &out]);
+        if quiet {
+            a.push("-q");
+        }
+        let o = dustsph(&a);
+        assert_eq!(o.status.code(), Some(0));
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    let err = run("logged", false);
     let lines: Vec<&str> = err.lines().filter(|l| l.contains("steps/s")).collect();
     assert!(lines.len() >= 3, "{err}");
     for l in &lines {
@@ -678,17 +677,5 @@ fn a_logged_run_prints_progress_lines_with_its_rate_and_what_limits_its_step() {
         "{err}"
     );
     // Quiet: none.
-    let o = dustsph(&[
-        "run",
-        "configs/dustywave.toml",
-        "--set",
-        "time.t_end=0.05",
-        "--progress-every",
-        "0",
-        "--out",
-        &format!("{out}_quiet"),
-        "-q",
-    ]);
-    assert_eq!(o.status.code(), Some(0));
-    assert!(!String::from_utf8_lossy(&o.stderr).contains("steps/s"));
+    assert!(!run("quiet", true).contains("steps/s"));
 }
