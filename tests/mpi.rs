@@ -7,6 +7,20 @@ mod common;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// `mpirun` with a session directory of its own: OpenMPI keeps each job's under
+/// $TMPDIR/ompi.<host>.<uid>, and jobs started side by side (the tests run in parallel) race
+/// when one removes that directory while another creates its own in it (seen on CI: "A call
+/// to mkdir was unable to create the desired directory").
+fn mpirun() -> Command {
+    static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let k = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("dustsph-mpirun-{}-{k}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cmd = Command::new("mpirun");
+    cmd.env("TMPDIR", &dir).env("OMPI_MCA_orte_tmpdir_base", &dir);
+    cmd
+}
+
 /// Run a command to its end, failing the test if it takes over three minutes (a rank left
 /// waiting on another must not hang CI).
 fn finish(mut cmd: Command, what: &str) -> std::process::Output {
@@ -34,7 +48,7 @@ fn mpi_check(ranks: u32, args: &[&str]) -> (Option<i32>, String) {
 
 /// [`mpi_check`] with environment variables set.
 fn mpi_check_with(ranks: u32, args: &[&str], env: &[(&str, &str)]) -> (Option<i32>, String) {
-    let mut cmd = Command::new("mpirun");
+    let mut cmd = mpirun();
     cmd.envs(env.iter().copied());
     cmd.args(["--allow-run-as-root", "--oversubscribe", "-n"])
         .arg(ranks.to_string())
@@ -429,7 +443,7 @@ fn a_run_over_ranks_ends_where_one_process_ends() {
         );
         for ranks in 2..=4usize {
             let dir = tmp.path().join(format!("r{c}_{ranks}"));
-            let mut cmd = Command::new("mpirun");
+            let mut cmd = mpirun();
             cmd.args(["--allow-run-as-root", "--oversubscribe", "-n"])
                 .arg(ranks.to_string())
                 .arg(bin)
@@ -557,7 +571,7 @@ fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
     assert!(finish(cmd, "run").status.success());
     let (reference, vscale, t1) = last_snapshot(&one);
     let three = tmp.path().join("three");
-    let mut cmd = Command::new("mpirun");
+    let mut cmd = mpirun();
     cmd.args([
         "--allow-run-as-root",
         "--oversubscribe",
@@ -585,7 +599,7 @@ fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
         let mut cmd = if ranks == 1 {
             Command::new(bin)
         } else {
-            let mut c = Command::new("mpirun");
+            let mut c = mpirun();
             c.args(["--allow-run-as-root", "--oversubscribe", "-n", "2", bin]);
             // Each rank reads its share of each phase's rows, in blocks of 64.
             c.env("DUSTSPH_ROW_BLOCK", "64");
@@ -619,7 +633,7 @@ fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
         v
     };
     let before = listing(&three);
-    let mut cmd = Command::new("mpirun");
+    let mut cmd = mpirun();
     cmd.args(["--allow-run-as-root", "--oversubscribe", "-n", "2", bin])
         .env("DUSTSPH_ROW_BLOCK", "64")
         .arg("resume")
@@ -641,7 +655,7 @@ fn a_checkpoint_written_over_3_ranks_resumes_on_2_and_on_1() {
 fn killing_one_rank_stops_the_job_and_keeps_the_snapshots() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("killed");
-    let mut child = Command::new("mpirun")
+    let mut child = mpirun()
         .args(["--allow-run-as-root", "--oversubscribe", "-n", "3"])
         .arg(env!("CARGO_BIN_EXE_dustsph"))
         .args([
@@ -724,7 +738,7 @@ fn each_rank_steps_on_the_device_asked_for() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let run = |device: &str, dir: &std::path::Path| {
-        let mut cmd = Command::new("mpirun");
+        let mut cmd = mpirun();
         cmd.args(["--allow-run-as-root", "--oversubscribe", "-n", "2"])
             .arg(bin)
             .args(["run", "configs/dustybox.toml", "--set", "time.t_end=0.05"])
@@ -764,7 +778,7 @@ fn each_rank_steps_on_the_device_asked_for() {
 fn a_failure_inside_a_step_stops_the_job_with_its_message() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("failed");
-    let mut cmd = Command::new("mpirun");
+    let mut cmd = mpirun();
     cmd.args(["--allow-run-as-root", "--oversubscribe", "-n", "3"])
         .args(["-x", "DUSTSPH_FAIL_IN_STEP=1:3"])
         .arg(env!("CARGO_BIN_EXE_dustsph"))
@@ -797,7 +811,7 @@ fn a_failure_inside_a_step_stops_the_job_with_its_message() {
 fn a_first_step_refused_on_rank_0_stops_every_rank_before_any_output() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("refused");
-    let mut cmd = Command::new("mpirun");
+    let mut cmd = mpirun();
     cmd.args(["--allow-run-as-root", "--oversubscribe", "-n", "3"])
         .arg(env!("CARGO_BIN_EXE_dustsph"))
         .args([
@@ -845,7 +859,7 @@ fn a_file_read_by_share_over_ranks_names_a_bad_row_in_the_file() {
         let out = dir.path().join("out");
         let mut cmd = match ranks {
             Some(n) => {
-                let mut c = Command::new("mpirun");
+                let mut c = mpirun();
                 c.args(["--allow-run-as-root", "--oversubscribe", "-n"])
                     .arg(n.to_string())
                     .arg(bin);
