@@ -50,6 +50,12 @@ fn an_ic_file_of_the_3d_box_lattice_runs_bit_for_bit_as_the_built_in_box() {
     let (_, su) = built_in("dustybox", &BOX_SETS);
     IcFile::of_state(&su.state, su.h, 3, Some([1.0; 3])).write(&dir.path().join("box.h5"));
     let loaded = file_scene(dir.path(), 3, "box.h5", "[true, true, true]", BOX_REST);
+    // The set-up says where its h comes from (here the file's own).
+    let notes = dustsph::setup::build(&loaded.scene).unwrap().notes;
+    assert!(
+        notes[0].contains("(the file's SmoothingLength)"),
+        "{notes:?}"
+    );
     let (s_file, from_file) = run_in(dir.path(), &loaded, "file");
     let (_, built) = run_scene("dustybox", &BOX_SETS);
     assert_eq!(from_file.step, built.step);

@@ -17,7 +17,8 @@ fn mpirun() -> Command {
     let dir = std::env::temp_dir().join(format!("dustsph-mpirun-{}-{k}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mut cmd = Command::new("mpirun");
-    cmd.env("TMPDIR", &dir).env("OMPI_MCA_orte_tmpdir_base", &dir);
+    cmd.env("TMPDIR", &dir)
+        .env("OMPI_MCA_orte_tmpdir_base", &dir);
     cmd
 }
 

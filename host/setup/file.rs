@@ -104,8 +104,19 @@ pub(super) fn build(scene: &Scene, f: &FileCfg, c: &dyn Comm) -> Result<Setup, S
     let mut counts: Vec<u64> = dust.iter().map(|d| d.len() as u64).collect();
     c.sum_u64(&mut counts);
     let gas_mass = masses[0];
+    // Where the reference h comes from: recomputed from this file, so a restart from a later
+    // snapshot (another extent) takes another one, which the user should hear.
+    let how = match scene.sph.smoothing {
+        SmoothingLength::Absolute { .. } => "sph.h",
+        SmoothingLength::Hfact { .. } => {
+            "the reference h: sph.hfact × this file's mean gas spacing (its IDIC cells and \
+             grid; each particle's own h is solved)"
+        }
+        SmoothingLength::FromFile {} => "the file's SmoothingLength",
+    };
     let mut notes = vec![format!(
-        "initial conditions: {} (SHA-256 {sha256}): {ng} gas particles{}, t = {}, h = {h:.6e}",
+        "initial conditions: {} (SHA-256 {sha256}): {ng} gas particles{}, t = {}, h = {h:.6e} \
+         ({how})",
         path.display(),
         (counts.iter().zip(&masses[1..]).enumerate())
             .map(|(k, (n, m))| format!(", fraction {k}: {n} particles, ε = {:.6}", m / gas_mass))
