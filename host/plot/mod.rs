@@ -670,6 +670,25 @@ pub fn fig_disc(
         .collect();
     let mut sigma = Vec::new();
     let (mut vr, mut vp) = (Vec::new(), Vec::new());
+    // Each fraction's Σ over the gas's, on its own axis (on Σ's, beside the gas, the dust's
+    // is a line at zero).
+    let gas_sigma = d
+        .phases
+        .first()
+        .map(|g| g.sigma.clone())
+        .unwrap_or_default();
+    let mut ratio = Vec::new();
+    for (k, p) in d.phases.iter().enumerate().skip(1) {
+        ratio.push(Curve {
+            label: &labels[k].0,
+            r: &d.r,
+            y: (p.sigma.iter().zip(&gas_sigma))
+                .map(|(s, g)| if *g > 0.0 { s / g } else { f64::NAN })
+                .collect(),
+            color: pick(k).0,
+            style: Style::Points,
+        });
+    }
     for (k, p) in d.phases.iter().enumerate() {
         let (c, c_ref) = pick(k);
         sigma.push(Curve {
@@ -731,10 +750,20 @@ pub fn fig_disc(
             &panels[2],
             "azimuthal velocity − v_K",
             "v_φ − v_K",
-            r,
+            r.clone(),
             &vp,
             LowerRight,
         )?;
+        if !ratio.is_empty() {
+            curve_panel(
+                &panels[3],
+                "dust-to-gas ratio",
+                "Σ_k / Σ_gas",
+                r,
+                &ratio,
+                UpperRight,
+            )?;
+        }
         Ok(())
     })
 }
