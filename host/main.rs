@@ -49,6 +49,14 @@ enum Cmd {
 }
 
 fn main() -> ExitCode {
+    // Rust ignores SIGPIPE, so a print to a closed pipe (`dustsph run … | head`) panics (exit
+    // 101, which says "a bug"); with the default a reader that stops ends the process quietly,
+    // as for any Unix tool. Progress, warnings and errors go to stderr; the outputs are files.
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to its default before any thread is started.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cmd = Cli::parse().cmd;
     // One process per job, except for the MPI check: several ranks would each run the whole
     // command into the same output.

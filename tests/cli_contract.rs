@@ -679,3 +679,33 @@ fn a_logged_run_prints_progress_lines_with_its_rate_and_what_limits_its_step() {
     // Quiet: none.
     assert!(!run("quiet", true).contains("steps/s"));
 }
+
+/// A reader that stops early (`dustsph run … | head`, here one that never reads) ends the run's
+/// printing quietly, as for any Unix tool: no panic (exit 101 says "a bug"), and the summary
+/// is written before anything is printed.
+#[test]
+#[cfg(unix)]
+fn a_closed_stdout_ends_quietly_after_the_summary_is_written() {
+    use std::os::unix::process::ExitStatusExt;
+    let tmp = tempfile::tempdir().unwrap();
+    let out = out_dir(tmp.path());
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dustsph"))
+        .args(["run", "configs/dustybox.toml", "-q", "--out", &out])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_ne!(o.status.code(), Some(101), "{err}");
+    assert_eq!(
+        o.status.signal(),
+        Some(13),
+        "killed by SIGPIPE: {:?}",
+        o.status
+    );
+    assert!(Path::new(&out).join("summary.json").exists());
+}
