@@ -6,6 +6,7 @@
 //! of its phase within its kernel support, and a grain steps no slower than the gas within its
 //! support, its drag partners ([`PARTNER_SPAN`]). What it measures: the particle updates a
 //! global step takes for each one individual steps would, on the run's own state.
+use super::support_grid::SupportGrid;
 use crate::particles::State;
 use crate::scene::Time;
 use crate::step::timestep::own_step;
@@ -202,21 +203,17 @@ fn own_steps(
 /// Lower each bin to at most [`NEIGHBOUR_SPAN`] above the lowest bin of its phase, and a
 /// grain's to the lowest gas bin, within the particle's support (|x_b − x_a| < 2h_a), repeated
 /// until nothing changes (a lowered bin lowers its neighbours' in turn; each pass reads the last
-/// pass's bins, so the result does not depend on the threads). Cells of half the median support: those wholly inside the support count by their lowest bins, those it cuts
-/// particle by particle.
+/// pass's bins, so the result does not depend on the threads). Cells of half the median
+/// support: those wholly inside the support count by their lowest bins, those it cuts particle
+/// by particle.
 fn limit_by_neighbours(own: &Own, bins: &mut [u32]) {
     let mut s: Vec<f64> = own.support.clone();
     s.sort_by(f64::total_cmp);
-    let cell = (0.5 * s[s.len() / 2]).max(f64::MIN_POSITIVE);
-    let key = |x: [f64; 3]| x.map(|c| (c / cell).floor() as i64);
-    let mut members: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-    for (a, &x) in own.x.iter().enumerate() {
-        members.entry(key(x)).or_default().push(a);
-    }
+    let grid = SupportGrid::new(&own.x, 0.5 * s[s.len() / 2]);
     let phase = |a: usize| (a >= own.n_gas) as usize;
     loop {
         // Each cell's lowest bin of each phase (gas, dust).
-        let lowest: HashMap<[i64; 3], [u32; 2]> = (members.iter())
+        let lowest: HashMap<[i64; 3], [u32; 2]> = (grid.members.iter())
             .map(|(k, m)| {
                 let mut l = [u32::MAX; 2];
                 for &a in m {
@@ -230,41 +227,20 @@ fn limit_by_neighbours(own: &Own, bins: &mut [u32]) {
             .into_par_iter()
             .map(|a| {
                 let (xa, r) = (own.x[a], own.support[a]);
-                let reach = (r / cell).ceil() as i64;
-                let k = key(xa);
                 let mut l = [u32::MAX; 2];
-                for dx in -reach..=reach {
-                    for dy in -reach..=reach {
-                        for dz in -reach..=reach {
-                            let c = [k[0] + dx, k[1] + dy, k[2] + dz];
-                            let Some(m) = members.get(&c) else {
-                                continue;
-                            };
-                            // Nearest and farthest distance² from x_a to the cell's box.
-                            let (mut near, mut far) = (0.0, 0.0);
-                            for i in 0..3 {
-                                let (lo, hi) = (c[i] as f64 * cell, (c[i] + 1) as f64 * cell);
-                                let gap = (lo - xa[i]).max(xa[i] - hi).max(0.0);
-                                let span = (xa[i] - lo).abs().max((hi - xa[i]).abs());
-                                (near, far) = (near + gap * gap, far + span * span);
-                            }
-                            if near >= r * r {
-                                continue;
-                            }
-                            if far < r * r {
-                                let lc = lowest[&c];
-                                l = [l[0].min(lc[0]), l[1].min(lc[1])];
-                                continue;
-                            }
-                            for &b in m {
-                                let d = dustsph_device::sub(own.x[b], xa);
-                                if dustsph_device::dot(d, d) < r * r {
-                                    l[phase(b)] = l[phase(b)].min(old[b]);
-                                }
-                            }
+                grid.cells_within(xa, r, |c, m, whole| {
+                    if whole {
+                        let lc = lowest[&c];
+                        l = [l[0].min(lc[0]), l[1].min(lc[1])];
+                        return;
+                    }
+                    for &b in m {
+                        let d = dustsph_device::sub(own.x[b], xa);
+                        if dustsph_device::dot(d, d) < r * r {
+                            l[phase(b)] = l[phase(b)].min(old[b]);
                         }
                     }
-                }
+                });
                 let p = phase(a);
                 let mut most = l[p].saturating_add(NEIGHBOUR_SPAN);
                 if p == 1 {

@@ -6,6 +6,7 @@ pub mod norms;
 pub mod profiles;
 pub mod radial;
 pub mod spherical;
+pub mod support_grid;
 
 use crate::dist::Comm;
 use crate::exact::dustybox::{DustyBox, Forcing};

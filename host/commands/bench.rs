@@ -140,41 +140,31 @@ pub fn mean_gas_neighbours(
 }
 
 /// The mean number of other particles within each particle's own support 2h_a (cells of the
-/// median support; each particle searches the cells its own support reaches).
+/// median support).
 fn mean_within_own_support(x: &[[f64; 3]], h: &[f64]) -> f64 {
     use rayon::prelude::*;
-    use std::collections::HashMap;
     let support = |a: usize| dustsph_device::kernel::SUPPORT * h[a];
     let mut s: Vec<f64> = (0..x.len()).map(support).collect();
     s.sort_by(f64::total_cmp);
-    let cell = s[s.len() / 2].max(f64::MIN_POSITIVE);
-    let key = |p: [f64; 3]| p.map(|c| (c / cell).floor() as i64);
-    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-    for (a, &p) in x.iter().enumerate() {
-        grid.entry(key(p)).or_default().push(a);
-    }
+    let grid = crate::analysis::support_grid::SupportGrid::new(x, s[s.len() / 2]);
     let total: usize = (0..x.len())
         .into_par_iter()
         .map(|a| {
             let r = support(a);
-            let reach = (r / cell).ceil() as i64;
-            let k = key(x[a]);
             let mut n = 0;
-            for dx in -reach..=reach {
-                for dy in -reach..=reach {
-                    for dz in -reach..=reach {
-                        for &b in grid
-                            .get(&[k[0] + dx, k[1] + dy, k[2] + dz])
-                            .into_iter()
-                            .flatten()
-                        {
+            grid.cells_within(x[a], r, |_, m, whole| {
+                n += if whole {
+                    m.len()
+                } else {
+                    (m.iter())
+                        .filter(|&&b| {
                             let d = dustsph_device::sub(x[b], x[a]);
-                            n += (b != a && dustsph_device::dot(d, d) < r * r) as usize;
-                        }
-                    }
-                }
-            }
-            n
+                            dustsph_device::dot(d, d) < r * r
+                        })
+                        .count()
+                };
+            });
+            n - 1
         })
         .sum();
     total as f64 / x.len() as f64
