@@ -341,3 +341,96 @@ fn resume_refuses_a_finished_run_or_a_replaced_snapshot_and_resumes_the_summary_
     .unwrap();
     resume_refused(&again, "it was replaced");
 }
+
+/// A small 2D ball with a snapshot every few steps (its error norms and core checks too).
+fn small_ball(sets: &[&str]) -> dustsph::scene::LoadedScene {
+    let mut all = vec![
+        "scene.dim=2",
+        "sph.n=20",
+        "sph.h=0.1",
+        "time.t_end=0.04",
+        "time.output_dt=0.01",
+    ];
+    all.extend_from_slice(sets);
+    let sets: Vec<String> = all.iter().map(|s| s.to_string()).collect();
+    dustsph::scene::load(&config("dusty_ball"), &sets).unwrap()
+}
+
+/// The snapshots written on the writer thread from a copy of the state, while the run steps
+/// on, are byte for byte those written before stepping on (`--inline-outputs`): the copy is
+/// the state of the output's time, in the output's order, and each file gets its own name and
+/// its place in the series; the error norms and core checks made on the writer are the same.
+#[test]
+fn snapshots_written_beside_the_steps_are_those_written_before_them() {
+    let _serial = serial();
+    let loaded = small_ball(&[]);
+    let tmp = tempfile::tempdir().unwrap();
+    let run = |dir: &str, inline: bool| {
+        let mut opts = RunOptions::quiet_on_cpu(tmp.path().join(dir));
+        opts.inline_outputs = inline;
+        dustsph::sim::run::run(&loaded, &opts).unwrap().0
+    };
+    let (beside, before) = (run("beside", false), run("before", true));
+    assert!(beside.snapshots.len() >= 5, "{:?}", beside.snapshots);
+    assert_eq!(beside.snapshots, before.snapshots);
+    fn json(v: &impl serde::Serialize) -> String {
+        serde_json::to_string(v).unwrap()
+    }
+    assert_eq!(json(&beside.errors), json(&before.errors));
+    let core = |s: &dustsph::sim::run::Summary| json(&s.ball.as_ref().unwrap().core);
+    assert_eq!(core(&beside), core(&before));
+    let mut files: Vec<String> = beside.snapshots.clone();
+    files.extend(beside.snapshots.iter().map(|s| s.replace(".h5", ".xmf")));
+    files.push("snapshots.xmf".into());
+    for f in files {
+        let read = |d: &str| std::fs::read(tmp.path().join(d).join(&f)).unwrap();
+        assert!(read("beside") == read("before"), "{f} differs");
+    }
+}
+
+/// A checkpoint taken while a snapshot is being written waits for it: the checkpoint's record
+/// lists it, and its file is whole (Ctrl-C before the first step, the t = 0 snapshot pending).
+#[test]
+fn a_checkpoint_waits_for_the_snapshot_being_written_and_lists_it() {
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let mut r = Run::start(&small_ball(&[]), &RunOptions::quiet_on_cpu(&out)).unwrap();
+    let ctrl_c = std::sync::atomic::AtomicBool::new(true);
+    let stop = r.advance(None, None, Some(&ctrl_c)).unwrap();
+    assert_eq!(stop, dustsph::sim::Stop::Interrupted { checkpointed: true });
+    let (_, _, progress) = dustsph::sim::checkpoint::read(&out).unwrap();
+    assert_eq!(progress.outputs.snapshots, ["snapshot_0000.h5"]);
+    assert!(
+        !progress.outputs.errors.is_empty() && progress.outputs.errors.iter().all(|e| e.t == 0.0)
+    );
+    dustsph::io::read_snapshot(&out.join("snapshot_0000.h5")).unwrap();
+}
+
+/// A snapshot the writer thread cannot write fails the run, naming the file, even when it is
+/// the run's last output; it is not listed as written, and no part of it is left.
+#[test]
+fn a_snapshot_the_writer_cannot_write_fails_the_run_naming_it() {
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    // Two outputs: t = 0, then t_end, whose name is taken by a directory (the file's rename
+    // onto it fails after the whole file is written).
+    let loaded = small_ball(&["time.output_dt=1.0"]);
+    let mut r = Run::start(&loaded, &RunOptions::quiet_on_cpu(&out)).unwrap();
+    std::fs::create_dir(out.join("snapshot_0001.h5")).unwrap();
+    let err = r.advance(None, None, None).unwrap_err();
+    assert!(
+        matches!(err, dustsph::sim::RunError::Io(_))
+            && err.to_string().contains("snapshot_0001.h5"),
+        "{err}"
+    );
+    let left: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains("snapshot_0001") && n != "snapshot_0001.h5")
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+    let (s, _) = r.finish_as("failed".into()).unwrap();
+    assert_eq!(s.snapshots, ["snapshot_0000.h5"]);
+}

@@ -41,6 +41,10 @@ pub struct RunArgs {
     /// same as --set numerics.precision=…
     #[arg(long, value_enum)]
     precision: Option<Precision>,
+    /// Write each snapshot before stepping on, not from a copy of the state on a thread of its
+    /// own while the run steps on (no copy: less memory; slower where snapshots are large)
+    #[arg(long)]
+    inline_outputs: bool,
 }
 
 #[derive(clap::Args)]
@@ -56,6 +60,10 @@ pub struct ResumeArgs {
     progress_every: f64,
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
+    /// Write each snapshot before stepping on, not from a copy of the state on a thread of its
+    /// own while the run steps on (no copy: less memory; slower where snapshots are large)
+    #[arg(long)]
+    inline_outputs: bool,
 }
 
 /// When a run writes checkpoints and progress lines, and when it stops early.
@@ -63,6 +71,8 @@ struct Cadence {
     checkpoint_every: Option<u64>,
     stop_after: Option<u64>,
     progress_every: f64,
+    /// `--inline-outputs`.
+    inline_outputs: bool,
 }
 
 /// MPI for a run started as one of several ranks (`None` otherwise). A rank that panics must
@@ -90,6 +100,7 @@ fn drive(start: impl FnOnce() -> Result<Run, RunError>, cadence: Cadence) -> u8 
         checkpoint_every,
         stop_after,
         progress_every,
+        inline_outputs,
     } = cadence;
     let fail = |e: RunError| {
         if !matches!(e, RunError::InputReported) {
@@ -117,6 +128,7 @@ fn drive(start: impl FnOnce() -> Result<Run, RunError>, cadence: Cadence) -> u8 
         Err(e) => return fail(e),
     };
     r.progress_every = progress_every;
+    r.set_inline_outputs(inline_outputs);
     let out = r.out_dir().to_path_buf();
     let root = r.is_root();
     match r.advance(stop_after, checkpoint_every, Some(&stop)) {
@@ -215,11 +227,13 @@ pub fn execute(a: RunArgs) -> u8 {
         progress_every,
         device,
         precision,
+        inline_outputs,
     } = a;
     let cadence = Cadence {
         checkpoint_every,
         stop_after,
         progress_every,
+        inline_outputs,
     };
     let loaded = crate::scene::load(&scene, &set).and_then(|l| l.with_numerics(precision, None));
     let loaded = match loaded {
@@ -240,6 +254,7 @@ pub fn execute(a: RunArgs) -> u8 {
         force,
         verbose: !quiet,
         device,
+        inline_outputs,
     };
     // Started as one of several MPI ranks: the run is split over them (docs/scaling.md).
     if let Some(world) = ranks_world() {
@@ -256,11 +271,13 @@ pub fn execute_resume(a: ResumeArgs) -> u8 {
         quiet,
         progress_every,
         device,
+        inline_outputs,
     } = a;
     let cadence = Cadence {
         checkpoint_every,
         stop_after: None,
         progress_every,
+        inline_outputs,
     };
     let quiet = quiet || crate::dist::launched().is_some_and(|(r, _)| r != 0);
     if !quiet {

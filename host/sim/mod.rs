@@ -102,6 +102,11 @@ pub trait Observer {
     fn after_step(&mut self, _sim: &mut Simulation, _taken: &Taken) -> Result<Flow, RunError> {
         Ok(Flow::Continue)
     }
+    /// Finish what it left running beside the steps (a snapshot being written), before a
+    /// checkpoint keeps its record or the run ends.
+    fn settle(&mut self) -> Result<(), RunError> {
+        Ok(())
+    }
     /// What a checkpoint keeps of this observer, as (name, JSON), to be restored on resume.
     fn save(&self) -> Option<(&'static str, serde_json::Value)> {
         None
@@ -371,12 +376,16 @@ impl Simulation {
     fn obey(
         &mut self,
         flow: Flow,
-        observers: &[&mut dyn Observer],
+        observers: &mut [&mut dyn Observer],
         checkpoints: &mut Option<&mut dyn Checkpointer>,
     ) -> Result<Option<Stop>, RunError> {
         let checkpoint = matches!(flow, Flow::Checkpoint | Flow::Stop { checkpoint: true });
         let written = match (checkpoint, checkpoints.as_mut()) {
             (true, Some(c)) => {
+                // A checkpoint lists only outputs whose files are whole.
+                for o in observers.iter_mut() {
+                    o.settle()?;
+                }
                 let parts = observers.iter().filter_map(|o| o.save()).collect();
                 c.write(self, parts)?;
                 true

@@ -59,6 +59,10 @@ pub struct OutputRecord {
     /// Initial conditions from a file: which, and its SHA-256.
     #[serde(default)]
     pub initial_conditions: Option<crate::setup::file::IcSource>,
+    /// Wall seconds of the snapshot writer: each snapshot's files, error norms and the ball's
+    /// core (on a thread of its own beside the steps, where the run writes in the background).
+    #[serde(default)]
+    pub writer_seconds: f64,
 }
 
 /// Writes the snapshots of a run (rank 0 over MPI ranks).
@@ -68,6 +72,85 @@ pub struct Outputs {
     times: Vec<f64>,
     pub record: OutputRecord,
     verbose: bool,
+    /// Write each snapshot before the run steps on (else on the writer thread, [`Pending`]).
+    pub inline: bool,
+    /// The snapshot being written beside the steps: at most one.
+    pending: Option<Pending>,
+}
+
+/// A snapshot written on a thread of its own from a copy of the state while the run steps on
+/// (one process: the engine's launcher, CPU or GPU, goes on with the next steps). The run
+/// waits for it at the next output, a checkpoint and its end ([`Outputs::settle`]); the
+/// record lists the snapshot only once its files are whole.
+struct Pending {
+    name: String,
+    t: f64,
+    job: std::thread::JoinHandle<Result<Written, RunError>>,
+}
+
+/// What the writer thread owns: the state's copy and what its files say of the run.
+struct SnapshotJob {
+    path: PathBuf,
+    loaded: LoadedScene,
+    ics: Option<crate::setup::file::IcSource>,
+    phys: crate::step::Physics,
+    state: crate::particles::State,
+    t_stop: Vec<Vec<f64>>,
+    /// The XDMF time series with this snapshot, written once the snapshot is.
+    series: Vec<(f64, String)>,
+}
+
+impl SnapshotJob {
+    /// The snapshot's files (its HDF5 file, its XDMF sidecar, the series), then the analyses
+    /// of the state's copy; the seconds taken.
+    fn write(self) -> Result<Written, RunError> {
+        let t0 = std::time::Instant::now();
+        let SnapshotJob {
+            path,
+            loaded,
+            ics,
+            phys,
+            state,
+            t_stop,
+            series,
+        } = self;
+        let c = &crate::dist::Alone;
+        write_snapshot_of(
+            &path,
+            (&loaded, ics.as_ref()),
+            &phys,
+            (&state, &t_stop),
+            c,
+            &OnCores,
+        )?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        io::write_xdmf_series(dir, &series).map_err(|e| RunError::Io(e.to_string()))?;
+        let (errors, core) = analyses(&loaded, &state, &phys);
+        Ok(Written {
+            seconds: t0.elapsed().as_secs_f64(),
+            errors,
+            core,
+        })
+    }
+}
+
+/// What the writer thread hands back: its seconds and the analyses of the state's copy.
+struct Written {
+    seconds: f64,
+    errors: Vec<ExactErrors>,
+    core: Option<analysis::ball::CoreCheck>,
+}
+
+/// A snapshot's analyses of the whole state: the error norms against the exact solution, the
+/// ball's undisturbed core.
+fn analyses(
+    loaded: &LoadedScene,
+    state: &crate::particles::State,
+    phys: &crate::step::Physics,
+) -> (Vec<ExactErrors>, Option<analysis::ball::CoreCheck>) {
+    let fixed_dt = loaded.scene.time.fixed_dt();
+    let errors = analysis::exact_errors(&loaded.scene, state, fixed_dt);
+    (errors, ball_core(loaded, state, phys, &crate::dist::Alone))
 }
 
 impl Outputs {
@@ -78,12 +161,37 @@ impl Outputs {
             dir: dir.to_path_buf(),
             record,
             verbose,
+            inline: false,
+            pending: None,
         }
+    }
+
+    /// Wait for the snapshot being written beside the steps, if any, and enter it in the
+    /// record (its failure is the run's: the error names the file).
+    pub fn settle(&mut self) -> Result<(), RunError> {
+        let Some(p) = self.pending.take() else {
+            return Ok(());
+        };
+        let written = p.job.join().unwrap_or_else(|_| {
+            Err(RunError::Io(format!(
+                "{}: the snapshot writer stopped (panicked)",
+                self.dir.join(&p.name).display()
+            )))
+        })?;
+        self.record.writer_seconds += written.seconds;
+        self.record.errors.extend(written.errors);
+        self.record.ball_core.extend(written.core);
+        self.record.snapshots.push(p.name);
+        self.record.snapshot_times.push(p.t);
+        Ok(())
     }
 
     /// Write the next snapshot from the simulation's (synced) state: its file, its errors, the
     /// series. Over ranks every rank goes on, or none.
     pub fn write_next(&mut self, sim: &mut Simulation) -> Result<(), RunError> {
+        // At most one snapshot pending: the last one is whole (and named in the record) before
+        // the next is copied.
+        self.settle()?;
         let name = io::snapshot_name(self.record.snapshots.len());
         // The sums of the output (collective where the ranks hold shares); rank 0 writes them.
         let totals = sim.stepper.totals(&sim.state);
@@ -101,10 +209,15 @@ impl Outputs {
         // Over ranks the others deflate a share of rank 0's chunks while it writes.
         let helpers = sim.stepper.output_world();
         let written = match (sim.is_root(), helpers) {
-            (true, None) => self.write_files(sim, &name, &OnCores),
+            (true, None) if !self.inline => {
+                let written = self.write_files(sim, &name, None);
+                self.record.next_output += 1;
+                return written;
+            }
+            (true, None) => self.write_files(sim, &name, Some(&OnCores)),
             (true, Some(w)) => {
                 let farm = crate::dist::farm::Farm::new(w);
-                let written = self.write_files(sim, &name, &farm);
+                let written = self.write_files(sim, &name, Some(&farm));
                 farm.finish();
                 written
             }
@@ -176,24 +289,54 @@ impl Outputs {
         Ok(true)
     }
 
+    /// The snapshot `name` of the simulation's (synced) state, its chunks filtered by
+    /// `chunks` before the run goes on, or (`None`) on the writer thread from a copy of the
+    /// state, each with its error norms and the ball's core; then the time bins of the state.
     fn write_files(
         &mut self,
         sim: &mut Simulation,
         name: &str,
-        chunks: &dyn ChunkFilter,
+        chunks: Option<&dyn ChunkFilter>,
     ) -> Result<(), RunError> {
         let ics = self.record.initial_conditions.as_ref();
-        write_snapshot(&self.dir.join(name), &self.loaded, ics, sim, chunks)?;
-        let fixed_dt = self.loaded.scene.time.fixed_dt();
-        self.record.errors.extend(analysis::exact_errors(
-            &self.loaded.scene,
-            &sim.state,
-            fixed_dt,
-        ));
-        let c = &crate::dist::Alone;
-        if let Some(core) = ball_core(&self.loaded, &sim.state, &sim.phys, c) {
-            self.record.ball_core.push(core);
+        let path = self.dir.join(name);
+        let when = (sim.state.t, sim.state.step);
+        match chunks {
+            Some(chunks) => {
+                let t0 = std::time::Instant::now();
+                write_snapshot(&path, &self.loaded, ics, sim, chunks)?;
+                self.write_series(when, name)?;
+                let (errors, core) = analyses(&self.loaded, &sim.state, &sim.phys);
+                self.record.errors.extend(errors);
+                self.record.ball_core.extend(core);
+                self.record.writer_seconds += t0.elapsed().as_secs_f64();
+            }
+            None => {
+                self.say_written(when, name);
+                let Simulation { stepper, state, .. } = &mut *sim;
+                let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
+                let t_stop = stepper.output_fields(state).map_err(step_err)?;
+                let job = SnapshotJob {
+                    path,
+                    loaded: self.loaded.clone(),
+                    ics: ics.cloned(),
+                    phys: stepper.phys().clone(),
+                    state: state.clone(),
+                    t_stop,
+                    series: self.series_with(when.0, name),
+                };
+                let job = std::thread::Builder::new()
+                    .name("snapshot writer".into())
+                    .spawn(move || job.write())
+                    .map_err(|e| RunError::Io(format!("{}: {e}", self.dir.display())))?;
+                self.pending = Some(Pending {
+                    name: name.to_string(),
+                    t: when.0,
+                    job,
+                });
+            }
         }
+        let fixed_dt = self.loaded.scene.time.fixed_dt();
         // Last: it brings the state into the engine's order, which the stopping times the
         // snapshot took over ranks do not follow.
         if sim.state.step > 0 && fixed_dt.is_none() {
@@ -205,15 +348,18 @@ impl Outputs {
                 .time_bins
                 .extend(analysis::bins::census(&sim.state, &sim.phys, time, lim));
         }
-        self.write_series((sim.state.t, sim.state.step), name)
+        Ok(())
     }
 
-    /// The XDMF time series with the snapshot `name` at time `t` added.
-    fn write_series(&self, (t, step): (f64, u64), name: &str) -> Result<(), RunError> {
+    fn say_written(&self, (t, step): (f64, u64), name: &str) {
         if self.verbose {
             eprintln!("  t = {t:.6}  step {step:>7}  → {name}");
         }
-        let series: Vec<(f64, String)> = (self.record.snapshot_times.iter().copied())
+    }
+
+    /// The XDMF time series of the record with the snapshot `name` at time `t` added.
+    fn series_with(&self, t: f64, name: &str) -> Vec<(f64, String)> {
+        (self.record.snapshot_times.iter().copied())
             .chain([t])
             .zip(
                 self.record
@@ -222,7 +368,13 @@ impl Outputs {
                     .cloned()
                     .chain([name.to_string()]),
             )
-            .collect();
+            .collect()
+    }
+
+    /// The XDMF time series with the snapshot `name` at time `t` added, written now.
+    fn write_series(&self, when: (f64, u64), name: &str) -> Result<(), RunError> {
+        self.say_written(when, name);
+        let series = self.series_with(when.0, name);
         io::write_xdmf_series(&self.dir, &series).map_err(|e| RunError::Io(e.to_string()))
     }
 
@@ -248,8 +400,22 @@ impl Observer for Outputs {
         Ok(Flow::Continue)
     }
 
+    fn settle(&mut self) -> Result<(), RunError> {
+        Outputs::settle(self)
+    }
+
     fn save(&self) -> Option<(&'static str, serde_json::Value)> {
         Some(("outputs", serde_json::to_value(&self.record).ok()?))
+    }
+}
+
+impl Drop for Outputs {
+    /// A run dropped on an error still leaves its last snapshot whole (or, failed, no file:
+    /// it is written to a temporary name and renamed).
+    fn drop(&mut self) {
+        if let Some(p) = self.pending.take() {
+            let _ = p.job.join();
+        }
     }
 }
 

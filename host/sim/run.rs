@@ -29,6 +29,9 @@ pub struct RunOptions {
     pub verbose: bool,
     /// Where to step (`--device`).
     pub device: DeviceChoice,
+    /// Write each snapshot before stepping on (`--inline-outputs`), not on the writer thread
+    /// from a copy of the state.
+    pub inline_outputs: bool,
 }
 
 impl RunOptions {
@@ -40,6 +43,7 @@ impl RunOptions {
             force: false,
             verbose: false,
             device: DeviceChoice::Cpu,
+            inline_outputs: false,
         }
     }
 }
@@ -157,6 +161,7 @@ impl Run {
         if let Some(b) = &mut r.ball {
             b.record_now(&mut r.sim)?;
         }
+        r.outputs.inline = opts.inline_outputs;
         r.outputs.write_next(&mut r.sim)?;
         r.shed_whole_state();
         Ok(r)
@@ -277,8 +282,15 @@ impl Run {
         Ok(&self.sim.state)
     }
 
-    /// Write `DIR/checkpoint.h5` (atomically).
+    /// Write each snapshot from here on before stepping on (`true`), or on the writer thread
+    /// beside the steps (the default).
+    pub fn set_inline_outputs(&mut self, inline: bool) {
+        self.outputs.inline = inline;
+    }
+
+    /// Write `DIR/checkpoint.h5` (atomically), once the snapshot being written is whole.
     pub fn checkpoint(&mut self) -> Result<(), RunError> {
+        self.outputs.settle()?;
         let mut parts = vec![self.outputs.save()];
         parts.extend(self.ball.as_ref().map(|b| b.save()));
         let parts = parts.into_iter().flatten().collect();
@@ -326,14 +338,20 @@ impl Run {
             observers.push(e);
         }
         observers.push(&mut interrupt);
-        self.sim
-            .run(until, &mut observers, Some(&mut self.checkpoints))
-            .map_err(|e| match e {
-                RunError::Step(m) => {
-                    RunError::Step(format!("{m}; the snapshots written so far are kept"))
-                }
-                e => e,
-            })
+        let ran = self
+            .sim
+            .run(until, &mut observers, Some(&mut self.checkpoints));
+        // The snapshot being written is whole before the run reports (and one that could not
+        // be written fails it, unless the step failed first).
+        let settled = self.outputs.settle();
+        let stop = ran.map_err(|e| match e {
+            RunError::Step(m) => {
+                RunError::Step(format!("{m}; the snapshots written so far are kept"))
+            }
+            e => e,
+        })?;
+        settled?;
+        Ok(stop)
     }
 
     /// The summary (also written to `DIR/summary.json`) and the final state.
@@ -344,6 +362,7 @@ impl Run {
     /// The summary of the state a run stopped at (`ending` says why it stopped there), written
     /// as [`Run::finish`] writes it (collective over ranks).
     pub fn finish_as(mut self, ending: String) -> Result<(Summary, State), RunError> {
+        self.outputs.settle()?;
         let wall = self.checkpoints.wall_before + self.checkpoints.started.elapsed().as_secs_f64();
         let ball = self.ball.take().map(|b| b.record);
         summary::finish(

@@ -143,6 +143,10 @@ pub struct Summary {
     /// Wall seconds of this session outside the steps: the state brought back at output
     /// times, snapshots with their analysis, other observers, checkpoints.
     pub output_seconds: Vec<(&'static str, f64)>,
+    /// Wall seconds of the snapshot writer over the whole run (each snapshot's files, error
+    /// norms and the ball's core): on a thread of its own beside the steps (the default on
+    /// one process), else within `output_seconds`.
+    pub snapshot_writer_seconds: f64,
     /// Over MPI ranks: what each rank sent and how long it spent in the exchanges, in rank
     /// order, over the whole run (set-up, steps and outputs; docs/scaling.md).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -303,6 +307,7 @@ pub fn finish(
         snapshots: outputs.snapshots,
         stage_seconds: timers.entries().to_vec(),
         output_seconds: output_timers.entries().to_vec(),
+        snapshot_writer_seconds: outputs.writer_seconds,
         rank_traffic,
         ball,
     };
