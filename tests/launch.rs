@@ -162,6 +162,16 @@ fn damped_dispersion_disc_steps_bit_identically_on_1_and_4_threads() {
     case(23);
 }
 
+#[test]
+fn disc_viscosity_disc_steps_bit_identically_on_1_and_4_threads() {
+    case(24);
+}
+
+#[test]
+fn the_3d_disc_in_physical_units_steps_bit_identically_on_1_and_4_threads() {
+    case(25);
+}
+
 /// Byte size of the single parameter of each entry point in the PTX.
 fn entry_param_sizes(ptx: &str) -> Vec<(String, usize)> {
     let mut out = Vec::new();

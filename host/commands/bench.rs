@@ -18,7 +18,9 @@ pub struct BenchResult {
     pub seconds: f64,
     /// Where it ran.
     pub device: String,
-    /// Device memory the engine allocated, per particle (GPU only).
+    /// Device memory per particle: on a GPU what the driver reports the engine took; on the
+    /// CPU the most the engine's buffers held at once over the timed steps (the rayon launcher
+    /// allocates the very buffers a GPU does).
     pub bytes_per_particle: Option<f64>,
     /// The timed steps' stages (wall seconds; on a GPU each ends when its work is done).
     pub stages: Vec<(&'static str, f64)>,
@@ -71,6 +73,7 @@ pub fn bench(
             sim.step(f64::INFINITY).map_err(|e| e.to_string())?;
         }
         let seconds = t0.elapsed().as_secs_f64();
+        let held = sim.local_engine().map(|e| e.device_bytes()).ok();
         let stages = sim
             .stepper
             .timers()
@@ -94,8 +97,9 @@ pub fn bench(
             steps,
             seconds,
             device: sim.stepper.describe(),
-            bytes_per_particle: match (used0, used1) {
-                (Some(a), Some(b)) => Some(b.saturating_sub(a) as f64 / n.max(1) as f64),
+            bytes_per_particle: match (used0, used1, held) {
+                (Some(a), Some(b), _) => Some(b.saturating_sub(a) as f64 / n.max(1) as f64),
+                (_, _, Some(b)) => Some(b as f64 / n.max(1) as f64),
                 _ => None,
             },
             stages,

@@ -489,6 +489,13 @@ pub const CASES: &[(&str, &str, &[&str], u64)] = &[
         &["sph.n=16", "sph.alpha_ss=0.01", "sph.beta=0"],
         5,
     ),
+    (
+        "the 3D disc in physical units: four Epstein grain sizes, variable h in 3D, the leapfrog, \
+         an accretion radius, α_SS, edge damping zones (unbalanced: dustydisc.relax = false)",
+        "configs/dustydisc3d.toml",
+        &["dustydisc.particles=10000", "dustydisc.relax=false"],
+        3,
+    ),
 ];
 
 // ---------------------------------------------------------------------------------------------

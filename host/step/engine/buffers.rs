@@ -29,24 +29,54 @@ pub struct Buf<L: Launcher, T> {
     pub(super) mem: L::Mem,
     pub(super) len: usize,
     pub(super) _t: PhantomData<T>,
+    /// The engine's memory count, which this buffer's bytes leave when it is dropped.
+    held: std::sync::Arc<MemoryUse>,
+    bytes: usize,
+}
+
+impl<L: Launcher, T> Drop for Buf<L, T> {
+    fn drop(&mut self) {
+        self.held.now.fetch_sub(self.bytes, Relaxed);
+    }
+}
+
+/// The device memory an engine's buffers hold now and have held at most, in bytes (the rayon
+/// launcher allocates exactly what a GPU would: the device-memory estimate
+/// [`DEVICE_BYTES_PER_PARTICLE`] is measured with it). A buffer grown is allocated before the
+/// old one is freed: both count at that moment, as on a GPU.
+#[derive(Default)]
+pub(super) struct MemoryUse {
+    now: std::sync::atomic::AtomicUsize,
+    peak: std::sync::atomic::AtomicUsize,
+}
+
+use std::sync::atomic::Ordering::Relaxed;
+
+impl MemoryUse {
+    pub(super) fn peak(&self) -> usize {
+        self.peak.load(Relaxed)
+    }
 }
 
 /// A launcher with typed buffers, copies and launches over it.
 pub(super) struct Device<L: Launcher> {
     pub(super) launcher: L,
-    /// Bytes allocated so far (the rayon launcher allocates exactly what a GPU would: the
-    /// device-memory estimate [`DEVICE_BYTES_PER_PARTICLE`] is measured with it).
-    pub(super) allocated: std::cell::Cell<usize>,
+    pub(super) memory: std::sync::Arc<MemoryUse>,
 }
 
 impl<L: Launcher> Device<L> {
     pub(super) fn buf<T: Copy>(&self, len: usize) -> Result<Buf<L, T>, GpuError> {
         let bytes = len * std::mem::size_of::<T>();
-        self.allocated.set(self.allocated.get() + bytes.max(1));
+        let mem = self.launcher.alloc(bytes)?;
+        let m = &self.memory;
+        let now = m.now.fetch_add(bytes.max(1), Relaxed) + bytes.max(1);
+        m.peak.fetch_max(now, Relaxed);
         Ok(Buf {
-            mem: self.launcher.alloc(bytes)?,
+            mem,
             len,
             _t: PhantomData,
+            held: m.clone(),
+            bytes: bytes.max(1),
         })
     }
     // Host ↔ device copies take plain-old-data only (bytemuck::Pod: no padding, every bit

@@ -42,10 +42,10 @@ use halo::{Ghosts, Refresh};
 
 /// Device memory a run needs per particle (gas or dust), by precision: measured with the rayon
 /// launcher, which allocates the very buffers a GPU does (`tests/launch.rs`,
-/// `device_memory_estimate_bounds_what_the_engine_allocates`: at most 516 B (f64) and 326 B
-/// (f32) per particle over the 23 parity scenes after three steps, the leapfrog with the
-/// kernel coupling the largest), with a margin for the dense tables of sparser clouds. Without
-/// neighbour lists (the GPU kernels have none).
+/// `device_memory_estimate_bounds_what_the_engine_allocates`: the most the buffers hold at
+/// once, at most 407 B (f64) and 248 B (f32) per particle over the parity scenes without the
+/// kernel coupling's pairs after three steps, explicit drag the largest), with a margin for the
+/// dense tables of sparser clouds. Without neighbour lists (the GPU kernels have none).
 pub const DEVICE_BYTES_PER_PARTICLE: [f64; 2] = [700.0, 420.0];
 
 type V3 = [f64; 3];
@@ -210,7 +210,7 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         }
         let d = Device {
             launcher,
-            allocated: std::cell::Cell::new(0),
+            memory: Default::default(),
         };
         let grid = Grid::build(&phys.domain, phys.cell_size, phys.support(), &[])?;
         let base = step_params(&phys, &stages, nf, &grid);
@@ -361,10 +361,10 @@ impl<L: Launcher, R: Float> Engine<L, R> {
         s
     }
 
-    /// Bytes of device memory the engine has allocated (buffers grown and replaced count
-    /// again: an upper bound of what it holds).
+    /// The most device memory the engine's buffers have held at once, in bytes (a buffer
+    /// grown counts with the one it replaces).
     pub fn device_bytes(&self) -> usize {
-        self.d.allocated.get()
+        self.d.memory.peak()
     }
 
     /// The particle farthest from the origin (or with a non-finite position): phase, id and
