@@ -359,32 +359,48 @@ fn small_ball(sets: &[&str]) -> dustsph::scene::LoadedScene {
 /// The snapshots written on the writer thread from a copy of the state, while the run steps
 /// on, are byte for byte those written before stepping on (`--inline-outputs`): the copy is
 /// the state of the output's time, in the output's order, and each file gets its own name and
-/// its place in the series; the error norms and core checks made on the writer are the same.
+/// its place in the series; the error norms, core checks and time-bin censuses made on the
+/// writer are the same. On the ball (a fixed step; its core checks) and the shock tube (CFL
+/// steps: the census at every snapshot after the first).
 #[test]
 fn snapshots_written_beside_the_steps_are_those_written_before_them() {
     let _serial = serial();
-    let loaded = small_ball(&[]);
-    let tmp = tempfile::tempdir().unwrap();
-    let run = |dir: &str, inline: bool| {
-        let mut opts = RunOptions::quiet_on_cpu(tmp.path().join(dir));
-        opts.inline_outputs = inline;
-        dustsph::sim::run::run(&loaded, &opts).unwrap().0
-    };
-    let (beside, before) = (run("beside", false), run("before", true));
-    assert!(beside.snapshots.len() >= 5, "{:?}", beside.snapshots);
-    assert_eq!(beside.snapshots, before.snapshots);
-    fn json(v: &impl serde::Serialize) -> String {
-        serde_json::to_string(v).unwrap()
-    }
-    assert_eq!(json(&beside.errors), json(&before.errors));
-    let core = |s: &dustsph::sim::run::Summary| json(&s.ball.as_ref().unwrap().core);
-    assert_eq!(core(&beside), core(&before));
-    let mut files: Vec<String> = beside.snapshots.clone();
-    files.extend(beside.snapshots.iter().map(|s| s.replace(".h5", ".xmf")));
-    files.push("snapshots.xmf".into());
-    for f in files {
-        let read = |d: &str| std::fs::read(tmp.path().join(d).join(&f)).unwrap();
-        assert!(read("beside") == read("before"), "{f} differs");
+    let shock: Vec<String> = ["sph.n=400", "time.t_end=0.1", "time.output_dt=0.02"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let shock = dustsph::scene::load(&config("dustyshock"), &shock).unwrap();
+    for (loaded, census) in [(small_ball(&[]), false), (shock, true)] {
+        let tmp = tempfile::tempdir().unwrap();
+        let run = |dir: &str, inline: bool| {
+            let mut opts = RunOptions::quiet_on_cpu(tmp.path().join(dir));
+            opts.inline_outputs = inline;
+            dustsph::sim::run::run(&loaded, &opts).unwrap().0
+        };
+        let (beside, before) = (run("beside", false), run("before", true));
+        assert!(beside.snapshots.len() >= 5, "{:?}", beside.snapshots);
+        assert_eq!(beside.snapshots, before.snapshots);
+        fn json(v: &impl serde::Serialize) -> String {
+            serde_json::to_string(v).unwrap()
+        }
+        assert!(!beside.errors.is_empty());
+        assert_eq!(json(&beside.errors), json(&before.errors));
+        let bins = if census {
+            beside.snapshots.len() - 1
+        } else {
+            0
+        };
+        assert_eq!(beside.time_bins.len(), bins);
+        assert_eq!(json(&beside.time_bins), json(&before.time_bins));
+        let core = |s: &dustsph::sim::run::Summary| s.ball.as_ref().map(|b| json(&b.core));
+        assert_eq!(core(&beside), core(&before));
+        let mut files: Vec<String> = beside.snapshots.clone();
+        files.extend(beside.snapshots.iter().map(|s| s.replace(".h5", ".xmf")));
+        files.push("snapshots.xmf".into());
+        for f in files {
+            let read = |d: &str| std::fs::read(tmp.path().join(d).join(&f)).unwrap();
+            assert!(read("beside") == read("before"), "{f} differs");
+        }
     }
 }
 

@@ -96,6 +96,9 @@ struct SnapshotJob {
     phys: crate::step::Physics,
     state: crate::particles::State,
     t_stop: Vec<Vec<f64>>,
+    /// Each gas particle's |A| and signal speed, for the time bins' census (CFL steps after
+    /// the first snapshot).
+    limits: Option<(Vec<[f64; 3]>, Vec<f64>)>,
     /// The XDMF time series with this snapshot, written once the snapshot is.
     series: Vec<(f64, String)>,
 }
@@ -112,6 +115,7 @@ impl SnapshotJob {
             phys,
             state,
             t_stop,
+            limits,
             series,
         } = self;
         let c = &crate::dist::Alone;
@@ -126,10 +130,13 @@ impl SnapshotJob {
         let dir = path.parent().unwrap_or(Path::new("."));
         io::write_xdmf_series(dir, &series).map_err(|e| RunError::Io(e.to_string()))?;
         let (errors, core) = analyses(&loaded, &state, &phys);
+        let time = &loaded.scene.time;
+        let bins = limits.and_then(|(a, v)| analysis::bins::census(&state, &phys, time, (&a, &v)));
         Ok(Written {
             seconds: t0.elapsed().as_secs_f64(),
             errors,
             core,
+            bins,
         })
     }
 }
@@ -139,6 +146,7 @@ struct Written {
     seconds: f64,
     errors: Vec<ExactErrors>,
     core: Option<analysis::ball::CoreCheck>,
+    bins: Option<analysis::bins::BinCensus>,
 }
 
 /// A snapshot's analyses of the whole state: the error norms against the exact solution, the
@@ -181,6 +189,7 @@ impl Outputs {
         self.record.writer_seconds += written.seconds;
         self.record.errors.extend(written.errors);
         self.record.ball_core.extend(written.core);
+        self.record.time_bins.extend(written.bins);
         self.record.snapshots.push(p.name);
         self.record.snapshot_times.push(p.t);
         Ok(())
@@ -316,6 +325,11 @@ impl Outputs {
                 let Simulation { stepper, state, .. } = &mut *sim;
                 let step_err = |e: crate::step::StepError| RunError::Step(e.to_string());
                 let t_stop = stepper.output_fields(state).map_err(step_err)?;
+                // One process: the state is in the engine's order, which the limits follow.
+                let limits = (self.census_due(state))
+                    .then(|| stepper.particle_limits(state))
+                    .transpose()
+                    .map_err(step_err)?;
                 let job = SnapshotJob {
                     path,
                     loaded: self.loaded.clone(),
@@ -323,6 +337,7 @@ impl Outputs {
                     phys: stepper.phys().clone(),
                     state: state.clone(),
                     t_stop,
+                    limits,
                     series: self.series_with(when.0, name),
                 };
                 let job = std::thread::Builder::new()
@@ -334,12 +349,12 @@ impl Outputs {
                     t: when.0,
                     job,
                 });
+                return Ok(());
             }
         }
-        let fixed_dt = self.loaded.scene.time.fixed_dt();
         // Last: it brings the state into the engine's order, which the stopping times the
         // snapshot took over ranks do not follow.
-        if sim.state.step > 0 && fixed_dt.is_none() {
+        if self.census_due(&sim.state) {
             let limits = (sim.stepper.particle_limits(&mut sim.state))
                 .map_err(|e| RunError::Step(e.to_string()))?;
             let time = &self.loaded.scene.time;
@@ -349,6 +364,11 @@ impl Outputs {
                 .extend(analysis::bins::census(&sim.state, &sim.phys, time, lim));
         }
         Ok(())
+    }
+
+    /// Whether this output gets a census of the time bins: CFL steps, after the first.
+    fn census_due(&self, state: &crate::particles::State) -> bool {
+        state.step > 0 && self.loaded.scene.time.fixed_dt().is_none()
     }
 
     fn say_written(&self, (t, step): (f64, u64), name: &str) {

@@ -169,7 +169,10 @@ impl Stepper {
             return Ok(ts.clone());
         }
         let eng = self.engine(state)?;
-        eng.refresh_dust_density(state)?;
+        if state.dust.is_empty() {
+            return Ok(Vec::new());
+        }
+        // It refreshes the dust densities into the state first.
         eng.dust_stopping_times(state)
     }
 
