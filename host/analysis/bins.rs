@@ -14,7 +14,6 @@ use crate::step::Physics;
 use dustsph_device::timestep::bin_of;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
 
 /// Bins counted: steps from dt_min to 2^(MAX_BIN) dt_min.
 pub const MAX_BIN: u32 = 15;
@@ -213,7 +212,7 @@ fn limit_by_neighbours(own: &Own, bins: &mut [u32]) {
     let phase = |a: usize| (a >= own.n_gas) as usize;
     loop {
         // Each cell's lowest bin of each phase (gas, dust).
-        let lowest: HashMap<[i64; 3], [u32; 2]> = (grid.members.iter())
+        let lowest: rustc_hash::FxHashMap<[i64; 3], [u32; 2]> = (grid.members.iter())
             .map(|(k, m)| {
                 let mut l = [u32::MAX; 2];
                 for &a in m {
