@@ -161,6 +161,29 @@ pub struct Engine<L: Launcher, R: Float> {
 /// Phantom's tolerance of the h solve.
 const H_TOL: f64 = 1e-4;
 
+/// The support 2h the gas's densities in `state` give its largest h (h = hfact (m/ρ)^(1/d)),
+/// with a tenth to spare, at most 8× the median h's; 0 where a density is missing or not
+/// positive, or h is fixed.
+fn density_support(state: &State, phys: &Physics) -> f64 {
+    let (Some(hfact), g) = (phys.variable_h, &state.gas.ph) else {
+        return 0.0;
+    };
+    if g.rho.len() != g.m.len() || !g.rho.iter().all(|r| *r > 0.0 && r.is_finite()) {
+        return 0.0;
+    }
+    let dim = phys.dim;
+    let mut h: Vec<f64> = (g.m.iter().zip(&g.rho))
+        .map(|(&m, &r)| dustsph_device::kernel::h_of_density(m, r, hfact, dim, phys.h))
+        .collect();
+    if h.is_empty() {
+        return 0.0;
+    }
+    h.sort_by(f64::total_cmp);
+    // At most 8× the median's: a stray density (a file's) must not make every particle walk
+    // the whole cloud; beyond it the solve's own growth takes over.
+    1.1 * SUPPORT * h[h.len() - 1].min(8.0 * h[h.len() / 2])
+}
+
 /// The dust's h solve when its density is computed only for an output: converged to
 /// round-off (a correction below 1e-8 leaves an error of order 1e-16 after Newton's quadratic
 /// step), so that it does not depend on its warm start, i.e. on when the previous output was
@@ -313,6 +336,17 @@ impl<L: Launcher, R: Float> Engine<L, R> {
     fn first_layer(&mut self, state: &mut State, layer: InitialLayer) -> Result<(), StepError> {
         self.regrid()?;
         let given = layer == InitialLayer::FromState;
+        if self.stages.variable_h && self.sm.gas_h.is_none() {
+            // The first h solve's search radius from the state's densities (a set-up's or a
+            // file's): a disc's thin edges and surface need h several times the reference, which
+            // the solve otherwise reaches by a dozen failed attempts over a growing radius
+            // (method.md §D). Only the reach grows, not the cells: the same keys and order, so
+            // the same h to the bit.
+            let reach = density_support(state, &self.phys);
+            if reach > self.grid.geom.support {
+                self.grid = self.grid.with_support(reach);
+            }
+        }
         if given && !self.stages.variable_h {
             // Summation or continuity density: ρ is the state's; only p and c_s from it.
             self.eos()?;
