@@ -486,4 +486,51 @@ mod tests {
             "both forms of the walk were checked"
         );
     }
+
+    /// A walk within a radius below the grid's support visits exactly the particles of the
+    /// whole walk within that radius, in the same order and with the same dx and r² to the bit
+    /// (the h solve's sums are then those of the whole walk); on open, periodic and too-narrow
+    /// periodic boxes (the whole walk itself there), for radii from a fraction of a search cell
+    /// to the support.
+    #[test]
+    fn a_walk_within_a_radius_is_the_whole_walks_particles_within_it_in_order() {
+        use dustsph_device::grid::{for_neighbours, for_neighbours_within};
+        let cases = [([false; 3], 0.2), ([true; 3], 0.07), ([true; 3], 0.3)]
+            .into_iter()
+            .chain([([true, false, true], 0.11)]);
+        for (periodic, support) in cases {
+            let len = [1.0, 0.7, 0.45];
+            let dom = Domain {
+                dim: 3,
+                periodic: [0, 1, 2].map(|k| periodic[k].then_some((-0.2, len[k]))),
+            };
+            let x: Vec<[f64; 3]> = (0..900)
+                .map(|i| {
+                    let f = i as f64 * 0.618_033_988_7;
+                    [0, 1, 2].map(|k| -0.2 + len[k] * (f * [1.0, 1.37, 2.11][k]).fract())
+                })
+                .collect();
+            // Cells of a quarter of the reference support, the search radius 3× it (variable h).
+            let g = Grid::build(&dom, support / 4.0, support, &[&x]).unwrap();
+            let g = g.with_support(3.0 * support);
+            let (perm, idx) = CellIndex::sort(&g, &x);
+            let xs: Vec<[f64; 3]> = perm.iter().map(|&p| x[p as usize]).collect();
+            for (n, &xi) in xs.iter().enumerate().step_by(7) {
+                let radius = support * [0.1, 0.6, 1.0, 2.2, 3.0, 3.5][n % 6];
+                let mut within = Vec::new();
+                for_neighbours_within(&g.geom, &idx.lookup(), &xs, xi, radius, |j, dx, r2| {
+                    if r2 < radius * radius {
+                        within.push((j, dx.map(f64::to_bits), r2.to_bits()))
+                    }
+                });
+                let mut whole = Vec::new();
+                for_neighbours(&g.geom, &idx.lookup(), &xs, xi, |j, dx, r2| {
+                    if r2 < radius * radius {
+                        whole.push((j, dx.map(f64::to_bits), r2.to_bits()))
+                    }
+                });
+                assert_eq!(within, whole, "periodic {periodic:?}, radius {radius}");
+            }
+        }
+    }
 }

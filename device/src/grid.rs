@@ -174,12 +174,27 @@ impl<R: Real> GridGeom<R> {
     /// same order. `image[k]` is what the minimum image adds to a separation along a periodic
     /// axis k for the points of this row (+L, −L or 0), valid when [`Self::row_images`] holds.
     #[inline(always)]
-    pub fn for_each_neighbour_row(&self, c: [u64; 3], mut f: impl FnMut(u64, u64, Vec3<R>)) {
+    pub fn for_each_neighbour_row(&self, c: [u64; 3], f: impl FnMut(u64, u64, Vec3<R>)) {
+        self.for_each_row_within(c, self.support, self.reach, f)
+    }
+
+    /// [`Self::for_each_neighbour_row`] for a radius `support` with its `reach` in search cells
+    /// per axis (at most the grid's). Where the rows' images hold ([`Self::row_images`]), the
+    /// rows and cells it visits are those of the grid's own walk that reach within `support`,
+    /// in the same order.
+    #[inline(always)]
+    fn for_each_row_within(
+        &self,
+        c: [u64; 3],
+        support: R,
+        reach: [u64; 3],
+        mut f: impl FnMut(u64, u64, Vec3<R>),
+    ) {
         let c = [c[0] / self.sub[0], c[1] / self.sub[1], c[2] / self.sub[2]];
         let (n0, n1, sc) = (self.ns(0), self.ns(1), self.sub_cells());
-        let s2 = self.support * self.support;
-        let (yr, ny) = self.axis_ranges(1, c[1], self.reach[1]);
-        let (zr, nz) = self.axis_ranges(2, c[2], self.reach[2]);
+        let s2 = support * support;
+        let (yr, ny) = self.axis_ranges(1, c[1], reach[1]);
+        let (zr, nz) = self.axis_ranges(2, c[2], reach[2]);
         for &(z0, z1) in &zr[..nz] {
             let oz = self.image(2, c[2], z0, z1);
             for iz in z0..=z1 {
@@ -196,7 +211,7 @@ impl<R: Real> GridGeom<R> {
                         // (r − 1)Δ is inside the sphere, ((r − 1)Δ)² < s² − g² (= ⌈√(s² − g²)/Δ⌉
                         // without a square root or a float → integer conversion).
                         let d2 = s2 - g2;
-                        let mut rx = self.reach[0];
+                        let mut rx = reach[0];
                         while rx > 1 {
                             let g = R::from_f64((rx - 1) as u32 as f64) * self.search[0];
                             if g * g < d2 {
@@ -289,9 +304,54 @@ pub fn for_neighbours<R: Real>(
     look: &CellLookup<'_>,
     x: &[Vec3<R>],
     xi: Vec3<R>,
+    f: impl FnMut(usize, Vec3<R>, R),
+) {
+    for_neighbours_to(g, look, x, xi, (g.support, g.reach), f)
+}
+
+/// [`for_neighbours`] within `radius` of `xi` only, for a gather over the particle's own
+/// support under variable h (the grid reaches the largest support: a disc's supports differ
+/// several-fold, docs/performance.md "Discs"). The particles it visits are those of
+/// [`for_neighbours`] within `radius`, in the same order; where that cannot be kept (a
+/// periodic axis of a few supports, [`GridGeom::row_images`]) or `radius` is not below the
+/// grid's support, it is [`for_neighbours`] itself.
+#[inline(always)]
+pub fn for_neighbours_within<R: Real>(
+    g: &GridGeom<R>,
+    look: &CellLookup<'_>,
+    x: &[Vec3<R>],
+    xi: Vec3<R>,
+    radius: R,
+    f: impl FnMut(usize, Vec3<R>, R),
+) {
+    if !(radius < g.support) || !g.row_images() {
+        return for_neighbours(g, look, x, xi, f);
+    }
+    let mut reach = g.reach;
+    let mut k = 0;
+    while k < g.dim as usize {
+        // ⌈radius / search⌉ (at least 1) without a float → integer conversion of a ratio
+        // that could round past the grid's own reach.
+        let mut r = 1u64;
+        while r < g.reach[k] && R::from_f64(r as u32 as f64) * g.search[k] < radius {
+            r += 1;
+        }
+        reach[k] = r;
+        k += 1;
+    }
+    for_neighbours_to(g, look, x, xi, (radius, reach), f)
+}
+
+#[inline(always)]
+fn for_neighbours_to<R: Real>(
+    g: &GridGeom<R>,
+    look: &CellLookup<'_>,
+    x: &[Vec3<R>],
+    xi: Vec3<R>,
+    (support, reach): (R, [u64; 3]),
     mut f: impl FnMut(usize, Vec3<R>, R),
 ) {
-    let s2 = g.support * g.support;
+    let s2 = support * support;
     // Where the walk reaches less than half of every period, a row's image shift is the
     // minimum image of each of its points: one add per axis instead of two comparisons (the
     // same operations, so the same bits: d + L is what `min_image` computes for d < −L/2,
@@ -303,7 +363,7 @@ pub fn for_neighbours<R: Real>(
     let imaged = false;
     #[cfg(not(target_arch = "nvptx64"))]
     let imaged = g.row_images();
-    g.for_each_neighbour_row(g.coord(xi), |lo, hi, img| {
+    g.for_each_row_within(g.coord(xi), support, reach, |lo, hi, img| {
         let (a, b) = look.particles_in_keys(lo, hi);
         for (o, &xj) in x[a..b].iter().enumerate() {
             let dx = if imaged {

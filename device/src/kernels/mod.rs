@@ -6,7 +6,7 @@
 //! marked in a `fixed` slice; an empty slice means none is fixed.
 use crate::drag::{self, CellMeans, StoppingLaw};
 use crate::eos::Eos;
-use crate::grid::{for_neighbours, CellLookup, GridGeom};
+use crate::grid::{for_neighbours, for_neighbours_within, CellLookup, GridGeom};
 use crate::kernel::KernelAt;
 use crate::sph::{self, GasPair, GasState, Viscosity};
 use crate::{add, axpy, scale, sub, update, Real, Vec3};
@@ -93,6 +93,25 @@ impl<R: Real> Sorted<'_, R> {
             return;
         }
         self.walk(self.x[i], f)
+    }
+
+    /// [`Self::walk_own`] within `radius` of particle i ([`for_neighbours_within`]): a gather
+    /// over its own support. A list, where the particle has one, replays (or records) the whole
+    /// walk, which the later passes of the layer need.
+    #[inline(always)]
+    pub fn walk_own_within(&self, i: usize, radius: f64, mut f: impl FnMut(usize, Vec3<R>, R)) {
+        #[cfg(not(target_arch = "nvptx64"))]
+        if self.walk_list(i, &mut f) {
+            return;
+        }
+        for_neighbours_within(
+            self.geom,
+            &self.look,
+            self.x,
+            self.x[i],
+            radius,
+            |j, dx, r2| f(j, dx.map(R::from_f64), R::from_f64(r2)),
+        );
     }
 
     /// [`Self::walk_own`] through the list: false when particle i has none (no list, or more
@@ -233,7 +252,9 @@ pub fn solve_h_at<R: Real>(
     loop {
         let k = KernelAt::new(h, dim);
         let (mut sum, mut dsum) = (R::ZERO, R::ZERO);
-        s.walk_own(i, |j, _, r2| {
+        // Within 2h (and a thousandth: what lies beyond adds W = ∂W/∂h = 0, so the sums are
+        // those of the whole walk to the bit).
+        s.walk_own_within(i, 2.002 * h.to_f64(), |j, _, r2| {
             let r = r2.sqrt();
             sum += m[j] * k.w(r);
             dsum += m[j] * k.dw_dh(r);
