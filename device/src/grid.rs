@@ -324,7 +324,9 @@ pub fn for_neighbours_within<R: Real>(
     radius: R,
     f: impl FnMut(usize, Vec3<R>, R),
 ) {
-    if !(radius < g.support) || !g.row_images() {
+    // (NaN compares false: the whole walk.)
+    let below = radius < g.support;
+    if !below || !g.row_images() {
         return for_neighbours(g, look, x, xi, f);
     }
     let mut reach = g.reach;
