@@ -1017,3 +1017,49 @@ fn a_discs_neighbour_count_is_within_each_particles_own_support() {
         "{nb} against {expected}"
     );
 }
+
+/// An engine's first h solve starts from the search radius the state's densities give (the
+/// set-up's analytic ρ) and lands on the very h, ρ and Ω that the solve reaches without them
+/// (from the reference support, grown over failed attempts): only the walk's reach differs,
+/// not its cells, order or sums. On the 3D disc in physical units, whose thin edges and surface
+/// need h several times the reference.
+#[test]
+fn the_first_h_solve_from_the_densities_radius_gives_the_same_h_to_the_bit() {
+    use dustsph::step::backend::{Backend, DeviceChoice};
+    let sets: Vec<String> = ["dustydisc.particles=10000", "dustydisc.relax=false"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/dustydisc3d.toml");
+    let loaded = dustsph::scene::load(&path, &sets).unwrap();
+    let su = dustsph::setup::build(&loaded.scene).unwrap();
+    let phys = dustsph::step::Physics::from_scene(&loaded.scene, su.h, su.domain);
+    let solved = |mut st: State| {
+        Backend::new(DeviceChoice::Cpu, phys.clone(), &mut st).unwrap();
+        st
+    };
+    let mut blind = su.state.clone();
+    // No usable densities: the solve starts from the reference support.
+    blind.gas.ph.rho.iter_mut().for_each(|r| *r = f64::NAN);
+    let (a, b) = (solved(su.state.clone()), solved(blind));
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(a.gas.ph.id, b.gas.ph.id);
+    assert_eq!(
+        bits(a.gas.h.as_ref().unwrap()),
+        bits(b.gas.h.as_ref().unwrap())
+    );
+    assert_eq!(bits(&a.gas.ph.rho), bits(&b.gas.ph.rho));
+    assert_eq!(
+        bits(a.gas.omega.as_ref().unwrap()),
+        bits(b.gas.omega.as_ref().unwrap())
+    );
+    // Both solves hold every particle's support: not all within the reference h's.
+    let h_max = a
+        .gas
+        .h
+        .as_ref()
+        .unwrap()
+        .iter()
+        .fold(0.0f64, |m, &h| m.max(h));
+    assert!(h_max > 2.0 * su.h, "h_max {h_max}, reference {}", su.h);
+}
