@@ -219,9 +219,10 @@ impl Outputs {
         let helpers = sim.stepper.output_world();
         let written = match (sim.is_root(), helpers) {
             (true, None) if !self.inline => {
-                let written = self.write_files(sim, &name, None);
+                // Entered in the record once whole ([`Outputs::settle`]).
+                self.write_files(sim, &name, None)?;
                 self.record.next_output += 1;
-                return written;
+                return Ok(());
             }
             (true, None) => self.write_files(sim, &name, Some(&OnCores)),
             (true, Some(w)) => {

@@ -168,12 +168,8 @@ impl Stepper {
         {
             return Ok(ts.clone());
         }
-        let eng = self.engine(state)?;
-        if state.dust.is_empty() {
-            return Ok(Vec::new());
-        }
         // It refreshes the dust densities into the state first.
-        eng.dust_stopping_times(state)
+        self.engine(state)?.dust_stopping_times(state)
     }
 
     /// Each gas particle's |A| and signal speed for the synced state, which is brought into
